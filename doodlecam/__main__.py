@@ -1,0 +1,5 @@
+"""``python -m doodlecam`` is the ``doodlecam`` command."""
+
+from .cli import entry
+
+entry()

@@ -1,0 +1,126 @@
+"""The plugin API: what a tracer, kinematics, post-processor or transport is.
+
+Third-party plugins subclass one of these, declare ``name``, a one-line
+``summary`` and their ``options``, and are registered through an entry point
+(see pyproject.toml) or dropped as a ``.py`` file into a ``--plugin-dir``.
+Keep module-level imports light: heavy libraries belong inside methods, so
+that listing plugins stays fast.
+
+API_VERSION changes only when a change would break an existing plugin.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any, ClassVar
+
+from .errors import PluginError
+
+API_VERSION = 1
+
+_TRUE = {"1", "true", "yes", "on"}
+_FALSE = {"0", "false", "no", "off"}
+
+
+@dataclass(frozen=True)
+class Option:
+    """One plugin option: declared once, settable from the CLI and profiles."""
+
+    name: str
+    type: type
+    default: Any
+    help: str
+
+    def coerce(self, value: Any, plugin: str) -> Any:
+        """``value`` (a CLI string or a TOML value) as this option's type."""
+        try:
+            if self.type is bool:
+                if isinstance(value, bool):
+                    return value
+                text = str(value).strip().lower()
+                if text in _TRUE | _FALSE:
+                    return text in _TRUE
+                raise ValueError
+            if self.type is float and isinstance(value, bool):
+                raise ValueError
+            return self.type(value)
+        except (TypeError, ValueError):
+            raise PluginError(
+                f"{plugin}: option '{self.name}' must be a {self.type.__name__}, got {value!r}"
+            ) from None
+
+
+class Plugin:
+    """Common base. Subclasses set the class attributes below."""
+
+    kind: ClassVar[str] = ""
+    name: ClassVar[str] = ""
+    summary: ClassVar[str] = ""
+    options: ClassVar[tuple[Option, ...]] = ()
+    api_version: ClassVar[int] = API_VERSION
+
+    @classmethod
+    def resolve_options(cls, *layers: dict[str, Any]) -> dict[str, Any]:
+        """Defaults overlaid by each layer in turn (profile, then CLI)."""
+        known = {o.name: o for o in cls.options}
+        out = {o.name: o.default for o in cls.options}
+        for layer in layers:
+            for key, value in layer.items():
+                if key not in known:
+                    names = ", ".join(known) or "none"
+                    raise PluginError(f"{cls.kind} '{cls.name}' has no option '{key}' (options: {names})")
+                out[key] = known[key].coerce(value, f"{cls.kind} '{cls.name}'")
+        return out
+
+
+class Tracer(Plugin):
+    """Turns an input file into a Drawing (polylines in px or mm)."""
+
+    kind = "tracer"
+    extensions: ClassVar[tuple[str, ...]] = ()  # lower-case, with the dot
+
+    def trace(self, path: Path, options: dict[str, Any]):  # -> doodlecam.model.Drawing
+        raise NotImplementedError
+
+
+class Kinematics(Plugin):
+    """Maps pen positions (mm) to actuator coordinates for the planner.
+
+    ``linear_map`` is a (2, 2) matrix M when actuator = M @ xy; the planner then
+    certifies limits between grid points exactly. ``velocity_limits`` and
+    ``acceleration_limits`` are in actuator units per second (squared).
+    """
+
+    kind = "machine"
+
+    def __init__(self, machine, params: dict[str, Any]):
+        self.machine = machine
+        self.params = params
+
+    linear_map = None
+
+    def velocity_limits(self):
+        raise NotImplementedError
+
+    def acceleration_limits(self):
+        raise NotImplementedError
+
+    def check_reachable(self, points) -> None:
+        """Raise a DoodleError naming the first point the machine cannot reach."""
+
+
+class PostProcessor(Plugin):
+    """Writes a planned Job as a file's bytes."""
+
+    kind = "postprocessor"
+    extension: ClassVar[str] = ""  # e.g. ".gcode"
+
+    def write(self, job, options: dict[str, Any]) -> bytes:
+        raise NotImplementedError
+
+
+class Transport(Plugin):
+    """Streams a job to a machine (UDP, serial, ...)."""
+
+    kind = "transport"

@@ -1,0 +1,177 @@
+"""The ``doodlecam`` command line.
+
+Only click is imported at start-up; every command imports the stages it needs,
+so ``doodlecam --help`` answers fast. Errors a user can cause print one line
+and exit non-zero, without a traceback.
+"""
+
+from __future__ import annotations
+
+import json
+import sys
+from pathlib import Path
+
+import click
+
+from . import __version__
+from .errors import DoodleError
+
+PLUGIN_DIR = click.option("--plugin-dir", "plugin_dirs", multiple=True, type=click.Path(file_okay=False),
+                          help="Folder of drop-in plugin .py files (repeatable; also $DOODLECAM_PLUGIN_PATH).")
+
+
+def _pairs(values: tuple[str, ...], what: str) -> dict[str, str]:
+    out = {}
+    for v in values:
+        key, sep, val = v.partition("=")
+        if not sep or not key:
+            raise click.BadParameter(f"'{v}' is not KEY=VALUE", param_hint=what)
+        out[key.strip()] = val
+    return out
+
+
+@click.group(context_settings={"help_option_names": ["-h", "--help"]})
+@click.version_option(__version__, prog_name="doodlecam")
+def cli():
+    """Turn pictures into time-optimal pen-plotter jobs.
+
+    \b
+    trace -> fit B-splines -> order -> plan (time-optimal) -> sample -> post
+    Start with:  doodlecam convert samples/images/camera.png -o out/
+    """
+
+
+@cli.command()
+@click.argument("input", type=click.Path(path_type=Path))
+@click.option("-o", "--out", "outdir", type=click.Path(path_type=Path), default=Path("out"), show_default=True,
+              help="Output folder (created if needed).")
+@click.option("-m", "--machine", default="doodlebot", show_default=True, help="Machine profile: a name or a .toml path.")
+@click.option("--tracer", help="Tracer plugin (default: chosen by file type; 'edges' for pictures).")
+@click.option("--tracer-opt", multiple=True, metavar="KEY=VALUE", help="Tracer option (repeatable).")
+@click.option("--post", "posts", multiple=True, metavar="NAME",
+              help="Post-processor (repeatable). Default: plc, gcode and svg.")
+@click.option("--post-opt", multiple=True, metavar="POST.KEY=VALUE", help="Post option, e.g. gcode.pen_up='M5' (repeatable).")
+@click.option("--solver", help="Planner back-end: lp (HiGHS), lp:clarabel, lp:osqp. Default: the profile's.")
+@click.option("--json", "as_json", is_flag=True, help="Print the summary as JSON.")
+@PLUGIN_DIR
+def convert(input, outdir, machine, tracer, tracer_opt, posts, post_opt, solver, as_json, plugin_dirs):
+    """Convert a picture into a machine job: PLC packet file, G-code and SVG preview."""
+    from .machine import load_machine
+    from .pipeline import Settings, convert as run
+
+    post_opts: dict[str, dict[str, str]] = {}
+    for key, val in _pairs(post_opt, "--post-opt").items():
+        name, dot, opt = key.partition(".")
+        if not dot:
+            raise click.BadParameter(f"'{key}' must be POST.KEY=VALUE, e.g. gcode.pen_up=M5", param_hint="--post-opt")
+        post_opts.setdefault(name, {})[opt] = val
+    settings = Settings(
+        machine=load_machine(machine),
+        tracer=tracer,
+        tracer_options=_pairs(tracer_opt, "--tracer-opt"),
+        posts=tuple(posts) or ("plc", "gcode", "svg"),
+        post_options=post_opts,
+        solver=solver,
+        plugin_dirs=tuple(plugin_dirs),
+    )
+    unused = set(post_opts) - set(settings.posts)
+    if unused:
+        raise click.BadParameter(f"options given for '{sorted(unused)[0]}', which is not among the posts {', '.join(settings.posts)}",
+                                 param_hint="--post-opt")
+    result = run(input, outdir, settings)
+    s = result.summary()
+    if as_json:
+        click.echo(json.dumps(s, indent=2))
+        return
+    click.echo(f"{input} -> {outdir}/  (machine {s['machine']}, solver {result.job.meta['solver']})")
+    click.echo(f"  strokes            {s['strokes']}  ({s['control_points']} control points, fit within {s['max_fit_error_mm']:.3f} mm)")
+    click.echo(f"  pen-down length    {s['pen_down_mm']:.1f} mm")
+    click.echo(f"  travel length      {s['travel_mm']:.1f} mm")
+    click.echo(f"  planned job time   {s['job_time_s']:.1f} s  (drawing {s['draw_time_s']:.1f} s, {s['samples']} velocity samples)")
+    click.echo(f"  limits             acceleration <= {s['worst_acceleration_ratio']:.6f}, velocity <= "
+               f"{s['worst_velocity_ratio']:.6f} of the limit (checked on a 20x finer grid)")
+    click.echo("  wrote              " + ", ".join(s["outputs"]))
+
+
+@cli.command()
+@PLUGIN_DIR
+def plugins(plugin_dirs):
+    """List tracer, machine, post-processor and transport plugins."""
+    from .registry import discover
+
+    infos = discover(plugin_dirs)
+    kinds = {"tracer": "Tracers", "machine": "Machines (kinematics)", "postprocessor": "Post-processors",
+             "transport": "Transports", "?": "Broken drop-ins"}
+    for kind, title in kinds.items():
+        rows = [i for i in infos if i.kind == kind]
+        if not rows:
+            continue
+        click.echo(f"{title}:")
+        for i in rows:
+            summary = i.summary if kind != "?" else f"BROKEN: {i.error}"
+            click.echo(f"  {i.name:<12} {summary}  [{i.origin}]")
+
+
+@cli.command()
+def machines():
+    """List the machine profiles found on the search path."""
+    from .machine import available_machines, load_machine
+
+    for name, path in available_machines().items():
+        try:
+            desc = load_machine(path).description
+        except DoodleError as e:
+            desc = f"INVALID: {e}"
+        click.echo(f"  {name:<12} {desc}  [{path}]")
+
+
+@cli.command()
+@click.argument("file", type=click.Path(path_type=Path))
+@click.option("--csv", "as_csv", is_flag=True, help="Print the commands as CSV.")
+@click.option("--limit", default=20, show_default=True, help="Commands to show (0 = all).")
+def inspect(file, as_csv, limit):
+    """Print a PLC packet file: header and commands."""
+    from .errors import InputError
+    from .plcfile import read_plc, to_csv
+
+    try:
+        data = file.read_bytes()
+    except OSError as e:
+        raise InputError(f"{file}: cannot read ({e.strerror}); check the path") from None
+    header, commands = read_plc(data, name=str(file))
+    if as_csv:
+        click.echo(to_csv(header, commands), nl=False)
+        return
+    for key, val in vars(header).items():
+        click.echo(f"{key:<16} {val}")
+    shown = commands if limit == 0 else commands[:limit]
+    click.echo(f"{'command_no':>10} {'type':>5} {'x':>10} {'y':>10}")
+    for c in shown:
+        click.echo(f"{c.command_no:>10} {('DRAW', 'MOVE')[c.type]:>5} {c.x:>10} {c.y:>10}")
+    if len(shown) < len(commands):
+        click.echo(f"... {len(commands) - len(shown)} more (--limit 0 shows all)")
+
+
+def main(argv=None) -> int:
+    try:
+        cli.main(args=argv, prog_name="doodlecam", standalone_mode=False)
+    except click.exceptions.Exit as e:
+        return e.exit_code
+    except click.ClickException as e:
+        e.show()
+        return e.exit_code
+    except click.exceptions.Abort:
+        click.echo("doodlecam: aborted", err=True)
+        return 130
+    except KeyboardInterrupt:
+        click.echo("doodlecam: interrupted; no output was written", err=True)
+        return 130
+    except DoodleError as e:
+        click.echo(f"doodlecam: error: {e}", err=True)
+        return e.exit_code
+    return 0
+
+
+def entry() -> None:
+    """Console-script entry point."""
+    sys.exit(main())

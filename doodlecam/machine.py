@@ -1,0 +1,248 @@
+"""Machine profiles: TOML files that describe a plotter.
+
+A profile is validated completely when it is loaded, so later stages can rely
+on every limit being present, numeric and positive. Errors name the file and
+the key and say how to fix it.
+"""
+
+from __future__ import annotations
+
+import difflib
+import os
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+from .errors import MachineError
+
+try:  # Python 3.11+
+    import tomllib
+except ModuleNotFoundError:  # pragma: no cover - Python 3.10
+    import tomli as tomllib
+
+
+@dataclass(frozen=True)
+class Axis:
+    name: str
+    steps_per_mm: float
+    max_velocity: float  # mm/s
+    max_acceleration: float  # mm/s^2
+
+
+@dataclass(frozen=True)
+class Pen:
+    width: float = 0.5  # mm; strokes shorter than this are dropped
+    up_delay: float = 0.1  # s to lift and settle
+    down_delay: float = 0.1  # s to lower and settle
+    max_speed: float | None = None  # mm/s pen-speed cap while drawing
+
+
+@dataclass(frozen=True)
+class Machine:
+    name: str
+    width: float  # mm, work area x in [0, width]
+    height: float  # mm, work area y in [0, height]
+    axes: tuple[Axis, Axis]
+    margin: float = 10.0
+    home: tuple[float, float] = (0.0, 0.0)
+    pen: Pen = Pen()
+    travel_speed: float | None = None  # mm/s per axis for pen-up moves
+    delta_time: float = 0.04  # s, velocity sample period
+    degree: int = 3
+    tolerance: float = 0.1  # mm, spline fit tolerance
+    kinematics: str = "cartesian"
+    kinematics_params: dict[str, Any] = field(default_factory=dict)
+    solver: str = "lp"
+    description: str = ""
+    source: str = ""
+    plugin_options: dict[str, dict[str, Any]] = field(default_factory=dict)  # "post.gcode" -> {...}
+
+    @property
+    def x(self) -> Axis:
+        return self.axes[0]
+
+    @property
+    def y(self) -> Axis:
+        return self.axes[1]
+
+    @property
+    def move_speed(self) -> tuple[float, float]:
+        """Per-axis speed (mm/s) for pen-up moves."""
+        if self.travel_speed is None:
+            return (self.x.max_velocity, self.y.max_velocity)
+        return (min(self.travel_speed, self.x.max_velocity), min(self.travel_speed, self.y.max_velocity))
+
+
+# ---------------------------------------------------------------- loading
+
+_SCHEMA: dict[str, dict[str, tuple[type, bool]]] = {
+    # table -> key -> (type, required). Numbers accept int or float.
+    "machine": {"name": (str, True), "description": (str, False), "kinematics": (str, False), "solver": (str, False)},
+    "work_area": {"width": (float, True), "height": (float, True), "margin": (float, False), "home": (list, False)},
+    "axes.x": {"steps_per_mm": (float, True), "max_velocity": (float, True), "max_acceleration": (float, True)},
+    "axes.y": {"steps_per_mm": (float, True), "max_velocity": (float, True), "max_acceleration": (float, True)},
+    "pen": {"width": (float, False), "up_delay": (float, False), "down_delay": (float, False), "max_speed": (float, False)},
+    "travel": {"speed": (float, False)},
+    "sampling": {"delta_time": (float, False)},
+    "fit": {"degree": (int, False), "tolerance": (float, False)},
+}
+_FREE_TABLES = ("kinematics", "trace", "post", "transport")  # plugin-defined contents
+_NON_NEGATIVE = {"work_area.margin", "pen.up_delay", "pen.down_delay"}
+
+
+def _machine_dirs() -> list[Path]:
+    dirs = [Path(p) for p in os.environ.get("DOODLECAM_MACHINES", "").split(os.pathsep) if p]
+    dirs += [Path.cwd() / "machines", Path.cwd() / "samples" / "machines"]
+    dirs.append(Path(__file__).resolve().parent.parent / "samples" / "machines")  # source checkout
+    return dirs
+
+
+def available_machines() -> dict[str, Path]:
+    """Profile name (file stem) -> path, for every profile on the search path."""
+    found: dict[str, Path] = {}
+    for d in _machine_dirs():
+        if d.is_dir():
+            for p in sorted(d.glob("*.toml")):
+                found.setdefault(p.stem, p)
+    return found
+
+
+def resolve_machine(spec: str) -> Path:
+    """A profile path from a path or a name on the search path."""
+    p = Path(spec)
+    if p.suffix == ".toml" or os.sep in spec or "/" in spec:
+        if not p.is_file():
+            raise MachineError(f"{spec}: no such machine profile; give the path of a .toml file or a name from 'doodlecam machines'")
+        return p
+    known = available_machines()
+    if spec in known:
+        return known[spec]
+    hint = difflib.get_close_matches(spec, known, n=1)
+    did = f" (did you mean '{hint[0]}'?)" if hint else ""
+    raise MachineError(f"unknown machine '{spec}'{did}; known: {', '.join(sorted(known)) or 'none'}; or give a .toml path")
+
+
+def _check(path: str, table: str, key: str, value: Any, typ: type) -> Any:
+    where = f"{path}: [{table}] {key}"
+    if typ is float:
+        if isinstance(value, bool) or not isinstance(value, (int, float)):
+            raise MachineError(f"{where} must be a number, got {value!r}; fix the profile")
+        value = float(value)
+        if value != value or value in (float("inf"), float("-inf")):
+            raise MachineError(f"{where} must be finite, got {value!r}; fix the profile")
+        if f"{table}.{key}" in _NON_NEGATIVE:
+            if value < 0:
+                raise MachineError(f"{where} must be >= 0, got {value:g}; fix the profile")
+        elif value <= 0:
+            raise MachineError(f"{where} must be positive, got {value:g}; fix the profile")
+    elif typ is int:
+        if isinstance(value, bool) or not isinstance(value, int) or value < 1:
+            raise MachineError(f"{where} must be a positive whole number, got {value!r}; fix the profile")
+    elif not isinstance(value, typ):
+        raise MachineError(f"{where} must be a {typ.__name__}, got {value!r}; fix the profile")
+    return value
+
+
+def _table(data: dict, dotted: str) -> Any:
+    node: Any = data
+    for part in dotted.split("."):
+        if not isinstance(node, dict):
+            return None
+        node = node.get(part)
+    return node
+
+
+def parse_machine(data: dict[str, Any], path: str = "<profile>") -> Machine:
+    """Validate a profile's parsed TOML and build a Machine."""
+    allowed_top = {t.split(".")[0] for t in _SCHEMA} | set(_FREE_TABLES)
+    for key in data:
+        if key not in allowed_top:
+            hint = difflib.get_close_matches(key, allowed_top, n=1)
+            did = f" (did you mean [{hint[0]}]?)" if hint else ""
+            raise MachineError(f"{path}: unknown table [{key}]{did}; remove or rename it")
+    axes = data.get("axes", {})
+    if isinstance(axes, dict):
+        for key in axes:
+            if key not in ("x", "y"):
+                raise MachineError(f"{path}: unknown axis [axes.{key}]; a plotter profile has [axes.x] and [axes.y]")
+    vals: dict[str, dict[str, Any]] = {}
+    for table, keys in _SCHEMA.items():
+        t = _table(data, table)
+        if t is None:
+            t = {}
+            if any(req for _, req in keys.values()):
+                raise MachineError(f"{path}: missing table [{table}]; add it with keys {', '.join(k for k, (_, r) in keys.items() if r)}")
+        if not isinstance(t, dict):
+            raise MachineError(f"{path}: [{table}] must be a table; fix the profile")
+        for key in t:
+            if key not in keys:
+                hint = difflib.get_close_matches(key, keys, n=1)
+                did = f" (did you mean '{hint[0]}'?)" if hint else ""
+                raise MachineError(f"{path}: unknown key '{key}' in [{table}]{did}; fix the profile")
+        vals[table] = {}
+        for key, (typ, required) in keys.items():
+            if key not in t:
+                if required:
+                    raise MachineError(f"{path}: missing key '{key}' in [{table}]; add it (see samples/machines/doodlebot.toml)")
+                continue
+            vals[table][key] = _check(path, table, key, t[key], typ)
+
+    wa = vals["work_area"]
+    home = wa.get("home", [0.0, 0.0])
+    if len(home) != 2 or not all(isinstance(v, (int, float)) and not isinstance(v, bool) for v in home):
+        raise MachineError(f"{path}: [work_area] home must be two numbers [x, y] in mm; fix the profile")
+    margin = wa.get("margin", 10.0)
+    if 2 * margin >= min(wa["width"], wa["height"]):
+        raise MachineError(f"{path}: [work_area] margin {margin:g} mm leaves no room to draw; make it smaller than half the work area")
+    axes_t = tuple(Axis(n, **vals[f"axes.{n}"]) for n in ("x", "y"))
+    pen_v = vals["pen"]
+    pen = Pen(
+        width=pen_v.get("width", 0.5),
+        up_delay=pen_v.get("up_delay", 0.1),
+        down_delay=pen_v.get("down_delay", 0.1),
+        max_speed=pen_v.get("max_speed"),
+    )
+    fit = vals["fit"]
+    degree = fit.get("degree", 3)
+    if degree > 5:
+        raise MachineError(f"{path}: [fit] degree {degree} is too high; use 2 to 5 (3 is the report's URBS)")
+    if degree < 2:
+        raise MachineError(f"{path}: [fit] degree {degree} gives no continuous velocity; use 2 to 5 (3 is the report's URBS)")
+    plugin_options: dict[str, dict[str, Any]] = {}
+    for group in ("trace", "post", "transport"):
+        for name, opts in (data.get(group) or {}).items():
+            if not isinstance(opts, dict):
+                raise MachineError(f"{path}: [{group}.{name}] must be a table of options; fix the profile")
+            plugin_options[f"{group}.{name}"] = dict(opts)
+    m = vals["machine"]
+    return Machine(
+        name=m["name"],
+        description=m.get("description", ""),
+        kinematics=m.get("kinematics", "cartesian"),
+        kinematics_params=dict(data.get("kinematics") or {}),
+        solver=m.get("solver", "lp"),
+        width=wa["width"],
+        height=wa["height"],
+        margin=margin,
+        home=(float(home[0]), float(home[1])),
+        axes=axes_t,  # type: ignore[arg-type]
+        pen=pen,
+        travel_speed=vals["travel"].get("speed"),
+        delta_time=vals["sampling"].get("delta_time", 0.04),
+        degree=degree,
+        tolerance=fit.get("tolerance", 0.1),
+        source=path,
+        plugin_options=plugin_options,
+    )
+
+
+def load_machine(spec: str | os.PathLike) -> Machine:
+    """Load and validate a profile given by path or by name."""
+    path = resolve_machine(str(spec))
+    try:
+        data = tomllib.loads(path.read_text(encoding="utf-8"))
+    except (OSError, UnicodeDecodeError) as e:
+        raise MachineError(f"{path}: cannot read machine profile ({e}); check the file") from None
+    except tomllib.TOMLDecodeError as e:
+        raise MachineError(f"{path}: not valid TOML ({e}); fix the syntax") from None
+    return parse_machine(data, str(path))

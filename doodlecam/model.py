@@ -1,0 +1,259 @@
+"""Plain data passed between the stages. Units: millimetres and seconds.
+
+Every stage takes one of these and returns the next; nothing reaches back.
+Arrays are float64 NumPy arrays and are not mutated after construction.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from functools import cached_property
+from typing import Any
+
+import numpy as np
+
+
+def _frozen(a, shape_tail=None) -> np.ndarray:
+    arr = np.array(a, dtype=float)  # a private copy
+    if shape_tail is not None and (arr.ndim != 1 + len(shape_tail) or arr.shape[1:] != shape_tail):
+        raise ValueError(f"expected shape (n, {', '.join(map(str, shape_tail))}), got {arr.shape}")
+    arr.setflags(write=False)
+    return arr
+
+
+def polyline_length(p: np.ndarray) -> float:
+    """Length of an (n, 2) polyline."""
+    if len(p) < 2:
+        return 0.0
+    return float(np.hypot(*np.diff(p, axis=0).T).sum())
+
+
+@dataclass(frozen=True)
+class Drawing:
+    """Pen-down polylines, each an (n, 2) array, in ``units`` ("px" or "mm").
+
+    Image tracers return pixel coordinates with ``y_down=True`` (row axis
+    points down); the layout stage turns any drawing into machine millimetres
+    with y up.
+    """
+
+    polylines: tuple[np.ndarray, ...]
+    units: str = "mm"
+    y_down: bool = False
+    source: str = ""
+    extent: tuple[float, float] | None = None  # source canvas (width, height) in units
+    meta: dict[str, Any] = field(default_factory=dict)
+
+    def __post_init__(self):
+        object.__setattr__(self, "polylines", tuple(_frozen(p, (2,)) for p in self.polylines))
+
+    @property
+    def bounds(self) -> tuple[float, float, float, float]:
+        """(xmin, ymin, xmax, ymax) of all points; zeros when empty."""
+        if not self.polylines:
+            return (0.0, 0.0, 0.0, 0.0)
+        pts = np.concatenate(self.polylines)
+        return (*pts.min(axis=0), *pts.max(axis=0))
+
+    @property
+    def length(self) -> float:
+        return sum(polyline_length(p) for p in self.polylines)
+
+
+@dataclass(frozen=True)
+class Spline:
+    """A clamped uniform B-spline q(u), u in [0, 1], in millimetres.
+
+    The knot vector is implied (the report's URBS): ``degree + 1`` knots at 0
+    and at 1, and the interior knots evenly spaced, so the control points
+    alone define the curve.
+    """
+
+    degree: int
+    control: np.ndarray  # (n, 2), n >= degree + 1
+
+    def __post_init__(self):
+        object.__setattr__(self, "control", _frozen(self.control, (2,)))
+        if len(self.control) < self.degree + 1:
+            raise ValueError("a B-spline needs at least degree + 1 control points")
+
+    @staticmethod
+    def uniform_knots(n_control: int, degree: int) -> np.ndarray:
+        inner = np.linspace(0.0, 1.0, n_control - degree + 1)
+        return np.concatenate([np.zeros(degree), inner, np.ones(degree)])
+
+    @cached_property
+    def knots(self) -> np.ndarray:
+        return self.uniform_knots(len(self.control), self.degree)
+
+    @cached_property
+    def breakpoints(self) -> np.ndarray:
+        """Distinct knots: the curve is one polynomial between neighbours."""
+        return np.unique(self.knots)
+
+    @cached_property
+    def _bsplines(self):
+        from scipy.interpolate import BSpline
+
+        b0 = BSpline(self.knots, self.control, self.degree, extrapolate=False)
+        derivs = [b0]
+        for _ in range(self.degree):
+            derivs.append(derivs[-1].derivative())
+        return derivs
+
+    def __call__(self, u, der: int = 0) -> np.ndarray:
+        """q^(der)(u) for u in [0, 1]; shape (len(u), 2). Units mm / u^der."""
+        u = np.clip(np.asarray(u, dtype=float), 0.0, 1.0)
+        if der > self.degree:
+            return np.zeros(u.shape + (2,))
+        return self._bsplines[der](u)
+
+    @cached_property
+    def length(self) -> float:
+        """Arc length in mm (Gauss-Legendre per knot span; exact to ~1e-9 rel)."""
+        x, w = np.polynomial.legendre.leggauss(8)
+        bp = self.breakpoints
+        lo, hi = bp[:-1, None], bp[1:, None]
+        u = (lo + hi) / 2 + (hi - lo) / 2 * x
+        speed = np.linalg.norm(self(u.ravel(), 1), axis=1).reshape(u.shape)
+        return float(((hi - lo) / 2 * speed * w).sum())
+
+    @property
+    def start(self) -> np.ndarray:
+        return self.control[0]
+
+    @property
+    def end(self) -> np.ndarray:
+        return self.control[-1]
+
+    def reversed(self) -> "Spline":
+        return Spline(self.degree, self.control[::-1])
+
+
+@dataclass(frozen=True)
+class Profile:
+    """A feed profile along one spline on the grid u_0 < ... < u_N.
+
+    ``b[k]`` is u-dot squared at u_k (1/s^2), ``a[k]`` is the constant u-ddot on
+    [u_k, u_k+1] (1/s^2), ``t[k]`` the time (s) at which u_k is reached. Between
+    grid points b is linear in u, so u(t) is a quadratic on each interval.
+    """
+
+    u: np.ndarray
+    b: np.ndarray
+    a: np.ndarray
+    t: np.ndarray
+    solver: str = ""
+
+    def __post_init__(self):
+        for name in ("u", "b", "a", "t"):
+            object.__setattr__(self, name, _frozen(getattr(self, name)))
+
+    @property
+    def duration(self) -> float:
+        return float(self.t[-1])
+
+    def state_at(self, t) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """(u, u-dot, u-ddot) at times ``t`` (s), exact for this profile."""
+        t = np.clip(np.asarray(t, dtype=float), 0.0, self.duration)
+        k = np.clip(np.searchsorted(self.t, t, side="right") - 1, 0, len(self.a) - 1)
+        tau = t - self.t[k]
+        v0 = np.sqrt(np.maximum(self.b[k], 0.0))
+        a = self.a[k]
+        ud = np.maximum(v0 + a * tau, 0.0)
+        u = np.minimum(self.u[k] + v0 * tau + 0.5 * a * tau * tau, self.u[k + 1])
+        return u, ud, np.broadcast_to(a, u.shape).copy()
+
+
+@dataclass(frozen=True)
+class Stroke:
+    """One spline drawn pen-down in one motion, from rest to rest."""
+
+    spline: Spline
+    profile: Profile | None = None
+    source_index: int = -1  # index of the polyline it was fitted to
+    fit_error: float = 0.0  # largest deviation from that polyline, mm
+
+    @property
+    def duration(self) -> float:
+        return self.profile.duration if self.profile is not None else 0.0
+
+
+@dataclass(frozen=True)
+class Travel:
+    """A pen-up move between two points (mm), rest to rest."""
+
+    start: np.ndarray
+    end: np.ndarray
+    duration: float = 0.0
+
+    def __post_init__(self):
+        object.__setattr__(self, "start", _frozen(self.start))
+        object.__setattr__(self, "end", _frozen(self.end))
+
+    @property
+    def length(self) -> float:
+        return float(np.hypot(*(self.end - self.start)))
+
+
+@dataclass(frozen=True)
+class StrokeSamples:
+    """Velocity targets (mm/s) at t = dT, 2 dT, ..., M dT after the stroke starts.
+
+    The machine ramps its velocity linearly from one target to the next over
+    each period dT (the report's PLC, section 2.1.0.5), starting from rest at
+    ``start``. The last target is zero: every stroke ends at rest.
+    """
+
+    start: np.ndarray
+    velocity: np.ndarray  # (M, 2)
+    delta_time: float
+    time_scale: float = 1.0  # plan time per executed time (< 1 when slowed to whole periods)
+
+    def __post_init__(self):
+        object.__setattr__(self, "start", _frozen(self.start))
+        object.__setattr__(self, "velocity", _frozen(self.velocity, (2,)))
+
+    def integrate(self) -> np.ndarray:
+        """Positions (M + 1, 2) the ramping machine reaches at t = 0, dT, ..."""
+        v = np.vstack([np.zeros((1, 2)), self.velocity])
+        steps = 0.5 * self.delta_time * (v[1:] + v[:-1])
+        return self.start + np.vstack([np.zeros((1, 2)), np.cumsum(steps, axis=0)])
+
+
+@dataclass(frozen=True)
+class Job:
+    """The planned job: ordered strokes, the travels around them, samples.
+
+    ``travels[i]`` leads to ``strokes[i]``; the last travel returns home, so
+    ``len(travels) == len(strokes) + 1``. Times in seconds, lengths in mm.
+    """
+
+    machine: Any  # doodlecam.machine.Machine
+    strokes: tuple[Stroke, ...]
+    travels: tuple[Travel, ...]
+    samples: tuple[StrokeSamples, ...] = ()
+    source: str = ""
+    meta: dict[str, Any] = field(default_factory=dict)
+
+    @property
+    def pen_down_length(self) -> float:
+        return sum(s.spline.length for s in self.strokes)
+
+    @property
+    def travel_length(self) -> float:
+        return sum(t.length for t in self.travels)
+
+    @property
+    def draw_time(self) -> float:
+        """Pen-down time as executed: whole sample periods once sampled."""
+        if self.samples:
+            return sum(len(s.velocity) * s.delta_time for s in self.samples)
+        return sum(s.duration for s in self.strokes)
+
+    @property
+    def duration(self) -> float:
+        """Planned job time: strokes, travels and pen up/down delays."""
+        m = self.machine
+        pen = len(self.strokes) * (m.pen.down_delay + m.pen.up_delay)
+        return self.draw_time + sum(t.duration for t in self.travels) + pen

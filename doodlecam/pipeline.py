@@ -1,0 +1,231 @@
+"""The stages wired together: file -> Drawing -> Job -> output files.
+
+Each function takes the previous stage's value and returns the next; the CLI
+and the batch runner call ``convert``. Outputs are written only after every
+stage and every post succeeded, each to a temporary file renamed into place,
+so a failure never leaves a half-written job behind.
+"""
+
+from __future__ import annotations
+
+import os
+import tempfile
+import time
+from dataclasses import dataclass, field, replace
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from . import registry
+from .errors import DoodleError, InputError, OutputError, PlanError, PluginError
+from .machine import Machine
+from .model import Drawing, Job, Stroke
+
+SOLVERS = ("lp", "lp:highs", "lp:clarabel", "lp:osqp")
+
+
+@dataclass
+class Settings:
+    machine: Machine
+    tracer: str | None = None
+    tracer_options: dict[str, Any] = field(default_factory=dict)
+    posts: tuple[str, ...] = ("plc", "gcode", "svg")
+    post_options: dict[str, dict[str, Any]] = field(default_factory=dict)
+    solver: str | None = None
+    plugin_dirs: tuple[str, ...] = ()
+
+
+def _guarded(what: str, fn, *args):
+    """Call plugin code: its own DoodleErrors pass, anything else names the plugin."""
+    try:
+        return fn(*args)
+    except DoodleError:
+        raise
+    except Exception as e:
+        raise PluginError(f"{what} failed: {type(e).__name__}: {e}") from e
+
+
+def pick_tracer(path: Path, settings: Settings) -> type:
+    """The tracer named in settings, else the first one that reads this file type."""
+    if settings.tracer:
+        return registry.get("tracer", settings.tracer, settings.plugin_dirs)
+    ext = path.suffix.lower()
+    candidates = [i for i in registry.discover(settings.plugin_dirs) if i.kind == "tracer"]
+    candidates.sort(key=lambda i: i.name != "edges")  # the report's tracer first for pictures
+    for info in candidates:
+        try:
+            cls = info.load()
+        except PluginError:
+            continue
+        if ext in cls.extensions:
+            return cls
+    raise InputError(f"{path}: no tracer reads '{ext or 'files without extension'}' files; give a picture (PNG, JPEG, ...) or pick one with --tracer")
+
+
+def trace(path: Path, settings: Settings) -> Drawing:
+    if not path.exists():
+        raise InputError(f"{path}: no such file; check the path")
+    if path.is_dir():
+        raise InputError(f"{path}: is a folder; give one file (folders are for 'doodlecam batch')")
+    cls = pick_tracer(path, settings)
+    opts = cls.resolve_options(settings.machine.plugin_options.get(f"trace.{cls.name}", {}), settings.tracer_options)
+    drawing = _guarded(f"tracer '{cls.name}' on {path}", cls().trace, path, opts)
+    if not isinstance(drawing, Drawing):
+        raise PluginError(f"tracer '{cls.name}' returned {type(drawing).__name__}, not a Drawing; fix the plugin")
+    return drawing
+
+
+def kinematics_for(machine: Machine, plugin_dirs=()):
+    cls = registry.get("machine", machine.kinematics, plugin_dirs)
+    return cls(machine, machine.kinematics_params)
+
+
+def solver_backend(spec: str) -> str:
+    if spec not in SOLVERS:
+        raise PlanError(f"unknown solver '{spec}'; choose one of {', '.join(SOLVERS)}")
+    return "highs" if spec == "lp" else spec.split(":", 1)[1]
+
+
+def plan_job(drawing: Drawing, machine: Machine, solver: str = "lp", plugin_dirs=()) -> Job:
+    """Order, fit, plan and sample a drawing already in machine millimetres."""
+    from .fit import fit_polyline
+    from .order import order_polylines
+    from .plan import Limits, check_profile, plan_stroke
+    from .sample import sample_stroke
+    from .travel import make_travel
+
+    backend = solver_backend(solver)
+    kin = kinematics_for(machine, plugin_dirs)
+    kin.check_reachable(np.concatenate(drawing.polylines))
+    limits = Limits.from_machine(machine, kin)
+    timings: dict[str, float] = {}
+
+    t0 = time.perf_counter()
+    order, flips = order_polylines(drawing.polylines, machine.home)
+    timings["order"] = time.perf_counter() - t0
+
+    t0 = time.perf_counter()
+    strokes = []
+    for i, flip in zip(order, flips):
+        p = drawing.polylines[i][::-1] if flip else drawing.polylines[i]
+        spline, err = fit_polyline(p, machine.degree, machine.tolerance)
+        strokes.append(Stroke(spline=spline, source_index=i, fit_error=err))
+    timings["fit"] = time.perf_counter() - t0
+
+    t0 = time.perf_counter()
+    worst_acc = worst_vel = 0.0
+    planned = []
+    for n, s in enumerate(strokes, 1):
+        try:
+            prof = plan_stroke(s.spline, limits, solver=backend)
+        except PlanError as e:
+            raise PlanError(f"stroke {n} of {len(strokes)}: {e}") from None
+        acc, vel = check_profile(s.spline, prof, limits)
+        worst_acc, worst_vel = max(worst_acc, acc), max(worst_vel, vel)
+        planned.append(replace(s, profile=prof))
+    timings["plan"] = time.perf_counter() - t0
+
+    t0 = time.perf_counter()
+    samples = tuple(sample_stroke(s, machine.delta_time, limits) for s in planned)
+    timings["sample"] = time.perf_counter() - t0
+
+    points = [np.asarray(machine.home, float)]
+    for s in planned:
+        points += [s.spline.start, s.spline.end]
+    points.append(np.asarray(machine.home, float))
+    travels = tuple(make_travel(points[2 * i], points[2 * i + 1], machine) for i in range(len(planned) + 1))
+    meta = {
+        "solver": solver,
+        "worst_acceleration_ratio": worst_acc,
+        "worst_velocity_ratio": worst_vel,
+        "max_fit_error_mm": max((s.fit_error for s in planned), default=0.0),
+        "control_points": sum(len(s.spline.control) for s in planned),
+        "timings": timings,
+    }
+    return Job(machine=machine, strokes=tuple(planned), travels=travels, samples=samples,
+               source=drawing.source, meta=meta)
+
+
+def run_posts(job: Job, settings: Settings) -> list[tuple[str, str, bytes]]:
+    """[(post name, file extension, bytes)] for every requested post."""
+    out = []
+    for name in settings.posts:
+        cls = registry.get("postprocessor", name, settings.plugin_dirs)
+        opts = cls.resolve_options(job.machine.plugin_options.get(f"post.{name}", {}), settings.post_options.get(name, {}))
+        data = _guarded(f"post-processor '{name}'", cls().write, job, opts)
+        if not isinstance(data, (bytes, bytearray)):
+            raise PluginError(f"post-processor '{name}' returned {type(data).__name__}, not bytes; fix the plugin")
+        out.append((name, cls.extension, bytes(data)))
+    return out
+
+
+def write_outputs(outdir: Path, stem: str, outputs: list[tuple[str, str, bytes]]) -> list[Path]:
+    """Write all outputs atomically: temp files first, renamed only when all are written."""
+    try:
+        outdir.mkdir(parents=True, exist_ok=True)
+    except OSError as e:
+        raise OutputError(f"{outdir}: cannot create output folder ({e.strerror}); choose another -o") from None
+    names = [outdir / f"{stem}{ext}" for _, ext, _ in outputs]
+    dupes = {n for n in names if names.count(n) > 1}
+    if dupes:
+        raise OutputError(f"two posts write {sorted(dupes)[0]}; request each post once")
+    temps: list[str] = []
+    try:
+        for (_, _, data), final in zip(outputs, names):
+            fd, tmp = tempfile.mkstemp(prefix=f".{final.name}.", suffix=".tmp", dir=outdir)
+            temps.append(tmp)
+            with os.fdopen(fd, "wb") as f:
+                f.write(data)
+        for tmp, final in zip(temps, names):
+            os.replace(tmp, final)
+    except OSError as e:
+        for tmp in temps:
+            Path(tmp).unlink(missing_ok=True)
+        raise OutputError(f"{outdir}: cannot write output ({e.strerror}); check space and permissions") from None
+    return names
+
+
+@dataclass
+class Result:
+    job: Job
+    outputs: list[Path]
+    timings: dict[str, float]
+
+    def summary(self) -> dict[str, Any]:
+        j = self.job
+        return {
+            "source": j.source,
+            "machine": j.machine.name,
+            "strokes": len(j.strokes),
+            "pen_down_mm": round(j.pen_down_length, 3),
+            "travel_mm": round(j.travel_length, 3),
+            "job_time_s": round(j.duration, 3),
+            "draw_time_s": round(j.draw_time, 3),
+            "optimal_draw_time_s": round(sum(s.duration for s in j.strokes), 3),
+            "samples": sum(len(s.velocity) for s in j.samples),
+            "control_points": j.meta["control_points"],
+            "max_fit_error_mm": round(j.meta["max_fit_error_mm"], 4),
+            "worst_acceleration_ratio": round(j.meta["worst_acceleration_ratio"], 9),
+            "worst_velocity_ratio": round(j.meta["worst_velocity_ratio"], 9),
+            "outputs": [str(p) for p in self.outputs],
+            "timings_s": {k: round(v, 3) for k, v in self.timings.items()},
+        }
+
+
+def convert(path: str | Path, outdir: str | Path, settings: Settings) -> Result:
+    from .layout import fit_to_work_area
+
+    path = Path(path)
+    timings = {}
+    t0 = time.perf_counter()
+    drawing = trace(path, settings)
+    timings["trace"] = time.perf_counter() - t0
+    drawing_mm = fit_to_work_area(drawing, settings.machine)
+    job = plan_job(drawing_mm, settings.machine, settings.solver or settings.machine.solver, settings.plugin_dirs)
+    timings.update(job.meta["timings"])
+    t0 = time.perf_counter()
+    outputs = run_posts(job, settings)
+    timings["post"] = time.perf_counter() - t0
+    written = write_outputs(Path(outdir), path.stem, outputs)
+    return Result(job=job, outputs=written, timings=timings)

@@ -1,0 +1,140 @@
+"""Finds plugins: entry points and drop-in folders, the same way for all.
+
+Built-in plugins are registered through the same entry-point groups a third
+party uses. A plugin that fails to import is reported by name; it never
+breaks the CLI or the other plugins.
+"""
+
+from __future__ import annotations
+
+import importlib.util
+import inspect
+import os
+import sys
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Callable, Iterable
+
+from .errors import PluginError
+
+GROUPS = {
+    "tracer": "doodlecam.tracers",
+    "machine": "doodlecam.machines",
+    "postprocessor": "doodlecam.postprocessors",
+    "transport": "doodlecam.transports",
+}
+PLUGIN_PATH_ENV = "DOODLECAM_PLUGIN_PATH"
+
+
+@dataclass
+class PluginInfo:
+    kind: str
+    name: str
+    origin: str  # "entry point (dist x.y)" or a file path
+    _load: Callable[[], type]
+    _cls: type | None = None
+    error: str | None = None
+
+    def load(self) -> type:
+        if self._cls is None:
+            try:
+                cls = self._load()
+            except Exception as e:  # a broken plugin must not break us
+                self.error = f"{type(e).__name__}: {e}"
+                raise PluginError(f"{self.kind} plugin '{self.name}' ({self.origin}) failed to load: {self.error}") from None
+            from . import api
+
+            base = {"tracer": api.Tracer, "machine": api.Kinematics,
+                    "postprocessor": api.PostProcessor, "transport": api.Transport}[self.kind]
+            if not (inspect.isclass(cls) and issubclass(cls, base)):
+                self.error = f"not a {base.__name__} subclass"
+                raise PluginError(f"{self.kind} plugin '{self.name}' ({self.origin}) is {self.error}; fix the plugin")
+            self._cls = cls
+        return self._cls
+
+    @property
+    def summary(self) -> str:
+        try:
+            return self.load().summary
+        except PluginError:
+            return f"BROKEN: {self.error}"
+
+
+def _dropin_dirs(extra: Iterable[str | os.PathLike]) -> list[Path]:
+    dirs = [Path(d) for d in extra]
+    dirs += [Path(p) for p in os.environ.get(PLUGIN_PATH_ENV, "").split(os.pathsep) if p]
+    for d in dirs:
+        if not d.is_dir():
+            raise PluginError(f"plugin folder {d} does not exist; check --plugin-dir / ${PLUGIN_PATH_ENV}")
+    return dirs
+
+
+def _import_file(path: Path):
+    modname = f"doodlecam_dropin_{path.stem}"
+    if modname in sys.modules:
+        return sys.modules[modname]
+    spec = importlib.util.spec_from_file_location(modname, path)
+    if spec is None or spec.loader is None:
+        raise ImportError(f"cannot import {path}")
+    module = importlib.util.module_from_spec(spec)
+    sys.modules[modname] = module
+    try:
+        spec.loader.exec_module(module)
+    except BaseException:
+        del sys.modules[modname]
+        raise
+    return module
+
+
+def _scan_file(path: Path) -> list[PluginInfo]:
+    """A drop-in file: every plugin class defined in it (importing it once)."""
+    from . import api
+
+    try:
+        module = _import_file(path)
+    except Exception as e:
+        err = f"{type(e).__name__}: {e}"
+
+        def fail(err=err):
+            raise ImportError(err)
+
+        return [PluginInfo("?", path.stem, str(path), fail, error=err)]
+    found = []
+    for obj in vars(module).values():
+        if (inspect.isclass(obj) and issubclass(obj, api.Plugin) and obj.__module__ == module.__name__
+                and obj.name and obj.kind in GROUPS):
+            found.append(PluginInfo(obj.kind, obj.name, str(path), lambda obj=obj: obj))
+    return found
+
+
+def discover(plugin_dirs: Iterable[str | os.PathLike] = ()) -> list[PluginInfo]:
+    """All plugins, drop-ins first (a drop-in overrides an entry point)."""
+    from importlib.metadata import entry_points
+
+    infos: list[PluginInfo] = []
+    for d in _dropin_dirs(plugin_dirs):
+        for path in sorted(d.glob("*.py")):
+            if not path.name.startswith("_"):
+                infos.extend(_scan_file(path))
+    seen = {(i.kind, i.name) for i in infos}
+    for kind, group in GROUPS.items():
+        for ep in sorted(entry_points(group=group), key=lambda e: e.name):
+            if (kind, ep.name) in seen:
+                continue
+            seen.add((kind, ep.name))
+            dist = getattr(ep, "dist", None)
+            origin = f"entry point, {dist.name} {dist.version}" if dist else "entry point"
+            infos.append(PluginInfo(kind, ep.name, origin, ep.load))
+    return infos
+
+
+def get(kind: str, name: str, plugin_dirs: Iterable[str | os.PathLike] = ()) -> type:
+    """The plugin class of that kind and name, or a PluginError saying what exists."""
+    infos = discover(plugin_dirs)
+    for info in infos:
+        if info.kind == kind and info.name == name:
+            return info.load()
+    names = sorted(i.name for i in infos if i.kind == kind)
+    broken = [i for i in infos if i.kind == "?"]
+    extra = f"; broken drop-ins: {', '.join(i.origin for i in broken)}" if broken else ""
+    raise PluginError(f"unknown {kind} '{name}'; available: {', '.join(names) or 'none'} (see 'doodlecam plugins'){extra}")

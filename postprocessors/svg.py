@@ -1,0 +1,80 @@
+"""SVG preview post-processor: what the pen will draw, and where it travels.
+
+One SVG user unit is one machine millimetre. Machine y points up and SVG y
+points down, so every point is written as (x, height - y): the preview looks
+upright without a transform (which would confuse editors' layer coordinates).
+Pen-down strokes and pen-up travels are separate Inkscape layers.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+from xml.sax.saxutils import escape, quoteattr
+
+import numpy as np
+
+from doodlecam.api import Option, PostProcessor
+from doodlecam.errors import PluginError
+
+PAD = 2.0  # mm around the work area, so its outline is not clipped
+
+
+def _path_d(p: np.ndarray) -> str:
+    xy = [f"{x:.3f} {y:.3f}" for x, y in np.round(p, 3).tolist()]
+    return "M" + xy[0] + "L" + " ".join(xy[1:] or xy[:1])
+
+
+class SvgPost(PostProcessor):
+    name = "svg"
+    summary = "SVG preview: pen-down strokes and pen-up travels as layers, in machine mm"
+    extension = ".svg"
+    options = (
+        Option("step", float, 0.2, "largest distance (mm) between preview points along a stroke"),
+        Option("pen_width", float, 0.0, "stroke width (mm); 0 uses the machine's pen width"),
+        Option("travel_color", str, "#e0201b", "colour of the dashed pen-up travel lines"),
+        Option("show_travels", bool, True, "draw the pen-up travels layer's paths"),
+    )
+
+    def _stroke_points(self, spline, step: float) -> np.ndarray:
+        # Dense enough in length, and at least 8 points per polynomial piece
+        # so tight curls survive even when the stroke is short.
+        n = max(int(np.ceil(spline.length / step)), 8 * (len(spline.breakpoints) - 1), 2)
+        return spline(np.linspace(0.0, 1.0, n + 1))
+
+    def write(self, job, options: dict[str, Any]) -> bytes:
+        step = float(options["step"])
+        if not step > 0 or options["pen_width"] < 0:
+            raise PluginError(f"postprocessor 'svg': options 'step' must be positive and 'pen_width' >= 0, got {step!r}, {options['pen_width']!r}")
+        m = job.machine
+        W, H = m.width, m.height
+        flip = np.array([1.0, -1.0]), np.array([0.0, H])
+        width = options["pen_width"] or m.pen.width
+        thin = max(0.2, width / 3)
+
+        strokes = [_path_d(self._stroke_points(s.spline, step) * flip[0] + flip[1]) for s in job.strokes]
+        travels = [_path_d(np.array([t.start, t.end]) * flip[0] + flip[1]) for t in job.travels] if options["show_travels"] else []
+
+        vb = f"{-PAD:g} {-PAD:g} {W + 2 * PAD:g} {H + 2 * PAD:g}"
+        out = [
+            '<?xml version="1.0" encoding="UTF-8"?>',
+            '<svg xmlns="http://www.w3.org/2000/svg" '
+            'xmlns:inkscape="http://www.inkscape.org/namespaces/inkscape" '
+            f'width="{W + 2 * PAD:g}mm" height="{H + 2 * PAD:g}mm" viewBox="{vb}">',
+            f"<title>{escape(job.source or 'doodlecam job')} on {escape(m.name)}</title>",
+            f"<desc>{len(job.strokes)} strokes, pen-down {job.pen_down_length:.1f} mm, "
+            f"travel {job.travel_length:.1f} mm, planned time {job.duration:.1f} s</desc>",
+            # Work area and drawable area (inside the margin), not a layer: not plotted.
+            f'<rect id="work-area" x="0" y="0" width="{W:g}" height="{H:g}" fill="none" stroke="#888" stroke-width="0.3"/>',
+            f'<rect id="margin" x="{m.margin:g}" y="{m.margin:g}" width="{W - 2 * m.margin:g}" height="{H - 2 * m.margin:g}" '
+            'fill="none" stroke="#ccc" stroke-width="0.2" stroke-dasharray="2 2"/>',
+            f'<g id="pen-down" inkscape:groupmode="layer" inkscape:label="pen down" fill="none" stroke="#000" '
+            f'stroke-width="{width:g}" stroke-linecap="round" stroke-linejoin="round">',
+            *(f'<path d="{d}"/>' for d in strokes),
+            "</g>",
+            f'<g id="pen-up" inkscape:groupmode="layer" inkscape:label="pen up" fill="none" stroke={quoteattr(options["travel_color"])} '
+            f'stroke-width="{thin:g}" stroke-dasharray="{3 * thin:g} {2 * thin:g}">',
+            *(f'<path d="{d}"/>' for d in travels),
+            "</g>",
+            "</svg>",
+        ]
+        return ("\n".join(out) + "\n").encode("utf-8")

@@ -1,0 +1,36 @@
+import numpy as np
+import pytest
+
+from doodlecam.machine import parse_machine
+
+PROFILE = {
+    "machine": {"name": "testbot", "kinematics": "cartesian"},
+    "work_area": {"width": 300.0, "height": 200.0, "margin": 10.0},
+    "axes": {
+        "x": {"steps_per_mm": 80.0, "max_velocity": 150.0, "max_acceleration": 2000.0},
+        "y": {"steps_per_mm": 80.0, "max_velocity": 120.0, "max_acceleration": 1500.0},
+    },
+    "pen": {"up_delay": 0.1, "down_delay": 0.1},
+    "sampling": {"delta_time": 0.04},
+}
+
+
+@pytest.fixture
+def machine():
+    return parse_machine(PROFILE, "test.toml")
+
+
+@pytest.fixture
+def limits(machine):
+    from doodlecam.pipeline import kinematics_for
+    from doodlecam.plan import Limits
+
+    return Limits.from_machine(machine, kinematics_for(machine))
+
+
+def report_curve():
+    """A curve like the report's Fig. 2.4.1: 8 control points, several limiting-axis changes."""
+    from doodlecam.model import Spline
+
+    ctrl = np.array([[20, 20], [60, 90], [110, 30], [150, 110], [90, 150], [40, 120], [100, 60], [160, 40]], float)
+    return Spline(3, ctrl)

@@ -1,0 +1,62 @@
+import copy
+
+import pytest
+
+from doodlecam.errors import MachineError
+from doodlecam.machine import load_machine, parse_machine
+
+from conftest import PROFILE
+
+
+def test_sample_profile_loads():
+    m = load_machine("doodlebot")
+    assert m.name == "doodlebot" and m.kinematics == "cartesian"
+    assert m.x.max_acceleration > 0 and m.delta_time == pytest.approx(0.04)
+    assert m.plugin_options["post.gcode"]["pen_up"]
+
+
+def broken(edit):
+    data = copy.deepcopy(PROFILE)
+    edit(data)
+    with pytest.raises(MachineError) as e:
+        parse_machine(data, "bad.toml")
+    msg = str(e.value)
+    assert "\n" not in msg and msg.startswith("bad.toml")
+    return msg
+
+
+def test_missing_key_is_named():
+    msg = broken(lambda d: d["axes"]["y"].pop("max_acceleration"))
+    assert "max_acceleration" in msg and "[axes.y]" in msg
+
+
+def test_mistyped_key_gets_a_suggestion():
+    def edit(d):
+        d["axes"]["x"]["max_accleration"] = d["axes"]["x"].pop("max_acceleration")
+
+    msg = broken(edit)
+    assert "max_accleration" in msg and "max_acceleration" in msg
+
+
+@pytest.mark.parametrize("value", [0, -5.0, "fast", True, float("nan")])
+def test_bad_limit_values(value):
+    msg = broken(lambda d: d["axes"]["x"].__setitem__("max_velocity", value))
+    assert "max_velocity" in msg
+
+
+def test_missing_table_and_unknown_table():
+    assert "[work_area]" in broken(lambda d: d.pop("work_area"))
+    assert "[axis]" in broken(lambda d: d.__setitem__("axis", {}))
+
+
+def test_margin_must_leave_room():
+    assert "margin" in broken(lambda d: d["work_area"].__setitem__("margin", 150.0))
+
+
+def test_unknown_machine_name(tmp_path):
+    with pytest.raises(MachineError, match="unknown machine 'doodlebt'.*did you mean 'doodlebot'"):
+        load_machine("doodlebt")
+    bad = tmp_path / "x.toml"
+    bad.write_text("[machine\nname=1")
+    with pytest.raises(MachineError, match="not valid TOML"):
+        load_machine(bad)

@@ -1,0 +1,105 @@
+import numpy as np
+import pytest
+from hypothesis import given, settings, strategies as st
+
+from doodlecam.model import Spline, Stroke
+from doodlecam.plan import Limits, check_profile, make_grid, plan_stroke
+from doodlecam.sample import TRACKING_TOLERANCE, reference_positions, sample_stroke
+
+from conftest import report_curve
+
+
+def const_speed_time(spline, limits, n=200001):
+    """Time of the best constant-path-speed traversal within the same limits
+    (even ignoring that it cannot start or stop at rest)."""
+    u = np.linspace(0, 1, n)
+    d1, d2 = spline(u, 1), spline(u, 2)
+    sp = np.linalg.norm(d1, axis=1)
+    # unit-speed derivatives: dq/ds = d1/|d1|, d2q/ds2 = (d2 - (d2.t) t) / |d1|^2
+    t = d1 / sp[:, None]
+    k = (d2 - (d2 * t).sum(1)[:, None] * t) / sp[:, None] ** 2
+    v_acc = np.sqrt(limits.amax / np.maximum(np.abs(k), 1e-12)).min()
+    v_vel = (limits.vmax / np.maximum(np.abs(t), 1e-12)).min()
+    return spline.length / min(v_acc, v_vel)
+
+
+@pytest.mark.parametrize("solver", ["highs", "clarabel"])
+def test_report_curve_rest_to_rest_within_limits_everywhere(limits, solver):
+    s = report_curve()
+    prof = plan_stroke(s, limits, solver=solver)
+    assert prof.b[0] == 0 and prof.b[-1] == 0  # starts and ends at rest
+    acc, vel = check_profile(s, prof, limits, refine=20)
+    assert acc <= 1 + 1e-9 and vel <= 1 + 1e-9
+    assert acc > 0.99  # it actually uses the machine (time-optimal is bang-bang)
+    assert prof.duration < const_speed_time(s, limits)
+
+
+def test_solvers_agree(limits):
+    s = report_curve()
+    t = [plan_stroke(s, limits, solver=x).duration for x in ("highs", "clarabel")]
+    assert abs(t[0] - t[1]) < 1e-5 * t[0]
+
+
+def test_grid_contains_knots_and_follows_length():
+    s = report_curve()
+    g = make_grid(s, spacing=0.5)
+    assert np.all(np.isin(s.breakpoints, g))
+    assert np.all(np.diff(g) > 0)
+    assert 0.5 * s.length / 0.5 < len(g) < 3 * s.length / 0.5
+    tiny = Spline(3, s.control * 0.01)
+    assert len(make_grid(tiny, spacing=0.5)) < 30  # a 2 mm stroke needs no 1000 points
+
+
+def test_straight_line_matches_closed_form(limits):
+    # along x only: trapezoid with vmax_x = 150, ax = 2000 over 100 mm
+    s = Spline(3, np.c_[np.linspace(0, 100, 4), np.zeros(4)])
+    prof = plan_stroke(s, limits)
+    exact = 100 / 150 + 150 / 2000
+    assert prof.duration == pytest.approx(exact, rel=5e-3)
+    assert prof.duration >= exact * (1 - 1e-9)  # never faster than physics allows
+
+
+@st.composite
+def splines(draw):
+    n = draw(st.integers(4, 10))
+    pts = draw(st.lists(st.tuples(st.floats(0, 150), st.floats(0, 150)), min_size=n, max_size=n))
+    ctrl = np.array(pts)
+    if np.hypot(*np.diff(ctrl, axis=0).T).min() < 1.0:
+        ctrl = ctrl + np.c_[np.arange(n) * 2.0, np.zeros(n)]
+    return Spline(3, ctrl)
+
+
+@settings(max_examples=30, deadline=None)
+@given(splines(), st.floats(200, 5000), st.floats(20, 300))
+def test_random_splines_never_violate_limits(spline, amax, vmax):
+    lim = Limits(np.array([vmax, vmax * 0.8]), np.array([amax, amax * 1.3]), np.eye(2))
+    prof = plan_stroke(spline, lim)
+    acc, vel = check_profile(spline, prof, lim, refine=20)
+    assert acc <= 1 + 1e-9 and vel <= 1 + 1e-9
+    assert prof.b[0] == 0 and prof.b[-1] == 0
+    assert np.all(np.isfinite(prof.t)) and np.all(np.diff(prof.t) > 0)
+
+
+def test_samples_reproduce_the_stroke(limits):
+    s = report_curve()
+    stroke = Stroke(s, plan_stroke(s, limits))
+    smp = sample_stroke(stroke, 0.04, limits)
+    reached = smp.integrate()
+    ref = reference_positions(stroke, smp)
+    assert np.abs(reached - ref).max() <= TRACKING_TOLERANCE  # mm, at every sample instant
+    assert np.abs(reached[-1] - s.end).max() < 1e-9  # lands on the end point
+    assert np.all(smp.velocity[-1] == 0)  # and stops there
+    v = np.vstack([[0, 0], smp.velocity])
+    assert np.all(np.abs(np.diff(v, axis=0)) / 0.04 <= limits.amax * (1 + 1e-9))
+    assert np.all(np.abs(v) <= limits.vmax * (1 + 1e-9))
+
+
+def test_profile_state_is_consistent(limits):
+    s = report_curve()
+    prof = plan_stroke(s, limits)
+    t = np.linspace(0, prof.duration, 2001)
+    u, ud, _ = prof.state_at(t)
+    assert np.all(np.diff(u) >= -1e-12) and u[0] == 0 and abs(u[-1] - 1) < 1e-9
+    # u-dot is the derivative of u(t)
+    mid = (u[2:] - u[:-2]) / (t[2:] - t[:-2])
+    assert np.allclose(mid, ud[1:-1], atol=2e-3 * ud.max())

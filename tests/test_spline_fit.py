@@ -1,0 +1,97 @@
+import numpy as np
+from hypothesis import given, settings, strategies as st
+from hypothesis.extra.numpy import arrays
+from scipy.interpolate import BSpline
+
+from doodlecam.fit import fit_polyline
+from doodlecam.model import Spline
+
+
+def cox_de_boor(knots, i, k, u):
+    """The report's recursive basis (appendix A), independent of scipy."""
+    if k == 0:
+        last = knots[i + 1] == knots[-1]
+        return np.where((knots[i] <= u) & ((u < knots[i + 1]) | (last & (u <= knots[i + 1]))), 1.0, 0.0)
+    out = np.zeros_like(u)
+    if knots[i + k] > knots[i]:
+        out += (u - knots[i]) / (knots[i + k] - knots[i]) * cox_de_boor(knots, i + 1 - 1, k - 1, u)
+    if knots[i + k + 1] > knots[i + 1]:
+        out += (knots[i + k + 1] - u) / (knots[i + k + 1] - knots[i + 1]) * cox_de_boor(knots, i + 1, k - 1, u)
+    return out
+
+
+def test_uniform_clamped_knots():
+    k = Spline.uniform_knots(7, 3)
+    assert np.allclose(k, [0, 0, 0, 0, 0.25, 0.5, 0.75, 1, 1, 1, 1])
+
+
+def test_evaluation_matches_recursive_definition_and_scipy():
+    rng = np.random.default_rng(1)
+    for degree in (2, 3, 4):
+        ctrl = rng.normal(size=(9, 2)) * 50
+        s = Spline(degree, ctrl)
+        u = np.linspace(0, 1, 401)
+        basis = np.array([cox_de_boor(s.knots, i, degree, u) for i in range(len(ctrl))])
+        assert np.allclose(basis.sum(axis=0), 1.0)  # partition of unity
+        assert np.allclose(s(u), basis.T @ ctrl, atol=1e-9)
+        ref = BSpline(s.knots, ctrl, degree)
+        for der in range(1, degree + 1):
+            assert np.allclose(s(u, der), ref.derivative(der)(u), atol=1e-7 * np.abs(ref.derivative(der)(u)).max())
+        # derivatives are what finite differences say
+        h = 1e-6
+        um = np.linspace(0.05, 0.95, 50)
+        assert np.allclose(s(um, 1), (s(um + h) - s(um - h)) / (2 * h), rtol=1e-4, atol=1e-4)
+
+
+def test_clamped_ends_and_length():
+    t = np.linspace(0, 2 * np.pi, 200)
+    circle = np.c_[np.cos(t), np.sin(t)] * 30
+    s, err = fit_polyline(circle, 3, 0.01)
+    assert np.allclose(s(0.0), circle[0]) and np.allclose(s(1.0), circle[-1])
+    assert abs(s.length - 2 * np.pi * 30) < 0.05
+
+
+def exact_deviation(spline, poly):
+    """Two-way distance by brute force: dense curve vs exact point-to-segment."""
+    curve = spline(np.linspace(0, 1, 20001))
+    a, b = poly[:-1], poly[1:]
+    ab = b - a
+    L2 = np.maximum((ab**2).sum(1), 1e-300)
+
+    def to_poly(pts):
+        t = np.clip(((pts[:, None, :] - a) * ab).sum(2) / L2, 0, 1)
+        proj = a + t[..., None] * ab
+        return np.sqrt(((pts[:, None, :] - proj) ** 2).sum(2)).min(1)
+
+    d1 = max(to_poly(curve[i : i + 2000]).max() for i in range(0, len(curve), 2000))
+    dense = np.concatenate([a + np.linspace(0, 1, 40)[:, None, None] * ab]).reshape(-1, 2)
+    from scipy.spatial import cKDTree
+
+    d2 = cKDTree(curve).query(dense)[0].max()
+    return max(d1, d2)
+
+
+polylines = arrays(np.float64, st.tuples(st.integers(2, 12), st.just(2)),
+                   elements=st.floats(-100, 100, allow_nan=False, allow_infinity=False))
+
+
+@settings(max_examples=40, deadline=None)
+@given(polylines, st.sampled_from([0.05, 0.1, 0.3]), st.sampled_from([2, 3]))
+def test_fit_meets_tolerance_on_random_polylines(poly, tol, degree):
+    steps = np.hypot(*np.diff(poly, axis=0).T)
+    if steps.max() < 1.0:  # degenerate: all points (nearly) coincide
+        return
+    s, err = fit_polyline(poly, degree, tol)
+    assert err <= tol
+    assert exact_deviation(s, poly[np.r_[True, steps > 1e-12]]) <= tol + 1e-6
+    assert np.allclose(s.start, poly[0]) and np.allclose(s.end, poly[-1])
+
+
+def test_fewest_control_points_is_actually_few():
+    # a straight line needs only degree + 1 control points
+    s, err = fit_polyline(np.array([[0.0, 0.0], [100.0, 50.0]]), 3, 0.1)
+    assert len(s.control) == 4 and err < 0.1
+    # a smooth arc sampled densely needs far fewer control points than samples
+    t = np.linspace(0, np.pi, 500)
+    s, err = fit_polyline(np.c_[np.cos(t), np.sin(t)] * 50, 3, 0.1)
+    assert len(s.control) < 20 and err <= 0.1
