@@ -127,8 +127,7 @@ def link_edges(edges: np.ndarray, min_length: float = 0.0) -> tuple[list[np.ndar
         src.append(np.flatnonzero(ok))
         dst.append(nb[ok])
     src, dst = np.concatenate(src), np.concatenate(dst)
-    adj = _graph(src, dst, n)
-    junction = np.diff(adj.indptr) >= 3
+    junction = np.diff(_graph(src, dst, n).indptr) >= 3
 
     # Without the junctions every component is a simple path or a cycle.
     keep = ~junction[src] & ~junction[dst]
@@ -138,11 +137,14 @@ def link_edges(edges: np.ndarray, min_length: float = 0.0) -> tuple[list[np.ndar
     # One DFS from a virtual root tied to one start per component (an end if
     # it has one) lists each component contiguously, in walking order.
     nodes = np.flatnonzero(~junction)
-    first = np.lexsort((deg[nodes], label[nodes]))
-    starts = nodes[first][np.r_[True, np.diff(label[nodes][first]) != 0]]
+    by = np.lexsort((deg[nodes], label[nodes]))
+    starts = nodes[by][np.r_[True, np.diff(label[nodes][by]) != 0]]
     rooted = _graph(np.r_[src[keep], np.full(len(starts), n)], np.r_[dst[keep], starts], n + 1)
     order = csgraph.depth_first_order(rooted, n, directed=False, return_predecessors=False)[1:]
-    cuts = np.flatnonzero(np.diff(label[order])) + 1
+    first = np.r_[0, np.flatnonzero(np.diff(label[order])) + 1]
+    last = np.r_[first[1:], len(order)] - 1
+    a, b = order[first], order[last]
+    cycle = (last - first >= 2) & (deg[a] == 2)
 
     # Junction pixels that touch are one junction, drawn at its most central pixel.
     jj = junction[src] & junction[dst]
@@ -151,36 +153,39 @@ def link_edges(edges: np.ndarray, min_length: float = 0.0) -> tuple[list[np.ndar
     jl = jlabel[jnodes]
     centre = np.zeros((n, 2))
     if len(jnodes):
-        counts = np.bincount(jl, minlength=n)[jl][:, None]
-        mean = np.stack([np.bincount(jl, rc[jnodes, k], minlength=n) for k in (0, 1)], 1)[jl] / counts
+        mean = np.stack([np.bincount(jl, rc[jnodes, k], minlength=n) for k in (0, 1)], 1)
+        mean = mean[jl] / np.bincount(jl, minlength=n)[jl][:, None]
         best = np.lexsort((np.hypot(*(rc[jnodes] - mean).T), jl))
         best = best[np.r_[True, np.diff(jl[best]) != 0]]
         centre[jl[best]] = rc[jnodes[best]]
 
-    chains, ends = [], []
-    indptr, indices = adj.indptr, adj.indices
-    for run in np.split(order, cuts):
-        pts = rc[run]
-        a, b = run[0], run[-1]
-        if len(run) > 2 and deg[a] == 2:  # a cycle: no ends, no junctions
-            chains.append(np.vstack([pts, pts[:1]]))
-            ends.append((-1, -1))
-            continue
-        ja = [j for j in indices[indptr[a]:indptr[a + 1]] if junction[j]]
-        jb = ja[1:] if a == b else [j for j in indices[indptr[b]:indptr[b + 1]] if junction[j]]
-        ca = jlabel[ja[0]] if ja else -1
-        cb = jlabel[jb[0]] if jb else -1
-        pts = np.vstack([centre[[ca]] if ja else pts[:0], pts, centre[[cb]] if jb else pts[:0]])
-        chains.append(pts)
-        ends.append((ca, cb))
-    n_objects = len(chains)
+    # The junction(s) each run end touches; only a one-pixel run can touch two.
+    s2, d2 = np.r_[src, dst], np.r_[dst, src]
+    m = ~junction[s2] & junction[d2]
+    s2, d2 = s2[m], d2[m]
+    by = np.argsort(s2, kind="stable")
+    s2, d2 = s2[by], d2[by]
+    one = np.r_[True, s2[1:] != s2[:-1]] if len(s2) else np.zeros(0, bool)
+    j1, j2 = np.full(n, -1), np.full(n, -1)
+    j1[s2[one]], j2[s2[~one]] = d2[one], d2[~one]
+    ja, jb = j1[a], np.where(a == b, j2[a], j1[b])
+    ca, cb = np.where(ja >= 0, jlabel[ja], -1), np.where(jb >= 0, jlabel[jb], -1)
+
+    # All chains in one array: [junction] + run pixels + [junction, or the
+    # first pixel again for a cycle]; tails are listed first so that np.insert
+    # puts a tail before the next run's head at the same index.
+    head, tail = ca >= 0, (cb >= 0) | cycle
+    extra = np.vstack([np.where(cycle[:, None], rc[a], centre[cb])[tail], centre[ca[head]]])
+    pts = np.insert(rc[order], np.r_[last[tail] + 1, first[head]], extra, axis=0)
+    stop = np.cumsum(last - first + 1 + head + tail)
+    start = stop - (last - first + 1 + head + tail)
+    cum = np.r_[0.0, np.cumsum(np.hypot(*np.diff(pts, axis=0).T))]
+    length = cum[stop - 1] - cum[start]
 
     # Drop spurs and specks before joining, so they cannot hijack a junction.
-    lengths = [_length(p) for p in chains]
-    alive = [L >= min_length or (e[0] >= 0 and e[1] >= 0 and e[0] != e[1]) for L, e in zip(lengths, ends)]
-    chains = [c for c, k in zip(chains, alive) if k]
-    ends = [e for e, k in zip(ends, alive) if k]
-    return _join(chains, ends), n_objects, len(np.unique(jl))
+    alive = (length >= min_length) | ((ca >= 0) & (cb >= 0) & (ca != cb))
+    chains = _join(pts, start[alive], stop[alive], ca[alive], cb[alive])
+    return chains, len(first), len(np.unique(jl))
 
 
 def _graph(src, dst, n):
@@ -194,67 +199,73 @@ def _length(p: np.ndarray) -> float:
     return float(np.hypot(*np.diff(p, axis=0).T).sum()) if len(p) > 1 else 0.0
 
 
-def _join(chains: list[np.ndarray], ends: list[tuple[int, int]]) -> list[np.ndarray]:
-    """Join chains through shared junctions, straightest continuations first."""
-    at: dict[int, list[tuple[int, int]]] = {}
-    for i, e in enumerate(ends):
-        for side in (0, 1):
-            if e[side] >= 0:
-                at.setdefault(e[side], []).append((i, side))
+def _join(pts, start, stop, ca, cb) -> list[np.ndarray]:
+    """Join chains ``pts[start:stop]`` through shared junctions, straightest first.
 
-    def heading(i, side):  # unit vector pointing from the junction into the chain
-        p = chains[i] if side == 0 else chains[i][::-1]
-        d = p[min(_TANGENT_PX, len(p) - 1)] - p[0]
-        return d / (np.hypot(*d) or 1.0)
+    Chain ends are numbered 2 * chain + side (side 0 = start); ``ca``/``cb``
+    give the junction at each end (-1 = free).
+    """
+    nch = len(start)
+    cl = np.stack([ca, cb], 1).ravel()
+    e = np.flatnonzero(cl >= 0)
+    ch, side = e // 2, e % 2
+    # Heading of each end: from the junction into the chain, a few points in.
+    k = np.minimum(_TANGENT_PX, stop[ch] - start[ch] - 1)
+    tip = np.where(side == 0, start[ch], stop[ch] - 1)
+    u = pts[np.where(side == 0, tip + k, tip - k)] - pts[tip]
+    u /= np.maximum(np.hypot(*u.T), 1e-12)[:, None]
+    # Every pair of ends at the same junction, scored 1 when one chain
+    # continues the other straight on.
+    by = np.argsort(cl[e], kind="stable")
+    e, u, c = e[by], u[by], cl[e][by]
+    gfirst = np.r_[0, np.flatnonzero(np.diff(c)) + 1] if len(c) else np.zeros(0, int)
+    gsize = np.diff(np.r_[gfirst, len(c)])
+    grp = np.repeat(np.arange(len(gfirst)), gsize)
+    later = (gsize[grp] - (np.arange(len(e)) - gfirst[grp]) - 1) if len(e) else np.zeros(0, int)
+    i = np.repeat(np.arange(len(e)), later)
+    j = i + 1 + np.arange(len(i)) - np.repeat(np.cumsum(later) - later, later)
+    best = np.argsort(np.einsum("ij,ij->i", u[i], u[j]), kind="stable")  # most opposed = straightest
 
-    pairs = []  # (straightness, end, end); 1 = the two chains continue each other straight
-    for inc in at.values():
-        if len(inc) >= 2:
-            u = np.array([heading(*e) for e in inc])
-            i, j = np.triu_indices(len(inc), 1)
-            pairs += zip(-np.einsum("kd,kd->k", u[i], u[j]), (inc[k] for k in i), (inc[k] for k in j))
     # Greedy, straightest first. Closing a loop is deferred: it never saves a
     # pen lift, while joining the same end to another chain does.
-    group = list(range(len(chains)))
+    group = list(range(nch))
 
-    def find(i):
-        while group[i] != i:
-            group[i] = i = group[group[i]]
-        return i
+    def find(x):
+        while group[x] != x:
+            group[x] = x = group[group[x]]
+        return x
 
-    link: dict[tuple[int, int], tuple[int, int]] = {}
+    partner = [-1] * (2 * nch)
     loops = []
-    for _, a, b in sorted(pairs, key=lambda p: -p[0]):
-        if a in link or b in link:
+    for x, y in zip(e[i[best]].tolist(), e[j[best]].tolist()):
+        if partner[x] >= 0 or partner[y] >= 0:
             continue
-        if find(a[0]) == find(b[0]):
-            loops.append((a, b))
+        gx, gy = find(x >> 1), find(y >> 1)
+        if gx == gy:
+            loops.append((x, y))
             continue
-        link[a], link[b] = b, a
-        group[find(a[0])] = find(b[0])
-    for a, b in loops:
-        if a not in link and b not in link:
-            link[a], link[b] = b, a
+        partner[x], partner[y], group[gx] = y, x, gy
+    for x, y in loops:
+        if partner[x] < 0 and partner[y] < 0:
+            partner[x], partner[y] = y, x
 
-    out, seen = [], set()
-    for i in range(len(chains)):
-        if i in seen:
+    out, seen = [], [False] * nch
+    for c0 in range(nch):
+        if seen[c0]:
             continue
-        c, side = i, 0  # walk back to a free end (or once round a loop)
-        while (c, side) in link:
-            c2, s2 = link[(c, side)]
-            if c2 == i:
-                break
-            c, side = c2, 1 - s2
+        x = 2 * c0  # walk back to a free end (or once round a loop) ...
+        while partner[x] >= 0 and partner[x] >> 1 != c0:
+            x = partner[x] ^ 1
         pieces = []
-        while c not in seen:  # walk forward, entering chain c at end `side`
-            seen.add(c)
-            p = chains[c] if side == 0 else chains[c][::-1]
+        while not seen[x >> 1]:  # ... then forward, entering each chain at end x
+            c = x >> 1
+            seen[c] = True
+            p = pts[start[c]:stop[c]] if x % 2 == 0 else pts[start[c]:stop[c]][::-1]
             pieces.append(p if not pieces else p[1:])  # the shared junction point once
-            if (c, 1 - side) not in link:
+            if partner[x ^ 1] < 0:
                 break
-            c, side = link[(c, 1 - side)]
-        out.append(np.vstack(pieces))
+            x = partner[x ^ 1]
+        out.append(pieces[0] if len(pieces) == 1 else np.concatenate(pieces))
     return out
 
 

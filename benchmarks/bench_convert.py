@@ -1,0 +1,55 @@
+"""Per-stage wall time and job figures for every sample picture.
+
+    .venv/bin/python benchmarks/bench_convert.py            # all samples
+    .venv/bin/python benchmarks/bench_convert.py --repeat 3 # best of 3
+
+Prints a Markdown table (the README's benchmark table comes from here).
+Times are wall-clock on whatever machine runs it; compare ratios, not seconds.
+"""
+
+from __future__ import annotations
+
+import argparse
+import tempfile
+import time
+import warnings
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parent.parent
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--repeat", type=int, default=1)
+    ap.add_argument("--machine", default="doodlebot")
+    ap.add_argument("images", nargs="*", type=Path)
+    args = ap.parse_args()
+    warnings.simplefilter("ignore")
+    from doodlecam.machine import load_machine
+    from doodlecam.pipeline import Settings, convert
+
+    images = args.images or sorted((ROOT / "samples" / "images").glob("*.png"))
+    settings = Settings(machine=load_machine(args.machine))
+    stages = ["trace", "fit", "plan", "sample", "post"]
+    print("| picture | strokes | ctrl pts | pen-down mm | travel mm | job s | optimal draw s | "
+          + " | ".join(f"{s} s" for s in stages) + " | total s | worst acc ratio |")
+    print("|" + "---|" * (10 + len(stages)))
+    with tempfile.TemporaryDirectory() as out:
+        for img in images:
+            best = None
+            for _ in range(args.repeat):
+                t0 = time.perf_counter()
+                res = convert(img, out, settings)
+                total = time.perf_counter() - t0
+                if best is None or total < best[1]:
+                    best = (res, total)
+            res, total = best
+            s = res.summary()
+            print(f"| {img.name} | {s['strokes']} | {s['control_points']} | {s['pen_down_mm']:.0f} | {s['travel_mm']:.0f} | "
+                  f"{s['job_time_s']:.1f} | {s['optimal_draw_time_s']:.1f} | "
+                  + " | ".join(f"{s['timings_s'].get(k, 0):.2f}" for k in stages)
+                  + f" | {total:.2f} | {s['worst_acceleration_ratio']:.9f} |")
+
+
+if __name__ == "__main__":
+    main()
