@@ -134,13 +134,16 @@ def link_edges(edges: np.ndarray, min_length: float = 0.0) -> tuple[list[np.ndar
     runs = _graph(src[keep], dst[keep], n)
     deg = np.diff(runs.indptr)
     _, label = csgraph.connected_components(runs, directed=False)
-    # One DFS from a virtual root tied to one start per component (an end if
-    # it has one) lists each component contiguously, in walking order.
+    # One DFS lists each component contiguously, in walking order, when every
+    # component hangs by one start (an end if it has one) off a path of
+    # virtual nodes n, n+1, ... (a path: scipy rescans a wide node's edges).
     nodes = np.flatnonzero(~junction)
     by = np.lexsort((deg[nodes], label[nodes]))
     starts = nodes[by][np.r_[True, np.diff(label[nodes][by]) != 0]]
-    rooted = _graph(np.r_[src[keep], np.full(len(starts), n)], np.r_[dst[keep], starts], n + 1)
-    order = csgraph.depth_first_order(rooted, n, directed=False, return_predecessors=False)[1:]
+    virtual = n + np.arange(len(starts))
+    rooted = _graph(np.r_[src[keep], virtual, virtual[:-1]], np.r_[dst[keep], starts, virtual[1:]], n + len(starts))
+    order = csgraph.depth_first_order(rooted, n, directed=False, return_predecessors=False)
+    order = order[order < n]
     first = np.r_[0, np.flatnonzero(np.diff(label[order])) + 1]
     last = np.r_[first[1:], len(order)] - 1
     a, b = order[first], order[last]
