@@ -112,7 +112,7 @@ def fit_polyline(points, degree: int = 3, tolerance: float = 0.1, max_control: i
     dense = densify(p, tolerance / 3)
     u = chord_params(dense)
     n_min = degree + 1
-    n_max = int(min(max_control, max(n_min, len(dense) // 2)))
+    n_max = int(min(max_control, max(n_min, 2 * len(dense))))
 
     cache: dict[int, tuple[Spline, float]] = {}
 
@@ -136,3 +136,22 @@ def fit_polyline(points, degree: int = 3, tolerance: float = 0.1, max_control: i
         else:
             lo = mid
     return attempt(hi)
+
+
+def fit_pieces(points, degree: int = 3, tolerance: float = 0.1, max_control: int = 2000) -> list[tuple[Spline, float]]:
+    """Like ``fit_polyline``, but never returns a fit outside the tolerance:
+    a polyline no spline of up to ``max_control`` points follows (it doubles
+    back on itself, say) is split at its sharpest corner and the halves are
+    fitted separately."""
+    p = _dedupe(np.asarray(points, dtype=float))
+    # Cap the search: a polyline that needs far more control points than it
+    # has vertices has a corner no smooth curve turns cheaply; split there.
+    cap = min(max_control, 8 * len(p) + 20)
+    spline, err = fit_polyline(p, degree, tolerance, cap)
+    if err <= tolerance or len(p) < 3:
+        return [(spline, err)]
+    d = np.diff(p, axis=0)
+    cross = d[:-1, 0] * d[1:, 1] - d[:-1, 1] * d[1:, 0]
+    turn = np.abs(np.arctan2(cross, (d[:-1] * d[1:]).sum(axis=1)))
+    k = int(np.argmax(turn)) + 1
+    return fit_pieces(p[: k + 1], degree, tolerance, max_control) + fit_pieces(p[k:], degree, tolerance, max_control)

@@ -89,7 +89,7 @@ def solver_backend(spec: str) -> str:
 
 def plan_job(drawing: Drawing, machine: Machine, solver: str = "lp", plugin_dirs=()) -> Job:
     """Order, fit, plan and sample a drawing already in machine millimetres."""
-    from .fit import fit_polyline
+    from .fit import fit_pieces
     from .order import order_polylines
     from .plan import Limits, check_profile, plan_stroke
     from .sample import sample_stroke
@@ -109,8 +109,8 @@ def plan_job(drawing: Drawing, machine: Machine, solver: str = "lp", plugin_dirs
     strokes = []
     for i, flip in zip(order, flips):
         p = drawing.polylines[i][::-1] if flip else drawing.polylines[i]
-        spline, err = fit_polyline(p, machine.degree, machine.tolerance)
-        strokes.append(Stroke(spline=spline, source_index=i, fit_error=err))
+        for spline, err in fit_pieces(p, machine.degree, machine.tolerance):
+            strokes.append(Stroke(spline=spline, source_index=i, fit_error=err))
     timings["fit"] = time.perf_counter() - t0
 
     t0 = time.perf_counter()

@@ -50,8 +50,6 @@ def load_gray(path: str | os.PathLike) -> np.ndarray:
 
     try:
         array = _read_pillow(p)
-    except InputError:
-        raise
     except MemoryError:
         raise InputError(f"{name}: too large to load into memory; scale the picture down") from None
     except Exception as e:  # decoders raise a zoo of types (OSError, SyntaxError, struct.error, ...)

@@ -54,7 +54,7 @@ def check_on_edges(drawing, canny, thin, coverage=0.98):
 
 def save(tmp_path, name, array, mode=None, **kw):
     path = tmp_path / name
-    Image.fromarray(array, mode).save(path, **kw) if mode else Image.fromarray(array).save(path, **kw)
+    (Image.fromarray(array, mode) if mode else Image.fromarray(array)).save(path, **kw)
     return path
 
 
@@ -65,9 +65,9 @@ def shapes(h=200, w=220):
     return img
 
 
-def disk_image(h=120, w=160, centre=(60, 70), radius=35):
-    img = np.full((h, w), 255, np.uint8)
-    img[draw.disk(centre, radius)] = 0
+def disk_image(h=120, w=160, centre=(60, 70), radius=35, ink=0, paper=255):
+    img = np.full((h, w), paper, np.uint8)
+    img[draw.disk(centre, radius)] = ink
     return img
 
 
@@ -180,13 +180,18 @@ def test_link_rings():
     assert cKDTree(pts).query(np.argwhere(eight))[0].max() <= 1.5
 
 
-def test_link_is_vectorised_enough_for_big_maps():
+def test_link_a_large_grid_of_junctions():
     edges = np.zeros((1500, 1500), bool)
     edges[::6, :] = True
-    edges[:, ::6] = True  # 62,500 junction pixels
+    edges[:, ::6] = True  # 62,499 junctions (the top-left corner is not one)
     chains, objects, junctions = link_edges(edges)
     assert junctions == 250 * 250 - 1 and objects > 2 * junctions
-    assert len(chains) < objects
+    # Straight on through every crossing: each row and column one stroke
+    # (row 0 and column 0 meet at the corner, which is no junction).
+    spans = sorted(tuple(np.ptp(c, axis=0)) for c in chains)
+    assert len(chains) == 499 and spans == [(0.0, 1499.0)] * 249 + [(1499.0, 0.0)] * 249 + [(1499.0, 1499.0)]
+    pts = np.vstack(chains)
+    assert cKDTree(pts).query(np.argwhere(edges))[0].max() == 0  # crossings are single pixels here
 
 
 def test_spurs_and_specks_are_dropped():
@@ -276,16 +281,24 @@ def test_alpha_is_composited_onto_white(tmp_path):
     ("rgb.jpg", "RGB", {"quality": 95}),
     ("rgb.bmp", "RGB", {}),
     ("gray.tif", "L", {}),
-    ("bilevel.png", "1", {}),
 ])
 def test_formats_and_modes(tmp_path, name, convert, kw):
+    grey = disk_image(ink=60, paper=220)  # mid-tones: palette indices or CMYK read as RGBA would not match
     path = tmp_path / name
-    Image.fromarray(disk_image()).convert(convert).save(path, **kw)
+    im = Image.fromarray(grey).convert("RGB")
+    (im.convert("P", palette=Image.Palette.ADAPTIVE, colors=4) if convert == "P" else im.convert(convert)).save(path, **kw)
     with Image.open(path) as im:
         assert im.mode == convert
     gray = load_gray(path)
     assert gray.shape == (120, 160) and gray.dtype == np.float64
-    assert np.abs(gray - disk_image() / 255).mean() < 0.02  # CMYK is not inverted, RGB not garbled
+    assert np.abs(gray - grey / 255).mean() < 0.02
+    assert_disk_traced(TRACER.trace(path, {}))
+
+
+def test_bilevel(tmp_path):
+    path = tmp_path / "bilevel.png"
+    Image.fromarray(disk_image()).convert("1").save(path)
+    assert np.array_equal(load_gray(path), disk_image() / 255)
     assert_disk_traced(TRACER.trace(path, {}))
 
 
@@ -293,6 +306,11 @@ def test_float_tiff_and_first_frame_only(tmp_path):
     path = tmp_path / "float.tif"
     Image.fromarray(disk_image().astype(np.float32) / 255).save(path)
     assert np.allclose(load_gray(path), disk_image() / 255, atol=1e-6)
+    import tifffile  # a float RGB TIFF Pillow cannot open: read through imageio/tifffile
+
+    path = tmp_path / "float_rgb.tif"
+    tifffile.imwrite(path, np.dstack([disk_image() / 255.0] * 3), photometric="rgb")
+    assert np.allclose(load_gray(path), disk_image() / 255)
     frames = [Image.fromarray(disk_image()), Image.fromarray(disk_image(centre=(60, 110)))]
     for name in ("anim.gif", "pages.tif"):
         path = tmp_path / name

@@ -3,7 +3,7 @@ from hypothesis import given, settings, strategies as st
 from hypothesis.extra.numpy import arrays
 from scipy.interpolate import BSpline
 
-from doodlecam.fit import fit_polyline
+from doodlecam.fit import fit_pieces, fit_polyline
 from doodlecam.model import Spline
 
 
@@ -81,10 +81,22 @@ def test_fit_meets_tolerance_on_random_polylines(poly, tol, degree):
     steps = np.hypot(*np.diff(poly, axis=0).T)
     if steps.max() < 1.0:  # degenerate: all points (nearly) coincide
         return
-    s, err = fit_polyline(poly, degree, tol)
-    assert err <= tol
-    assert exact_deviation(s, poly[np.r_[True, steps > 1e-12]]) <= tol + 1e-6
-    assert np.allclose(s.start, poly[0]) and np.allclose(s.end, poly[-1])
+    pieces = fit_pieces(poly, degree, tol)
+    assert np.allclose(pieces[0][0].start, poly[0]) and np.allclose(pieces[-1][0].end, poly[-1])
+    for (a, _), (b, _) in zip(pieces, pieces[1:]):
+        assert np.allclose(a.end, b.start)  # pieces split the polyline at a vertex
+    for s, err in pieces:
+        assert err <= tol
+    if len(pieces) == 1:
+        assert exact_deviation(pieces[0][0], poly[np.r_[True, steps > 1e-12]]) <= tol + 1e-6
+
+
+def test_fit_of_a_polyline_that_doubles_back():
+    poly = np.array([[53, 0], [53, 53], [53, -74], [53, 53], [0, 53], [53, 53.0]])
+    for degree in (2, 3):
+        for tol in (0.05, 0.1):
+            pieces = fit_pieces(poly, degree, tol)
+            assert all(err <= tol for _, err in pieces)
 
 
 def test_fewest_control_points_is_actually_few():
