@@ -15,6 +15,8 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, ClassVar
 
+import numpy as np
+
 from .errors import PluginError
 
 API_VERSION = 1
@@ -87,24 +89,40 @@ class Tracer(Plugin):
 class Kinematics(Plugin):
     """Maps pen positions (mm) to actuator coordinates for the planner.
 
-    ``linear_map`` is a (2, 2) matrix M when actuator = M @ xy; the planner then
-    certifies limits between grid points exactly. ``velocity_limits`` and
-    ``acceleration_limits`` are in actuator units per second (squared).
+    ``actuator_limits`` gives (velocity, acceleration) limits in actuator
+    units per second (squared). ``derivatives`` gives, along a path q(u),
+    the actuator coordinates theta(u) and their path derivatives theta'(u),
+    theta''(u) by the chain rule. If the actuators are a linear map of the pen
+    position (theta = M @ xy), set ``linear_map = M``: the planner then
+    certifies limits between grid points exactly with Bernstein bounds;
+    otherwise it verifies them on a finer grid and refines where needed.
     """
 
     kind = "machine"
+    linear_map = None  # (n_act, 2) array when theta = M @ xy
+    actuator_names: ClassVar[tuple[str, ...]] = ("x", "y")
+    actuator_units: ClassVar[str] = "mm"
 
     def __init__(self, machine, params: dict[str, Any]):
         self.machine = machine
         self.params = params
 
-    linear_map = None
-
-    def velocity_limits(self):
+    def actuator_limits(self):
+        """(vmax, amax): arrays of shape (n_act,), actuator units/s and /s^2."""
         raise NotImplementedError
 
-    def acceleration_limits(self):
-        raise NotImplementedError
+    def inverse(self, xy):
+        """Actuator coordinates (n, n_act) of pen positions xy (n, 2) in mm."""
+        return np.asarray(xy, float) @ np.asarray(self.linear_map, float).T
+
+    def forward(self, theta):
+        """Pen positions (n, 2) in mm of actuator coordinates (n, n_act)."""
+        return np.asarray(theta, float) @ np.linalg.pinv(np.asarray(self.linear_map, float)).T
+
+    def derivatives(self, q, dq, ddq):
+        """(theta, theta', theta'') along a path with pen q, q', q'' (each (n, 2))."""
+        M = np.asarray(self.linear_map, float).T
+        return q @ M, dq @ M, ddq @ M
 
     def check_reachable(self, points) -> None:
         """Raise a DoodleError naming the first point the machine cannot reach."""

@@ -33,6 +33,11 @@ def _pairs(values: tuple[str, ...], what: str) -> dict[str, str]:
 # Commands that live in their own modules, imported only when invoked (or
 # when --help lists them): "name": "module:function".
 LAZY_COMMANDS: dict[str, str] = {
+    "send": "doodlecam.cli_send:send",
+    "sim": "doodlecam.cli_send:sim",
+    "plot": "doodlecam.cli_plot:plot",
+    "motion": "doodlecam.cli_motion:motion",
+    "learn": "doodlecam.cli_motion:learn",
 }
 
 
@@ -72,10 +77,21 @@ def cli():
 @click.option("--post", "posts", multiple=True, metavar="NAME",
               help="Post-processor (repeatable). Default: plc, gcode and svg.")
 @click.option("--post-opt", multiple=True, metavar="POST.KEY=VALUE", help="Post option, e.g. gcode.pen_up='M5' (repeatable).")
-@click.option("--solver", help="Planner back-end: lp (HiGHS), lp:clarabel, lp:osqp. Default: the profile's.")
+@click.option("--solver", help="Planner: reach (exact, fast; default), lp[:clarabel|highs|osqp] (cross-check), "
+              "qp[:clarabel|highs|osqp] (smoothed). Default: the profile's [machine] solver.")
+@click.option("--smoothing", type=float, help="Weight of the smoothing QP against time (solver qp). Default: the profile's.")
 @click.option("--json", "as_json", is_flag=True, help="Print the summary as JSON.")
+@click.option("--width", type=float, metavar="MM", help="Target drawing width in mm (aspect kept). Default: fill the work area.")
+@click.option("--height", type=float, metavar="MM", help="Target drawing height in mm (aspect kept).")
+@click.option("--scale", type=float, metavar="MM", help="Fixed scale: mm per source unit (px, or mm: 1 = an SVG/DXF at true size).")
+@click.option("--margin", type=float, metavar="MM", help="Margin inside the work area (default: the profile's).")
+@click.option("--rotate", type=click.Choice(["0", "90", "180", "270", "auto"]),
+              help="Quarter turns counter-clockwise; auto turns the drawing when it then fits larger.")
+@click.option("--fit", type=click.Choice(["canvas", "ink"]), help="Fit the whole picture frame (canvas) or only what is drawn (ink).")
+@click.option("--keep-direction", is_flag=True, default=None, help="Never draw a stroke backwards (for pens that draw differently each way).")
 @PLUGIN_DIR
-def convert(input, outdir, machine, tracer, tracer_opt, posts, post_opt, solver, as_json, plugin_dirs):
+def convert(input, outdir, machine, tracer, tracer_opt, posts, post_opt, solver, smoothing, as_json, width, height, scale, margin,
+            rotate, fit, keep_direction, plugin_dirs):
     """Convert a picture into a machine job: PLC packet file, G-code and SVG preview."""
     from .machine import load_machine
     from .pipeline import Settings, convert as run
@@ -93,7 +109,11 @@ def convert(input, outdir, machine, tracer, tracer_opt, posts, post_opt, solver,
         posts=tuple(posts) or ("plc", "gcode", "svg"),
         post_options=post_opts,
         solver=solver,
+        smoothing=smoothing,
         plugin_dirs=tuple(plugin_dirs),
+        layout={k: v for k, v in dict(width=width, height=height, scale=scale, margin=margin, rotate=rotate, fit=fit).items()
+                if v is not None},
+        order={"reverse": False} if keep_direction else {},
     )
     unused = set(post_opts) - set(settings.posts)
     if unused:

@@ -1,41 +1,187 @@
-"""Layout: a traced drawing scaled into the machine's work area.
+"""Layout: a traced drawing placed in the machine's work area, in millimetres.
 
-Pictures keep their framing (the source canvas is fitted, not just the inked
-part), aspect ratio is kept, the result is centred inside the margin, image
-rows (y down) become machine y (up), and strokes shorter than the pen width
-are dropped: they would only leave a dot.
+Pictures keep their framing (the whole canvas is fitted, not just the inked
+part, unless ``fit = "ink"``); the aspect ratio is always kept; the drawing is
+centred inside the margin, optionally rotated by a quarter turn when that
+makes it larger (``rotate = "auto"``), or set to a target size (``width`` /
+``height`` in mm) or a fixed ``scale`` (mm per drawing unit: 1 draws an SVG
+in mm at its true size). Image rows (y down) become machine y (up), and
+strokes shorter than the pen width are dropped: they would only leave a dot.
+
+Image tracers put a pixel's centre at its integer index, so a W x H picture's
+canvas is [-0.5, W - 0.5] x [-0.5, H - 0.5] (``units == "px"``); other
+drawings may name their canvas in ``meta["canvas"] = (x0, y0, x1, y1)``.
+
+Options come from the profile's ``[layout]`` / ``[order]`` tables, overridden
+by the CLI; both are checked here so that a bad value fails before any work.
 """
 
 from __future__ import annotations
 
+from typing import Any
+
 import numpy as np
 
-from .errors import InputError
-from .model import Drawing, polyline_length
+from .errors import DoodleError, InputError
+from .model import Drawing
+
+ROTATIONS = ("0", "90", "180", "270", "auto")
+FITS = ("canvas", "ink")
+
+LAYOUT_DEFAULTS: dict[str, Any] = {
+    "margin": None,  # mm; None = the work area's margin
+    "rotate": "0",  # quarter turns counter-clockwise, or "auto" for the larger of 0 and 90
+    "width": None,  # mm; target size (aspect kept: the drawing fits both when both are given)
+    "height": None,
+    "scale": None,  # mm per drawing unit (px or mm); excludes width/height
+    "fit": "canvas",  # "canvas": the whole picture frame; "ink": only what is drawn
+    "min_length": None,  # mm; shorter strokes are dropped; None = the pen width
+}
+ORDER_DEFAULTS: dict[str, Any] = {
+    "reverse": True,  # strokes may be drawn backwards (false for pens that draw differently each way)
+    "merge": 0.05,  # mm; strokes whose ends meet within this are drawn as one
+    "budget": 1.0,  # s spent improving the greedy order (2-opt / Or-opt)
+}
 
 
-def fit_to_work_area(drawing: Drawing, machine) -> Drawing:
-    """The drawing in machine millimetres, inside the work area's margin."""
+def _number(value, where: str, error, minimum: float = 0.0, strict: bool = True) -> float:
+    try:
+        if isinstance(value, bool):
+            raise ValueError
+        v = float(value)
+    except (TypeError, ValueError):
+        raise error(f"{where} must be a number, got {value!r}") from None
+    if not np.isfinite(v) or v < minimum or (strict and v == minimum):
+        raise error(f"{where} must be {'>' if strict else '>='} {minimum:g}, got {value!r}")
+    return v
+
+
+def layout_options(raw: dict[str, Any] | None, where: str = "layout", error: type[DoodleError] = InputError
+                   ) -> dict[str, Any]:
+    """Checked layout options: the defaults overlaid by ``raw`` (CLI strings or TOML values)."""
+    out = dict(LAYOUT_DEFAULTS)
+    for key, value in (raw or {}).items():
+        if key not in LAYOUT_DEFAULTS:
+            raise error(f"{where}: unknown layout option '{key}'; use one of {', '.join(LAYOUT_DEFAULTS)}")
+        if value is None:
+            continue
+        w = f"{where} {key}"
+        if key == "rotate":
+            v = str(value).strip().lower().removesuffix(".0")
+            if v not in ROTATIONS:
+                raise error(f"{w} must be one of {', '.join(ROTATIONS)}, got {value!r}")
+            out[key] = v
+        elif key == "fit":
+            v = str(value).strip().lower()
+            if v not in FITS:
+                raise error(f"{w} must be one of {', '.join(FITS)}, got {value!r}")
+            out[key] = v
+        elif key in ("margin", "min_length"):
+            out[key] = _number(value, w, error, strict=False)
+        else:
+            out[key] = _number(value, w, error)
+    if out["scale"] is not None and (out["width"] is not None or out["height"] is not None):
+        raise error(f"{where}: give a scale or a target width/height, not both")
+    return out
+
+
+def order_options(raw: dict[str, Any] | None, where: str = "order", error: type[DoodleError] = InputError
+                  ) -> dict[str, Any]:
+    """Checked ordering options: the defaults overlaid by ``raw``."""
+    out = dict(ORDER_DEFAULTS)
+    for key, value in (raw or {}).items():
+        if key not in ORDER_DEFAULTS:
+            raise error(f"{where}: unknown order option '{key}'; use one of {', '.join(ORDER_DEFAULTS)}")
+        if value is None:
+            continue
+        if key == "reverse":
+            if isinstance(value, str) and value.strip().lower() in ("1", "true", "yes", "on", "0", "false", "no", "off"):
+                value = value.strip().lower() in ("1", "true", "yes", "on")
+            if not isinstance(value, bool):
+                raise error(f"{where} reverse must be true or false, got {value!r}")
+            out[key] = value
+        else:
+            out[key] = _number(value, f"{where} {key}", error, strict=False)
+    return out
+
+
+def _canvas(drawing: Drawing, pts: np.ndarray, fit: str) -> tuple[float, float, float, float]:
+    """(x0, y0, x1, y1) in drawing units: the frame to fit."""
+    ink = (*pts.min(axis=0), *pts.max(axis=0))
+    if fit == "ink":
+        return ink
+    frame = drawing.meta.get("canvas")
+    if frame is None and drawing.extent is not None:
+        w, h = drawing.extent
+        off = 0.5 if drawing.units == "px" else 0.0  # pixel centres at integer indices
+        frame = (-off, -off, w - off, h - off)
+    if frame is None:
+        return ink
+    return (min(frame[0], ink[0]), min(frame[1], ink[1]), max(frame[2], ink[2]), max(frame[3], ink[3]))
+
+
+def fit_to_work_area(drawing: Drawing, machine, options: dict[str, Any] | None = None) -> Drawing:
+    """The drawing in machine millimetres, inside the work area's margin.
+
+    ``options`` override the profile's ``[layout]`` table (keys as
+    ``LAYOUT_DEFAULTS``). Raises InputError when there is nothing to draw or
+    the requested size does not fit.
+    """
+    opt = layout_options({**getattr(machine, "layout", {}), **(options or {})})
+    src = drawing.source or "drawing"
     if not drawing.polylines:
-        raise InputError(f"{drawing.source}: nothing to draw; try other tracer options or another picture")
-    xmin, ymin, xmax, ymax = drawing.bounds
-    if drawing.extent is not None:  # fit the whole canvas, keep the composition
-        xmin, ymin = min(xmin, 0.0), min(ymin, 0.0)
-        xmax, ymax = max(xmax, drawing.extent[0]), max(ymax, drawing.extent[1])
-    w, h = max(xmax - xmin, 1e-9), max(ymax - ymin, 1e-9)
-    aw, ah = machine.width - 2 * machine.margin, machine.height - 2 * machine.margin
-    scale = min(aw / w, ah / h)
-    ox = machine.margin + (aw - w * scale) / 2
-    oy = machine.margin + (ah - h * scale) / 2
-    out = []
-    for p in drawing.polylines:
-        x = (p[:, 0] - xmin) * scale + ox
-        y = ((ymax - p[:, 1]) if drawing.y_down else (p[:, 1] - ymin)) * scale + oy
-        q = np.column_stack([x, y])
-        if polyline_length(q) >= machine.pen.width:
-            out.append(q)
+        raise InputError(f"{src}: nothing to draw; try other tracer options or another picture")
+    pts = np.concatenate(drawing.polylines)
+    if not np.isfinite(pts).all():
+        raise InputError(f"{src}: the drawing has non-finite coordinates; check the file")
+    x0, y0, x1, y1 = _canvas(drawing, pts, opt["fit"])
+    if drawing.y_down:  # to y up: flip about the canvas
+        y0, y1 = -y1, -y0
+    flip_y = -1.0 if drawing.y_down else 1.0
+    margin = machine.margin if opt["margin"] is None else opt["margin"]
+    aw, ah = machine.width - 2 * margin, machine.height - 2 * margin
+    if aw <= 0 or ah <= 0:
+        raise InputError(f"{src}: margin {margin:g} mm leaves no room on the {machine.width:g} x {machine.height:g} mm work area; use a smaller margin")
+    w, h = max(x1 - x0, 1e-9), max(y1 - y0, 1e-9)
+
+    def fill(turns: int) -> float:  # the scale that fills the area
+        cw, ch = (w, h) if turns % 2 == 0 else (h, w)
+        return min(aw / cw, ah / ch)
+
+    # auto: the quarter turn only when it makes the drawing larger (squarish pictures stay upright)
+    turns = (1 if fill(1) > fill(0) * (1 + 1e-9) else 0) if opt["rotate"] == "auto" else int(opt["rotate"]) // 90
+    cw, ch = (w, h) if turns % 2 == 0 else (h, w)
+    if opt["scale"] is not None:
+        scale = opt["scale"]
+    elif opt["width"] is not None or opt["height"] is not None:
+        scale = min(opt["width"] / cw if opt["width"] is not None else np.inf,
+                    opt["height"] / ch if opt["height"] is not None else np.inf)
+    else:
+        scale = fill(turns)
+    if cw * scale > aw * (1 + 1e-9) or ch * scale > ah * (1 + 1e-9):
+        raise InputError(
+            f"{src}: at {cw * scale:.1f} x {ch * scale:.1f} mm the drawing does not fit the "
+            f"{aw:g} x {ah:g} mm inside the margin of machine '{machine.name}'; choose a smaller size or scale")
+    cx, cy = (x0 + x1) / 2, (y0 + y1) / 2
+    ox, oy = margin + aw / 2, margin + ah / 2
+    cos, sin = [(1, 0), (0, 1), (-1, 0), (0, -1)][turns]
+    min_len = machine.pen.width if opt["min_length"] is None else opt["min_length"]
+    # All points at once: thousands of hatch strokes cost one pass, not a loop.
+    x, y = pts[:, 0] - cx, flip_y * pts[:, 1] - cy
+    q = np.column_stack([ox + scale * (cos * x - sin * y), oy + scale * (sin * x + cos * y)])
+    counts = np.array([len(p) for p in drawing.polylines])
+    stop = np.cumsum(counts)
+    seg = np.r_[0.0, np.hypot(*np.diff(q, axis=0).T)]
+    seg[stop[:-1]] = 0.0  # no segment between one polyline's end and the next one's start
+    cum = np.cumsum(seg)
+    lengths = cum[stop - 1] - cum[stop - counts]
+    keep = (counts >= 2) & (lengths >= max(min_len, 1e-9))
+    out = [piece for piece, k in zip(np.split(q, stop[:-1]), keep) if k]
     if not out:
-        raise InputError(f"{drawing.source}: every stroke is shorter than the pen width ({machine.pen.width:g} mm); use a larger picture or a finer pen")
-    meta = dict(drawing.meta, scale_mm_per_unit=scale, dropped_short=len(drawing.polylines) - len(out))
+        raise InputError(f"{src}: every stroke is shorter than {min_len:g} mm (the pen width) at this size; "
+                         "draw it larger or use a finer pen")
+    meta = dict(drawing.meta, scale_mm_per_unit=scale, rotation_deg=90 * turns,
+                size_mm=(cw * scale, ch * scale), dropped_short=len(drawing.polylines) - len(out))
+    meta.pop("canvas", None)
     return Drawing(tuple(out), units="mm", y_down=False, source=drawing.source,
                    extent=(machine.width, machine.height), meta=meta)

@@ -47,15 +47,19 @@ class Machine:
     home: tuple[float, float] = (0.0, 0.0)
     pen: Pen = Pen()
     travel_speed: float | None = None  # mm/s per axis for pen-up moves
+    travel_law: str = "trapezoid"  # pen-up move profile, see doodlecam.travel
     delta_time: float = 0.04  # s, velocity sample period
     degree: int = 3
     tolerance: float = 0.1  # mm, spline fit tolerance
     kinematics: str = "cartesian"
     kinematics_params: dict[str, Any] = field(default_factory=dict)
-    solver: str = "lp"
+    solver: str = "reach"
+    smoothing: float = 1.0  # weight of the smoothing QP (solver qp[:backend]) against time
     description: str = ""
     source: str = ""
     plugin_options: dict[str, dict[str, Any]] = field(default_factory=dict)  # "post.gcode" -> {...}
+    layout: dict[str, Any] = field(default_factory=dict)  # [layout], checked by doodlecam.layout
+    order: dict[str, Any] = field(default_factory=dict)  # [order], checked by doodlecam.layout
 
     @property
     def x(self) -> Axis:
@@ -77,14 +81,18 @@ class Machine:
 
 _SCHEMA: dict[str, dict[str, tuple[type, bool]]] = {
     # table -> key -> (type, required). Numbers accept int or float.
-    "machine": {"name": (str, True), "description": (str, False), "kinematics": (str, False), "solver": (str, False)},
+    "machine": {"name": (str, True), "description": (str, False), "kinematics": (str, False), "solver": (str, False),
+                "smoothing": (float, False)},
     "work_area": {"width": (float, True), "height": (float, True), "margin": (float, False), "home": (list, False)},
     "axes.x": {"steps_per_mm": (float, True), "max_velocity": (float, True), "max_acceleration": (float, True)},
     "axes.y": {"steps_per_mm": (float, True), "max_velocity": (float, True), "max_acceleration": (float, True)},
     "pen": {"width": (float, False), "up_delay": (float, False), "down_delay": (float, False), "max_speed": (float, False)},
-    "travel": {"speed": (float, False)},
+    "travel": {"speed": (float, False), "law": (str, False)},
     "sampling": {"delta_time": (float, False)},
     "fit": {"degree": (int, False), "tolerance": (float, False)},
+    # layout and order: see doodlecam/layout.py and docs/tracing.md (values are checked there)
+    "layout": {k: (object, False) for k in ("margin", "rotate", "width", "height", "scale", "fit", "min_length")},
+    "order": {k: (object, False) for k in ("reverse", "merge", "budget")},
 }
 _FREE_TABLES = ("kinematics", "trace", "post", "transport")  # plugin-defined contents
 _NON_NEGATIVE = {"work_area.margin", "pen.up_delay", "pen.down_delay"}
@@ -152,6 +160,18 @@ def _table(data: dict, dotted: str) -> Any:
     return node
 
 
+def _travel_law(path: str, law: str | None) -> str:
+    from .travel import TRAVEL_ALIASES, TRAVEL_LAWS, travel_law_name
+
+    try:
+        return travel_law_name(law)
+    except ValueError:
+        names = list(TRAVEL_LAWS) + list(TRAVEL_ALIASES)
+        hint = difflib.get_close_matches(str(law), names, n=1)
+        did = f" (did you mean '{hint[0]}'?)" if hint else ""
+        raise MachineError(f"{path}: [travel] law {law!r} is unknown{did}; use one of {', '.join(names)}") from None
+
+
 def parse_machine(data: dict[str, Any], path: str = "<profile>") -> Machine:
     """Validate a profile's parsed TOML and build a Machine."""
     allowed_top = {t.split(".")[0] for t in _SCHEMA} | set(_FREE_TABLES)
@@ -214,13 +234,16 @@ def parse_machine(data: dict[str, Any], path: str = "<profile>") -> Machine:
             if not isinstance(opts, dict):
                 raise MachineError(f"{path}: [{group}.{name}] must be a table of options; fix the profile")
             plugin_options[f"{group}.{name}"] = dict(opts)
+    from .layout import layout_options, order_options
+
     m = vals["machine"]
     return Machine(
         name=m["name"],
         description=m.get("description", ""),
         kinematics=m.get("kinematics", "cartesian"),
         kinematics_params=dict(data.get("kinematics") or {}),
-        solver=m.get("solver", "lp"),
+        solver=m.get("solver", "reach"),
+        smoothing=m.get("smoothing", 1.0),
         width=wa["width"],
         height=wa["height"],
         margin=margin,
@@ -228,11 +251,14 @@ def parse_machine(data: dict[str, Any], path: str = "<profile>") -> Machine:
         axes=axes_t,  # type: ignore[arg-type]
         pen=pen,
         travel_speed=vals["travel"].get("speed"),
+        travel_law=_travel_law(path, vals["travel"].get("law")),
         delta_time=vals["sampling"].get("delta_time", 0.04),
         degree=degree,
         tolerance=fit.get("tolerance", 0.1),
         source=path,
         plugin_options=plugin_options,
+        layout=layout_options(vals["layout"], f"{path}: [layout]", MachineError),
+        order=order_options(vals["order"], f"{path}: [order]", MachineError),
     )
 
 

@@ -22,7 +22,6 @@ from .errors import DoodleError, InputError, OutputError, PlanError, PluginError
 from .machine import Machine
 from .model import Drawing, Job, Stroke
 
-SOLVERS = ("lp", "lp:highs", "lp:clarabel", "lp:osqp")
 
 
 @dataclass
@@ -33,7 +32,10 @@ class Settings:
     posts: tuple[str, ...] = ("plc", "gcode", "svg")
     post_options: dict[str, dict[str, Any]] = field(default_factory=dict)
     solver: str | None = None
+    smoothing: float | None = None
     plugin_dirs: tuple[str, ...] = ()
+    layout: dict[str, Any] = field(default_factory=dict)  # overrides the profile's [layout] (doodlecam.layout)
+    order: dict[str, Any] = field(default_factory=dict)  # overrides the profile's [order]
 
 
 def _guarded(what: str, fn, *args):
@@ -81,34 +83,38 @@ def kinematics_for(machine: Machine, plugin_dirs=()):
     return cls(machine, machine.kinematics_params)
 
 
-def solver_backend(spec: str) -> str:
-    if spec not in SOLVERS:
-        raise PlanError(f"unknown solver '{spec}'; choose one of {', '.join(SOLVERS)}")
-    return "highs" if spec == "lp" else spec.split(":", 1)[1]
+def plan_job(drawing: Drawing, machine: Machine, solver: str = "reach", plugin_dirs=(), order: dict | None = None,
+             smoothing: float | None = None) -> Job:
+    """Order, fit, plan and sample a drawing already in machine millimetres.
 
-
-def plan_job(drawing: Drawing, machine: Machine, solver: str = "lp", plugin_dirs=()) -> Job:
-    """Order, fit, plan and sample a drawing already in machine millimetres."""
+    ``order`` overrides the profile's [order] options (doodlecam.layout.ORDER_DEFAULTS).
+    """
     from .fit import fit_pieces
-    from .order import order_polylines
+    from .layout import order_options
+    from .order import order_strokes
     from .plan import Limits, check_profile, plan_stroke
     from .sample import sample_stroke
     from .travel import make_travel
 
-    backend = solver_backend(solver)
+    from .plan import SOLVERS
+
+    if solver not in SOLVERS:
+        raise PlanError(f"unknown solver '{solver}'; choose one of {', '.join(SOLVERS)}")
+    smoothing = machine.smoothing if smoothing is None else smoothing
     kin = kinematics_for(machine, plugin_dirs)
     kin.check_reachable(np.concatenate(drawing.polylines))
     limits = Limits.from_machine(machine, kin)
     timings: dict[str, float] = {}
 
     t0 = time.perf_counter()
-    order, flips = order_polylines(drawing.polylines, machine.home)
+    oo = order_options({**machine.order, **(order or {})})
+    ordered = order_strokes(drawing.polylines, machine.home, allow_reverse=oo["reverse"],
+                            merge=oo["merge"], budget=oo["budget"])
     timings["order"] = time.perf_counter() - t0
 
     t0 = time.perf_counter()
     strokes = []
-    for i, flip in zip(order, flips):
-        p = drawing.polylines[i][::-1] if flip else drawing.polylines[i]
+    for i, p in zip(ordered.source, ordered.polylines):
         for spline, err in fit_pieces(p, machine.degree, machine.tolerance):
             strokes.append(Stroke(spline=spline, source_index=i, fit_error=err))
     timings["fit"] = time.perf_counter() - t0
@@ -118,7 +124,7 @@ def plan_job(drawing: Drawing, machine: Machine, solver: str = "lp", plugin_dirs
     planned = []
     for n, s in enumerate(strokes, 1):
         try:
-            prof = plan_stroke(s.spline, limits, solver=backend)
+            prof = plan_stroke(s.spline, limits, solver=solver, smoothing=smoothing)
         except PlanError as e:
             raise PlanError(f"stroke {n} of {len(strokes)}: {e}") from None
         acc, vel = check_profile(s.spline, prof, limits)
@@ -221,8 +227,10 @@ def convert(path: str | Path, outdir: str | Path, settings: Settings) -> Result:
     t0 = time.perf_counter()
     drawing = trace(path, settings)
     timings["trace"] = time.perf_counter() - t0
-    drawing_mm = fit_to_work_area(drawing, settings.machine)
-    job = plan_job(drawing_mm, settings.machine, settings.solver or settings.machine.solver, settings.plugin_dirs)
+    drawing_mm = fit_to_work_area(drawing, settings.machine, settings.layout)
+    job = plan_job(drawing_mm, settings.machine, settings.solver or settings.machine.solver, settings.plugin_dirs,
+                   smoothing=settings.smoothing,
+                   order=settings.order)
     timings.update(job.meta["timings"])
     t0 = time.perf_counter()
     outputs = run_posts(job, settings)

@@ -17,6 +17,16 @@ from .errors import InputError
 IMAGE_EXTENSIONS: tuple[str, ...] = (".png", ".jpg", ".jpeg", ".bmp", ".tif", ".tiff", ".gif")
 
 _FIX = "give a PNG, JPEG, BMP, TIFF or GIF"
+# Pictures above this are refused from their header, before any pixel is
+# decoded: a plotter cannot draw that much detail, and tracing needs about
+# 60 bytes per pixel (a 4000 x 3000 photo stays well under 1 GB).
+MAX_PIXELS = 40_000_000
+
+
+class _TooLarge(Exception):
+    def __init__(self, w: int, h: int):
+        super().__init__(f"{w} x {h} px")
+        self.w, self.h = w, h
 _LUMA = np.array([0.2125, 0.7154, 0.0721])  # Rec. 709, as skimage.color.rgb2gray
 
 
@@ -50,6 +60,9 @@ def load_gray(path: str | os.PathLike) -> np.ndarray:
 
     try:
         array = _read_pillow(p)
+    except _TooLarge as e:
+        raise InputError(f"{name}: {e.w} x {e.h} px is more than {MAX_PIXELS // 1_000_000} megapixels; "
+                         "scale the picture down (a plotter cannot draw that much detail)") from None
     except MemoryError:
         raise InputError(f"{name}: too large to load into memory; scale the picture down") from None
     except Exception as e:  # decoders raise a zoo of types (OSError, SyntaxError, struct.error, ...)
@@ -58,7 +71,13 @@ def load_gray(path: str | os.PathLike) -> np.ndarray:
             try:
                 import imageio.v3 as iio
 
+                shape = iio.improps(p, index=0).shape
+                if len(shape) >= 2 and shape[0] * shape[1] > MAX_PIXELS:
+                    raise _TooLarge(shape[1], shape[0])
                 array = np.asarray(iio.imread(p, index=0))
+            except _TooLarge as big:
+                raise InputError(f"{name}: {big.w} x {big.h} px is more than {MAX_PIXELS // 1_000_000} megapixels; "
+                                 "scale the picture down (a plotter cannot draw that much detail)") from None
             except Exception:
                 pass
         if array is None:
@@ -66,7 +85,7 @@ def load_gray(path: str | os.PathLike) -> np.ndarray:
             if kind == "UnidentifiedImageError":
                 msg = f"not a readable image (cannot identify image file); {_FIX}"
             elif "DecompressionBomb" in kind:
-                msg = f"too large to decode safely ({_one_line(e)}); scale the picture down"
+                msg = f"more than {MAX_PIXELS // 1_000_000} megapixels ({_one_line(e)}); scale the picture down"
             else:
                 msg = f"damaged or truncated image ({_one_line(e)}); re-save or re-download it"
             raise InputError(f"{name}: {msg}") from None
@@ -88,7 +107,9 @@ def _read_pillow(p: Path) -> np.ndarray:
     """
     from PIL import Image, ImageOps
 
-    with Image.open(p) as im:
+    with Image.open(p) as im:  # reads the header only
+        if im.width * im.height > MAX_PIXELS:
+            raise _TooLarge(im.width, im.height)
         im.seek(0)  # first frame of a GIF / multi-page TIFF
         im.load()  # decode now, so truncation is caught here
         im = ImageOps.exif_transpose(im)
@@ -103,9 +124,19 @@ def _read_pillow(p: Path) -> np.ndarray:
 
 
 def _to_gray(a: np.ndarray) -> np.ndarray | None:
-    """Scale to [0, 1] by the pixel type, composite alpha on white, weight RGB."""
+    """Scale to [0, 1] by the pixel type, composite alpha on white, weight RGB.
+
+    Works a channel at a time in float32 (exact for 8- and 16-bit values), so
+    a 12-megapixel colour photo never becomes a float64 RGB array (~300 MB).
+    """
+    if a.ndim == 3 and a.shape[2] in (1, 2, 3, 4):
+        chans = [a[..., k] for k in range(a.shape[2])]
+    elif a.ndim == 2:
+        chans = [a]
+    else:
+        return None
     if a.dtype == bool:
-        v = a.astype(float)
+        scale = lambda c: c.astype(np.float32)  # noqa: E731
     elif np.issubdtype(a.dtype, np.integer):
         if a.dtype.itemsize == 1:
             top = 255.0
@@ -113,18 +144,25 @@ def _to_gray(a: np.ndarray) -> np.ndarray | None:
             top = 65535.0
         else:
             top = float(np.iinfo(a.dtype).max)
-        v = a.astype(float) / top
+        wide = np.float32 if a.dtype.itemsize <= 2 else np.float64
+        scale = lambda c: c.astype(wide) * wide(1.0 / top)  # noqa: E731
     elif np.issubdtype(a.dtype, np.floating):
         v = np.nan_to_num(a.astype(float))
         lo, hi = v.min(), v.max()
         if lo < 0.0 or hi > 1.0:  # not a [0, 1] float picture: stretch it
             v = (v - lo) / (hi - lo) if hi > lo else np.zeros_like(v)
+        chans = [v[..., k] for k in range(v.shape[2])] if v.ndim == 3 else [v]
+        scale = lambda c: c  # noqa: E731
     else:
         return None
-    if v.ndim == 3 and v.shape[2] in (1, 2, 3, 4):
-        alpha = v[..., 3] if v.shape[2] == 4 else v[..., 1] if v.shape[2] == 2 else None
-        lum = v[..., :3] @ _LUMA if v.shape[2] >= 3 else v[..., 0]
-        v = lum if alpha is None else lum * alpha + (1.0 - alpha)  # onto white paper
-    if v.ndim != 2:
-        return None
-    return np.clip(v, 0.0, 1.0)
+    n = len(chans)
+    if n >= 3:
+        lum = scale(chans[0]) * float(_LUMA[0])
+        lum += scale(chans[1]) * float(_LUMA[1])
+        lum += scale(chans[2]) * float(_LUMA[2])
+    else:
+        lum = scale(chans[0])
+    if n in (2, 4):
+        alpha = scale(chans[n - 1])
+        lum = lum * alpha + (1.0 - alpha)  # onto white paper
+    return np.clip(lum, 0.0, 1.0).astype(np.float64, copy=False)

@@ -59,16 +59,20 @@ def _solve(stroke: Stroke, dt: float, m: int, limits):
     end = sp.csr_matrix(([1.0], ([0], [n + m - 1])), shape=(1, n + m))
     Aeq = sp.csc_matrix(sp.kron(I2, sp.vstack([ramp, end])))
     beq = np.concatenate([np.append(np.zeros(m), target[-1, i]) for i in range(2)])
-    # differences v_j - v_j-1 for j = 1..m, mapped to actuators
-    D = sp.hstack([sp.diags([1.0, -1.0], [0, -1], shape=(m, n)), sp.csr_matrix((m, m))])
-    V = sp.hstack([sp.eye(n), sp.csr_matrix((n, m))])
-    Mact = sp.csr_matrix(limits.M)
-    Gd, Gv = sp.kron(Mact, D), sp.kron(Mact, V)
-    # a hair inside the limits so solver tolerance (~1e-8) never shows as overshoot
-    da = np.repeat(limits.amax * dt * (1 - 1e-6), m)
-    dv = np.repeat(limits.vmax * (1 - 1e-6), n)
-    G = sp.csc_matrix(sp.vstack([Gd, -Gd, Gv, -Gv]))
-    h = np.concatenate([da, da, dv, dv])
+    # differences v_j - v_j-1 for j = 1..m, mapped to actuators. (Nonlinear
+    # kinematics: the pen's targets cannot be bounded per actuator linearly;
+    # the plan itself is certified, the samples only track it.)
+    G = h = None
+    if limits.M is not None:
+        D = sp.hstack([sp.diags([1.0, -1.0], [0, -1], shape=(m, n)), sp.csr_matrix((m, m))])
+        V = sp.hstack([sp.eye(n), sp.csr_matrix((n, m))])
+        Mact = sp.csr_matrix(limits.M)
+        Gd, Gv = sp.kron(Mact, D), sp.kron(Mact, V)
+        # a hair inside the limits so solver tolerance (~1e-8) never shows as overshoot
+        da = np.repeat(limits.amax * dt * (1 - 1e-6), m)
+        dv = np.repeat(limits.vmax * (1 - 1e-6), n)
+        G = sp.csc_matrix(sp.vstack([Gd, -Gd, Gv, -Gv]))
+        h = np.concatenate([da, da, dv, dv])
     with warnings.catch_warnings():  # "infeasible" is an expected answer here
         warnings.simplefilter("ignore")
         v = solve_qp(P, q, G, h, Aeq, beq, solver="clarabel")

@@ -18,11 +18,10 @@ class Cartesian(Kinematics):
 
     linear_map = np.eye(2)
 
-    def velocity_limits(self):
-        return np.array([self.machine.x.max_velocity, self.machine.y.max_velocity])
-
-    def acceleration_limits(self):
-        return np.array([self.machine.x.max_acceleration, self.machine.y.max_acceleration])
+    def actuator_limits(self):
+        m = self.machine
+        return (np.array([m.x.max_velocity, m.y.max_velocity]),
+                np.array([m.x.max_acceleration, m.y.max_acceleration]))
 
     def check_reachable(self, points) -> None:
         m = self.machine

@@ -30,6 +30,7 @@ from doodlecam.raster import IMAGE_EXTENSIONS, load_gray
 # (fraction of black-to-white), so a blank, noisy sheet gives no edges.
 _MIN_STEP = 0.02
 _TANGENT_PX = 5  # how far along a chain its direction at a junction is measured
+_BIG = 4_000_000  # pixels; larger pictures are filtered in float32
 
 
 class EdgesTracer(Tracer):
@@ -42,7 +43,8 @@ class EdgesTracer(Tracer):
         Option("high", float, 0.9, "hysteresis high threshold, as a quantile (0-1) of gradient strength"),
         Option("equalize", bool, False, "adaptive histogram equalisation (CLAHE) first, for dull or backlit photos"),
         Option("smooth", float, 0.0, "median-filter radius in px applied first; removes texture/speckle, keeps edges"),
-        Option("simplify", float, 0.8, "line simplification tolerance in px (Ramer-Douglas-Peucker)"),
+        Option("simplify", float, 0.5, "line simplification tolerance in px (Ramer-Douglas-Peucker)"),
+        Option("join", float, 2.0, "join strokes whose free ends are at most this far apart, in px (0 = never)"),
         Option("min_length", float, 4.0, "drop strokes shorter than this, in px"),
     )
 
@@ -52,7 +54,7 @@ class EdgesTracer(Tracer):
         gray = load_gray(path)
         edges, low, high = self.edge_map(gray, opt)
         chains, n_objects, n_junctions = link_edges(edges, opt["min_length"])
-        polylines = _finish(chains, opt["simplify"], opt["min_length"])
+        polylines = _finish(chains, opt["simplify"], opt["min_length"], opt["join"])
         if not polylines:
             raise InputError(
                 f"{path}: no edges found (the picture looks blank at sigma={opt['sigma']:g}); "
@@ -65,7 +67,7 @@ class EdgesTracer(Tracer):
             meta={"tracer": self.name, "options": opt, "edge_pixels": int(edges.sum()),
                   "edge_objects": n_objects, "junctions": n_junctions, "polylines": len(polylines),
                   "vertices": int(sum(len(p) for p in polylines)),
-                  "length_px": sum(_length(p) for p in polylines),
+                  "length_px": float(_lengths(polylines).sum()),
                   "low_threshold": low, "high_threshold": high},
         )
 
@@ -85,14 +87,64 @@ class EdgesTracer(Tracer):
             gray = ndi.median_filter(gray, footprint=morphology.disk(max(1, round(opt["smooth"]))))
         # Thresholds are quantiles of the very gradient magnitude Canny computes
         # (Gaussian, then unnormalised Sobel), so they adapt to the contrast.
+        if gray.size > _BIG:  # half the memory and time; float32 is ample for 8-bit tones
+            gray = gray.astype(np.float32)
         blurred = ndi.gaussian_filter(gray, opt["sigma"], mode="nearest")
-        magnitude = np.hypot(ndi.sobel(blurred, 0), ndi.sobel(blurred, 1))
-        low, high = np.quantile(magnitude, [opt["low"], opt["high"]])
+        low, high = np.quantile(_gradient_sample(blurred), [opt["low"], opt["high"]])
         floor = _MIN_STEP * 8.0 / (np.sqrt(2 * np.pi) * max(opt["sigma"], 0.5))  # Sobel peak of that step
         high = max(high, floor)
         low = min(max(low, 0.4 * floor), high)
-        edges = feature.canny(gray, sigma=opt["sigma"], low_threshold=low, high_threshold=high, mode="nearest")
-        return morphology.thin(edges), float(low), float(high)  # thin(), unlike skeletonize(), keeps line ends
+        # Canny on the picture we already blurred (sigma 0 = no second blur): the same edges, once.
+        edges = feature.canny(blurred, sigma=0.0, low_threshold=low, high_threshold=high, mode="nearest")
+        return thin(edges), float(low), float(high)
+
+
+def _gradient_sample(b: np.ndarray) -> np.ndarray:
+    """Sobel gradient magnitude of ``b`` (as Canny computes it): everywhere on
+    pictures up to _BIG pixels, else at about a million evenly spread pixels,
+    whose quantiles are as good and cost no whole-picture filter passes."""
+    from scipy import ndimage as ndi
+
+    if b.size <= _BIG or min(b.shape) < 3:
+        return np.hypot(ndi.sobel(b, 0), ndi.sobel(b, 1)).ravel()
+    k = int(np.ceil(np.sqrt(b.size / 1e6)))
+    r = np.arange(1, b.shape[0] - 1, k)[:, None]
+    c = np.arange(1, b.shape[1] - 1, k)[None, :]
+    g0 = (b[r + 1, c - 1] + 2 * b[r + 1, c] + b[r + 1, c + 1]) - (b[r - 1, c - 1] + 2 * b[r - 1, c] + b[r - 1, c + 1])
+    g1 = (b[r - 1, c + 1] + 2 * b[r, c + 1] + b[r + 1, c + 1]) - (b[r - 1, c - 1] + 2 * b[r, c - 1] + b[r + 1, c - 1])
+    return np.hypot(g0, g1).ravel()
+
+
+def thin(edges: np.ndarray) -> np.ndarray:
+    """skimage's ``morphology.thin`` (which, unlike skeletonize, keeps line ends), on edge pixels only.
+
+    The same two look-up tables, applied to the 3x3 neighbourhood codes of
+    the set pixels rather than of the whole picture: Canny edges are a few
+    per cent of a photo, so each pass costs that much instead of a full
+    correlation.
+    """
+    try:
+        from skimage.morphology._skeletonize import G123_LUT, G123P_LUT
+    except ImportError:  # a scikit-image without them: the whole-picture version
+        from skimage import morphology
+
+        return morphology.thin(edges)
+    skel = np.pad(edges.astype(bool), 1)
+    rr, cc = np.nonzero(skel)
+    ring = ((-1, -1, 8), (-1, 0, 4), (-1, 1, 2), (0, -1, 16), (0, 1, 1), (1, -1, 32), (1, 0, 64), (1, 1, 128))
+    while len(rr):
+        removed = 0
+        for lut in (G123_LUT, G123P_LUT):
+            code = np.zeros(len(rr), np.intp)
+            for dr, dc, wgt in ring:
+                code += skel[rr + dr, cc + dc] * wgt
+            gone = lut[code].astype(bool)
+            skel[rr[gone], cc[gone]] = False
+            rr, cc = rr[~gone], cc[~gone]
+            removed += int(gone.sum())
+        if not removed:
+            break
+    return skel[1:-1, 1:-1]
 
 
 def link_edges(edges: np.ndarray, min_length: float = 0.0) -> tuple[list[np.ndarray], int, int]:
@@ -198,10 +250,6 @@ def _graph(src, dst, n):
     return (m + m.T).tocsr()
 
 
-def _length(p: np.ndarray) -> float:
-    return float(np.hypot(*np.diff(p, axis=0).T).sum()) if len(p) > 1 else 0.0
-
-
 def _join(pts, start, stop, ca, cb) -> list[np.ndarray]:
     """Join chains ``pts[start:stop]`` through shared junctions, straightest first.
 
@@ -272,10 +320,27 @@ def _join(pts, start, stop, ca, cb) -> list[np.ndarray]:
     return out
 
 
-def _finish(chains: list[np.ndarray], tolerance: float, min_length: float) -> list[np.ndarray]:
-    """Simplify each chain and keep those at least ``min_length`` px long."""
+def _lengths(polylines: list[np.ndarray]) -> np.ndarray:
+    """Length of every polyline, in one pass over all points."""
+    if not polylines:
+        return np.zeros(0)
+    counts = np.array([len(p) for p in polylines])
+    stop = np.cumsum(counts)
+    seg = np.r_[0.0, np.hypot(*np.diff(np.concatenate(polylines), axis=0).T)]
+    seg[stop[:-1]] = 0.0  # not between one polyline and the next
+    cum = np.cumsum(seg)
+    return cum[stop - 1] - cum[stop - counts]
+
+
+def _finish(chains: list[np.ndarray], tolerance: float, min_length: float, join: float = 0.0) -> list[np.ndarray]:
+    """Join chains meeting end to end, simplify, keep those at least ``min_length`` px long."""
+    if join > 0 and len(chains) > 1:
+        from doodlecam.order import merge_ends
+
+        chains = merge_ends(chains, join)[0]
     out = simplify(chains, tolerance) if tolerance > 0 else chains
-    return [p for p in out if len(p) >= 2 and _length(p) >= max(min_length, 1e-9)]
+    keep = _lengths(out) >= max(min_length, 1e-9)
+    return [p for p, k in zip(out, keep) if k and len(p) >= 2]
 
 
 def simplify(chains: list[np.ndarray], tolerance: float) -> list[np.ndarray]:

@@ -23,7 +23,7 @@ def const_speed_time(spline, limits, n=200001):
     return spline.length / min(v_acc, v_vel)
 
 
-@pytest.mark.parametrize("solver", ["highs", "clarabel"])
+@pytest.mark.parametrize("solver", ["reach", "lp:clarabel", "lp:highs"])
 def test_report_curve_rest_to_rest_within_limits_everywhere(limits, solver):
     s = report_curve()
     prof = plan_stroke(s, limits, solver=solver)
@@ -36,8 +36,10 @@ def test_report_curve_rest_to_rest_within_limits_everywhere(limits, solver):
 
 def test_solvers_agree(limits):
     s = report_curve()
-    t = [plan_stroke(s, limits, solver=x).duration for x in ("highs", "clarabel")]
-    assert abs(t[0] - t[1]) < 1e-5 * t[0]
+    t = [plan_stroke(s, limits, solver=x, adaptive=False).duration for x in ("reach", "lp:clarabel", "lp:highs")]
+    # reach is exact where rows form a lattice; both-positive velocity rows can
+    # leave the LP's "max sum b" a hair different (measured ~1e-5)
+    assert max(t) - min(t) < 1e-4 * t[0]
 
 
 def test_grid_contains_knots_and_follows_length():
@@ -46,8 +48,11 @@ def test_grid_contains_knots_and_follows_length():
     assert np.all(np.isin(s.breakpoints, g))
     assert np.all(np.diff(g) > 0)
     assert 0.5 * s.length / 0.5 < len(g) < 3 * s.length / 0.5
-    tiny = Spline(3, s.control * 0.01)
-    assert len(make_grid(tiny, spacing=0.5)) < 30  # a 2 mm stroke needs no 1000 points
+    # density follows length and turning: a 2 mm straight stroke needs a handful
+    line = Spline(3, np.c_[np.linspace(0, 2, 4), np.zeros(4)])
+    assert len(make_grid(line, spacing=0.5)) <= 8
+    tiny = Spline(3, s.control * 0.01)  # same turns, 1/100 the length
+    assert len(make_grid(tiny, spacing=0.5)) < len(g) / 3
 
 
 def test_straight_line_matches_closed_form(limits):
@@ -102,4 +107,5 @@ def test_profile_state_is_consistent(limits):
     assert np.all(np.diff(u) >= -1e-12) and u[0] == 0 and abs(u[-1] - 1) < 1e-9
     # u-dot is the derivative of u(t)
     mid = (u[2:] - u[:-2]) / (t[2:] - t[:-2])
-    assert np.allclose(mid, ud[1:-1], atol=2e-3 * ud.max())
+    # exact for quadratics; where u-ddot jumps a central difference errs by <= |a| dt
+    assert np.allclose(mid, ud[1:-1], rtol=0, atol=np.abs(prof.a).max() * (t[1] - t[0]))

@@ -1,0 +1,151 @@
+"""Planner benchmark: doodlecam's solvers against toppra on the same paths.
+
+Set up (toppra is a peer, never a doodlecam dependency):
+
+    python3 -m venv /tmp/benchvenv
+    /tmp/benchvenv/bin/pip install -e . toppra
+    /tmp/benchvenv/bin/python benchmarks/bench_plan.py
+
+Paths: the report's kind of 8-control-point curve, a circle, a 60-control-point
+signature-like curve, a spiral where the velocity limit binds. Limits: 2000
+mm/s^2 and 150 mm/s per axis. Reference optimum: doodlecam's exact solver on
+the collocation grid at N = 200 000. "overshoot" is the worst relative excess
+over any limit on a grid 20x finer than the one solved on (0 = within limits).
+Times are medians of repeated runs in this process; quote the ratios.
+"""
+
+from __future__ import annotations
+
+import argparse
+import statistics
+import sys
+import time
+import warnings
+from pathlib import Path
+
+import numpy as np
+
+sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
+from doodlecam.model import Spline  # noqa: E402
+from doodlecam.plan import Limits, check_profile, interval_ratios, make_grid, plan_stroke, profile_times  # noqa: E402
+
+VMAX, AMAX = 150.0, 2000.0
+
+
+def paths() -> dict[str, Spline]:
+    from doodlecam.fit import fit_polyline
+
+    report = Spline(3, [[20, 20], [60, 90], [110, 30], [150, 110], [90, 150], [40, 120], [100, 60], [160, 40]])
+    t = np.linspace(0, 2 * np.pi, 400)
+    circle, _ = fit_polyline(np.c_[100 + 40 * np.cos(t), 100 + 40 * np.sin(t)], 3, 0.01)
+    # a handwriting-like stroke: loops and waves, no cusps (a cusp makes the
+    # collocation reference itself erratic, see the README)
+    i = np.arange(60.0)
+    signature = Spline(3, np.c_[20 + 4 * i + 9 * np.cos(0.9 * i), 100 + 30 * np.sin(0.45 * i) + 9 * np.sin(0.9 * i)])
+    tt = np.linspace(0, 6 * np.pi, 1500)
+    r = 20 + 12 * tt
+    spiral, _ = fit_polyline(np.c_[150 + r * np.cos(tt), 150 + r * np.sin(tt)], 3, 0.01)
+    return {"report-8": report, "circle": circle, "signature-60": signature, "spiral": spiral}
+
+
+def timed(fn, repeat):
+    fn()  # warm (numba compile, imports)
+    times = []
+    for _ in range(repeat):
+        t0 = time.perf_counter()
+        out = fn()
+        times.append(time.perf_counter() - t0)
+    return out, statistics.median(times)
+
+
+def overshoot(spline, u, b, limits):
+    wa, wv, wp = interval_ratios(spline, u, b, limits, 20)
+    return max(float(max(wa.max(), wv.max(), wp.max())) - 1.0, 0.0)
+
+
+def toppra_solve(spline: Spline, u: np.ndarray):
+    import toppra
+    import toppra.algorithm as algo
+    import toppra.constraint as constraint
+    from toppra.interpolator import AbstractGeometricPath
+
+    class SplinePath(AbstractGeometricPath):
+        def __call__(self, ss, order=0):
+            return spline(np.atleast_1d(ss), order) if np.ndim(ss) else spline(np.atleast_1d(ss), order)[0]
+
+        @property
+        def dof(self):
+            return 2
+
+        @property
+        def path_interval(self):
+            return np.array([0.0, 1.0])
+
+    path = SplinePath()
+    vc = constraint.JointVelocityConstraint(np.array([[-VMAX, VMAX]] * 2))
+    ac = constraint.JointAccelerationConstraint(np.array([[-AMAX, AMAX]] * 2),
+                                                discretization_scheme=constraint.DiscretizationType.Interpolation)
+    inst = algo.TOPPRA([vc, ac], path, gridpoints=u, parametrizer="ParametrizeSpline")
+    _, sd, _ = inst.compute_parameterization(0, 0)  # (sdd, sd, v)
+    return inst.problem_data.gridpoints, sd
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser()
+    ap.add_argument("--repeat", type=int, default=5)
+    ap.add_argument("--sizes", type=int, nargs="*", default=[1000, 10000])
+    args = ap.parse_args()
+    warnings.simplefilter("ignore")
+    limits = Limits(np.array([VMAX, VMAX]), np.array([AMAX, AMAX]), np.eye(2))
+    try:
+        import toppra  # noqa: F401
+        have_toppra = True
+        import logging
+        logging.getLogger("toppra").setLevel(logging.ERROR)
+    except ImportError:
+        have_toppra = False
+        print("(toppra not installed: see the module docstring; doodlecam columns only)\n")
+    print("| path | N | reference s | reach: time gap | reach: overshoot | reach: solve ms | "
+          "toppra: time gap | toppra: overshoot | toppra: solve ms | speed-up | lp:clarabel gap | qp: time cost |")
+    print("|---|---|---|---|---|---|---|---|---|---|---|---|")
+    for name, s in paths().items():
+        ref = plan_stroke(s, limits, n_points=200_000, mode="collocation", adaptive=False).duration
+        for n in args.sizes:
+            prof, t_reach = timed(lambda: plan_stroke(s, limits, n_points=n, adaptive=False), args.repeat)
+            acc, vel = check_profile(s, prof, limits)
+            over = max(acc, vel) - 1
+            lp = plan_stroke(s, limits, solver="lp:clarabel", n_points=n, adaptive=False).duration if n <= 10000 else float("nan")
+            qp = plan_stroke(s, limits, solver="qp", n_points=n, adaptive=False, smoothing=1.0).duration if n <= 2000 else float("nan")
+            row = [name, n, f"{ref:.5f}", f"{100 * (prof.duration / ref - 1):+.4f} %", f"{max(over, 0):.1e}",
+                   f"{1000 * t_reach:.2f}"]
+            if have_toppra:
+                (u, sd), t_top = timed(lambda: toppra_solve(s, make_grid(s, n_points=n)), args.repeat)
+                u, b = np.asarray(u), np.asarray(sd) ** 2
+                T = profile_times(u, b)[-1]
+                row += [f"{100 * (T / ref - 1):+.4f} %", f"{overshoot(s, u, b, limits):.1e}", f"{1000 * t_top:.2f}",
+                        f"{t_top / t_reach:.1f}x"]
+            else:
+                row += ["-", "-", "-", "-"]
+            row += [f"{100 * (lp / prof.duration - 1):+.4f} %", f"{100 * (qp / prof.duration - 1):+.3f} %" if qp == qp else "-"]
+            print("| " + " | ".join(map(str, row)) + " |")
+    picture()
+
+
+def picture() -> None:
+    """All strokes of a sample picture: plan + sample wall time."""
+    from doodlecam.machine import load_machine
+    from doodlecam.pipeline import Settings, plan_job, trace
+    from doodlecam.layout import fit_to_work_area
+
+    m = load_machine("doodlebot")
+    img = Path(__file__).resolve().parent.parent / "samples" / "images" / "camera.png"
+    d = fit_to_work_area(trace(img, Settings(machine=m)), m)
+    plan_job(d, m)  # warm
+    job = plan_job(d, m)
+    t = job.meta["timings"]
+    print(f"\ncamera.png, {len(job.strokes)} strokes: plan {t['plan']:.3f} s + sample {t['sample']:.3f} s = "
+          f"{t['plan'] + t['sample']:.3f} s; worst acceleration ratio {job.meta['worst_acceleration_ratio']:.12f}")
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,168 @@
+"""Tracing: edge fidelity, speed and memory of every tracer, and spline size per mm.
+
+    .venv/bin/python benchmarks/bench_trace.py            # all tables
+    .venv/bin/python benchmarks/bench_trace.py --quick    # skip the 4000 x 3000 photo and the fits
+
+Tables (Markdown):
+
+1. `edges` on every sample picture: the issue's fidelity targets, in image
+   space: the share of Canny's edge pixels within 1 px of a stroke, and the
+   share of stroke length within 1 px of an edge pixel (both >= 98 %).
+2. Hatching `camera` at several settings, best of 3 (target < 0.5 s).
+3. A 4000 x 3000 px photograph (chelsea scaled up, with sensor-like noise,
+   saved as JPEG) traced by every tracer, each in a fresh process: the trace's
+   wall time, the process's CPU time (imports included; the fairer figure on a
+   busy machine) and its peak resident memory, VmHWM (targets < 5 s, < 1 GB).
+4. Spline size: every sample traced, laid out on the `doodlebot` profile and
+   fitted at its default tolerance: control points per mm of stroke against
+   polyline vertices per mm.
+"""
+
+from __future__ import annotations
+
+import argparse
+import subprocess
+import sys
+import tempfile
+import time
+import warnings
+from pathlib import Path
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parent.parent
+IMAGES = sorted((ROOT / "samples" / "images").glob("*.png"))
+VECTORS = sorted((ROOT / "samples" / "vectors").glob("*.*"))
+
+
+def densify(p: np.ndarray, step: float) -> np.ndarray:
+    a, b = p[:-1], p[1:]
+    k = np.maximum(1, np.ceil(np.hypot(*(b - a).T) / step)).astype(int)
+    seg = np.repeat(np.arange(len(a)), k)
+    t = (np.arange(k.sum()) - np.repeat(np.cumsum(k) - k, k)) / np.repeat(k, k)
+    return np.vstack([a[seg] + t[:, None] * (b - a)[seg], p[-1:]])
+
+
+def fidelity() -> None:
+    from scipy.spatial import cKDTree
+    from skimage import feature
+
+    from doodlecam.plugins.edges import EdgesTracer
+    from doodlecam.raster import load_gray
+
+    tr = EdgesTracer()
+    opt = tr.resolve_options({})
+    print("| picture | strokes | Canny edge px | edge px within 1 px of a stroke | stroke length within 1 px of an edge px | trace s |")
+    print("|---|---|---|---|---|---|")
+    for img in IMAGES:
+        t = time.perf_counter()
+        d = tr.trace(img, {})
+        dt = time.perf_counter() - t
+        gray = load_gray(img)
+        _, low, high = tr.edge_map(gray, opt)
+        canny = feature.canny(gray, opt["sigma"], low, high, mode="nearest")  # Canny's own map, unthinned
+        px = np.argwhere(canny)[:, ::-1].astype(float)
+        dense = [densify(p, 0.1) for p in d.polylines]
+        pts = np.vstack(dense)
+        cover = (cKDTree(pts).query(px)[0] <= 1.0).mean()
+        w = np.concatenate([np.r_[np.hypot(*np.diff(q, axis=0).T), 0.0] for q in dense])
+        on = cKDTree(px).query(pts)[0] <= 1.0
+        print(f"| {img.name} | {len(d.polylines)} | {len(px)} | {100 * cover:.2f} % | {100 * (w * on).sum() / w.sum():.2f} % | {dt:.3f} |")
+
+
+def hatch_speed() -> None:
+    from doodlecam.plugins.hatch import HatchTracer
+
+    tr = HatchTracer()
+    cam = ROOT / "samples" / "images" / "camera.png"
+    tr.trace(cam, {})  # imports outside the timing
+    settings = [{}, {"cross": False}, {"join": True}, {"spacing": 1, "levels": 8},
+                {"spacing": 0.5, "levels": 8, "blur": 0}, {"spacing": 0.5, "levels": 8, "blur": 0, "join": True},
+                {"equalize": True, "blur": 3}]
+    print("| hatch settings (camera.png) | strokes | pen-down px | best of 3, s |")
+    print("|---|---|---|---|")
+    for s in settings:
+        best = np.inf
+        for _ in range(3):
+            t = time.perf_counter()
+            d = tr.trace(cam, s)
+            best = min(best, time.perf_counter() - t)
+        label = ", ".join(f"{k}={v}" for k, v in s.items()) or "defaults"
+        print(f"| {label} | {len(d.polylines)} | {d.length:.0f} | {best:.3f} |")
+
+
+_CHILD = """
+import sys, time, json, resource
+from doodlecam import registry
+cls = registry.get("tracer", sys.argv[1])
+opts = json.loads(sys.argv[3])
+t = time.perf_counter()
+d = cls().trace(sys.argv[2], opts)
+dt = time.perf_counter() - t
+ru = resource.getrusage(resource.RUSAGE_SELF)
+# VmHWM: this process's peak resident memory (ru_maxrss would include the parent's at fork)
+hwm = [int(l.split()[1]) for l in open("/proc/self/status") if l.startswith("VmHWM")][0] / 1024
+print(json.dumps({"s": dt, "cpu": ru.ru_utime + ru.ru_stime, "strokes": len(d.polylines), "peak_mb": hwm}))
+"""
+
+
+def big_photo() -> None:
+    import json
+
+    from PIL import Image
+
+    with tempfile.TemporaryDirectory() as tmp:
+        photo = Path(tmp) / "photo_4000x3000.jpg"
+        im = Image.open(ROOT / "samples" / "images" / "chelsea.png").convert("RGB").resize((4000, 3000), Image.BICUBIC)
+        noisy = np.asarray(im).astype(np.float32) + np.random.default_rng(0).normal(0, 6, (3000, 4000, 3)).astype(np.float32)
+        Image.fromarray(np.clip(noisy, 0, 255).astype(np.uint8)).save(photo, quality=90)
+        del im, noisy
+        print("| tracer on a 4000 x 3000 px JPEG | strokes | trace s | process CPU s | process wall s | peak memory MB |")
+        print("|---|---|---|---|---|---|")
+        for name, opts in (("edges", {}), ("contours", {}), ("contours", {"fill": True}), ("hatch", {}),
+                           ("hatch", {"join": True})):
+            t = time.perf_counter()
+            out = subprocess.run([sys.executable, "-c", _CHILD, name, str(photo), json.dumps(opts)],
+                                 capture_output=True, text=True, check=True).stdout
+            wall = time.perf_counter() - t
+            r = json.loads(out.strip().splitlines()[-1])
+            label = name + (" " + ", ".join(f"{k}={v}" for k, v in opts.items()) if opts else "")
+            print(f"| {label} | {r['strokes']} | {r['s']:.2f} | {r['cpu']:.2f} | {wall:.2f} | {r['peak_mb']:.0f} |", flush=True)
+
+
+def spline_size() -> None:
+    from doodlecam import registry
+    from doodlecam.fit import fit_pieces
+    from doodlecam.layout import fit_to_work_area
+    from doodlecam.machine import load_machine
+
+    m = load_machine("doodlebot")
+    print(f"| input | tracer | strokes | pen-down mm | polyline vertices / mm | control points / mm | fit s |  (tolerance {m.tolerance} mm, degree {m.degree})")
+    print("|---|---|---|---|---|---|---|")
+    jobs = [(img, "edges") for img in IMAGES] + [(IMAGES[0], "contours"), (IMAGES[0], "hatch")] + [(v, "vector") for v in VECTORS]
+    for path, tracer in jobs:
+        d = fit_to_work_area(registry.get("tracer", tracer)().trace(path, {}), m)
+        t = time.perf_counter()
+        ctrl = sum(len(s.control) for p in d.polylines for s, _ in fit_pieces(p, m.degree, m.tolerance))
+        dt = time.perf_counter() - t
+        verts = sum(len(p) for p in d.polylines)
+        print(f"| {path.name} | {tracer} | {len(d.polylines)} | {d.length:.0f} | {verts / d.length:.3f} | {ctrl / d.length:.3f} | {dt:.1f} |", flush=True)
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--quick", action="store_true", help="skip the big photo and the spline fits")
+    args = ap.parse_args()
+    warnings.simplefilter("ignore")
+    fidelity()
+    print()
+    hatch_speed()
+    if not args.quick:
+        print()
+        big_photo()
+        print()
+        spline_size()
+
+
+if __name__ == "__main__":
+    main()

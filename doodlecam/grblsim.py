@@ -1,0 +1,513 @@
+"""A GRBL 1.1 protocol emulator on a pseudo-terminal (``doodlecam sim grbl``).
+
+Enough of GRBL's serial behaviour to try ``doodlecam send --serial`` without
+hardware and to test the streamer over real serial I/O:
+
+* the banner ``Grbl 1.1h ['$' for help]`` at start and after a soft reset;
+* a 128-byte receive ring (127 usable) that *drops* bytes that do not fit,
+  as the firmware's serial ISR does; every drop is counted (``overruns``);
+* lines parsed only as fast as the 16-block planner frees room (a motion line
+  is answered ``ok`` when it is planned), so a sender that ignores flow
+  control overflows the ring for real;
+* ``ok`` / ``error:N`` (unsupported words, missing feed, overlong lines,
+  ``$`` while not idle, G-code while in alarm ...), ``ALARM:N``;
+* real-time commands ``?`` (status report), ``!`` (feed hold), ``~``
+  (resume), 0x18 (soft reset; alarm 3 if moving), picked off before the ring;
+* ``$C`` check mode, ``$X`` unlock, ``$H`` homing, ``$$`` / ``$x=val``;
+* simulated motion time (G0 at the rapid rate, G1 at F, G4 dwells), sped up
+  by ``speed``; soft limits when enabled;
+* injectable errors and alarms at the N-th received line, and a port that
+  vanishes after the N-th line.
+"""
+
+from __future__ import annotations
+
+import os
+import re
+import select
+import threading
+import time
+import tty
+from collections import deque
+from dataclasses import dataclass, field
+from typing import Callable
+
+RX_BUFFER_SIZE = 128  # the ring holds RX_BUFFER_SIZE - 1 bytes
+LINE_BUFFER_SIZE = 80  # at most 79 characters per line
+PLANNER_BLOCKS = 15  # usable blocks of the 16-block planner ring
+BANNER = "Grbl 1.1h ['$' for help]"
+
+_WORD = re.compile(r"([A-Z])([-+]?(?:\d+\.?\d*|\.\d+))")
+
+
+@dataclass
+class GrblConfig:
+    speed: float = 1.0  # simulated seconds per wall second
+    error_at: dict[int, int] = field(default_factory=dict)  # n-th received line -> error code
+    alarm_at: dict[int, int] = field(default_factory=dict)  # n-th received line -> alarm code
+    vanish_at: int | None = None  # close the port after receiving this many lines
+    rapid: float = 9000.0  # mm/min, G0 ($110/$111)
+    travel: tuple[float, float] = (400.0, 300.0)  # mm ($130/$131); soft limits when soft_limits
+    soft_limits: bool = False  # $20
+    report_mask: int = 1  # $10: 1 = MPos, +2 = Bf (buffer state)
+    hold_time: float = 0.05  # simulated s of deceleration before Hold:0
+
+
+@dataclass
+class _Block:
+    start: tuple[float, float, float]
+    end: tuple[float, float, float]
+    duration: float  # simulated s
+    line: int
+    dwell: bool = False
+
+
+class GrblEmulator:
+    """Run with ``start()``; connect a serial client to ``port``; ``stop()`` when done."""
+
+    def __init__(self, config: GrblConfig | None = None, log: Callable[[str], None] | None = None):
+        self.cfg = config or GrblConfig()
+        if not self.cfg.speed > 0:
+            raise ValueError("speed must be positive")
+        self.log = log or (lambda msg: None)
+        self.master, self.slave = os.openpty()
+        tty.setraw(self.slave)  # no echo, no CR/LF translation: bytes as a UART sees them
+        os.set_blocking(self.master, False)
+        self.port = os.ttyname(self.slave)
+        self.settings = {0: 10, 1: 25, 10: self.cfg.report_mask, 20: int(self.cfg.soft_limits), 21: 0, 22: 0,
+                         100: 80.0, 101: 80.0, 110: self.cfg.rapid, 111: self.cfg.rapid, 120: 2000.0, 121: 2000.0,
+                         130: self.cfg.travel[0], 131: self.cfg.travel[1]}
+        # observable by tests
+        self.received: list[str] = []  # every complete line, as received
+        self.executed: list[int] = []  # received-line numbers whose motion completed
+        self.overruns = 0
+        self.max_rx = 0
+        self.status_queries: list[float] = []  # wall times of '?'
+        self.resets = 0
+        self.crlf_lines = 0
+        # machine state
+        self._rx = bytearray()
+        self._out = bytearray()
+        self._lock = threading.Lock()
+        self._stop = threading.Event()
+        self._thread: threading.Thread | None = None
+        self.vanished = False
+        self._init_machine(power_up=True)
+
+    # ------------------------------------------------------------ lifecycle
+
+    def start(self) -> "GrblEmulator":
+        self._reply(f"\r\n{BANNER}")
+        self._thread = threading.Thread(target=self._run, name="grblsim", daemon=True)
+        self._thread.start()
+        return self
+
+    def stop(self) -> None:
+        self._stop.set()
+        if self._thread is not None:
+            self._thread.join(5)
+        for fd in (self.master, self.slave):
+            try:
+                os.close(fd)
+            except OSError:
+                pass
+
+    def __enter__(self):
+        return self.start()
+
+    def __exit__(self, *exc):
+        self.stop()
+
+    def _init_machine(self, power_up: bool = False) -> None:
+        if power_up:
+            self.state = "Idle"
+            self.pos = [0.0, 0.0, 0.0]
+        self.planner: deque[_Block] = deque()
+        self.block_t = 0.0  # simulated s into the head block
+        self.line = bytearray()
+        self.line_flags = set()
+        self.pending: tuple | None = None  # a parsed line waiting for planner room / sync
+        self.critical = False  # alarm that needs a reset
+        self.hold = None  # None, or simulated s left until Hold:0
+        self.check = False
+        self.modal = {"motion": 0, "abs": True, "feed": None, "spindle": 5, "s": 0.0, "inch": False}
+        self._rx.clear()
+        self._last = time.monotonic()
+
+    # ------------------------------------------------------------ I/O
+
+    def _reply(self, text: str) -> None:
+        self._out += (text + "\r\n").encode()
+
+    def _flush_out(self) -> None:
+        while self._out:
+            try:
+                n = os.write(self.master, self._out)
+            except BlockingIOError:
+                return
+            except OSError:
+                self._out.clear()
+                return
+            del self._out[:n]
+
+    def _run(self) -> None:
+        while not self._stop.is_set() and not self.vanished:
+            try:
+                r, w, _ = select.select([self.master], [self.master] if self._out else [], [], 0.002)
+            except (OSError, ValueError):
+                return
+            if r:
+                try:
+                    data = os.read(self.master, 4096)
+                except BlockingIOError:
+                    data = b""
+                except OSError:  # no client has the port open right now
+                    data = b""
+                    time.sleep(0.01)
+                for b in data:
+                    self._on_byte(b)
+            self._advance()
+            self._protocol()
+            self._flush_out()
+        if self.vanished:
+            self._flush_out()
+            os.close(self.master)  # the client sees the port disappear
+            self.master = -1
+
+    def _on_byte(self, b: int) -> None:
+        # Real-time commands are picked off by the serial ISR before the ring.
+        if b == 0x18:
+            self._soft_reset()
+        elif b == ord("?"):
+            self.status_queries.append(time.monotonic())
+            self._reply(self._status())
+        elif b == ord("!"):
+            if self.state in ("Run",) and self.hold is None:
+                self.hold = self.cfg.hold_time
+                self.state = "Hold"
+        elif b == ord("~"):
+            if self.state == "Hold":
+                self.hold = None
+                self.state = "Run" if self.planner else "Idle"
+        elif b >= 0x80:
+            pass  # overrides: accepted, ignored
+        elif len(self._rx) >= RX_BUFFER_SIZE - 1:
+            self.overruns += 1  # the firmware drops the byte
+            self.log(f"OVERRUN: dropped byte {b:#04x} (receive buffer full)")
+        else:
+            self._rx.append(b)
+            self.max_rx = max(self.max_rx, len(self._rx))
+
+    def _soft_reset(self) -> None:
+        moving = self.state == "Run" or (self.state == "Hold" and self.hold is not None and self.hold > 0)
+        self.resets += 1
+        alarm = self.state == "Alarm" or moving
+        self._init_machine()
+        if moving:
+            self._reply("ALARM:3")
+        self.state = "Alarm" if alarm else "Idle"
+        self._reply(f"\r\n{BANNER}")
+        if alarm:
+            self._reply("[MSG:'$H'|'$X' to unlock]")
+
+    # ------------------------------------------------------------ motion
+
+    def _advance(self) -> None:
+        now = time.monotonic()
+        dt = (now - self._last) * self.cfg.speed
+        self._last = now
+        if self.hold is not None:
+            if self.hold > 0:
+                self.hold = max(0.0, self.hold - dt)
+            return
+        while self.planner and dt > 0 and self.state in ("Run", "Idle"):
+            self.state = "Run"
+            blk = self.planner[0]
+            left = blk.duration - self.block_t
+            if dt < left:
+                self.block_t += dt
+                f = self.block_t / blk.duration if blk.duration > 0 else 1.0
+                self.pos = [a + (b - a) * f for a, b in zip(blk.start, blk.end)]
+                return
+            dt -= left
+            self.pos = list(blk.end)
+            self.planner.popleft()
+            self.block_t = 0.0
+            self.executed.append(blk.line)
+        if not self.planner and self.state == "Run":
+            self.state = "Idle"
+
+    def _status(self) -> str:
+        st = self.state
+        if st == "Hold":
+            st = f"Hold:{0 if not self.hold else 1}"
+        if self.check:
+            st = "Check"
+        x, y, z = self.pos
+        parts = [st, f"MPos:{x:.3f},{y:.3f},{z:.3f}"]
+        if int(self.settings.get(10, 1)) & 2:
+            parts.append(f"Bf:{PLANNER_BLOCKS - len(self.planner)},{RX_BUFFER_SIZE - 1 - len(self._rx)}")
+        feed = self.modal["feed"] or 0.0
+        parts.append(f"FS:{feed if self.state == 'Run' else 0:.0f},{self.modal['s']:.0f}")
+        return "<" + "|".join(parts) + ">"
+
+    # ------------------------------------------------------------ protocol
+
+    def _protocol(self) -> None:
+        """GRBL's main loop: finish a pending line, then pull characters from the ring."""
+        while True:
+            if self.critical:
+                self._rx.clear()  # nothing is accepted until a reset
+                return
+            if self.pending is not None and not self._try_pending():
+                return
+            if not self._rx:
+                return
+            c = self._rx.pop(0)
+            if c in (0x0A, 0x0D):  # '\n' or '\r' ends a line (so CR LF ends two)
+                raw = bytes(self.line)
+                flags = self.line_flags
+                self.line, self.line_flags = bytearray(), set()
+                self._line(raw.decode("ascii", "replace"), flags)
+                if self.vanished:
+                    return
+            elif "comment(" in self.line_flags:
+                if c == ord(")"):
+                    self.line_flags.discard("comment(")
+            elif "comment;" in self.line_flags:
+                pass
+            elif c <= 0x20:
+                pass  # whitespace and control characters are thrown away
+            elif c == ord("("):
+                self.line_flags.add("comment(")
+            elif c == ord(";"):
+                self.line_flags.add("comment;")
+            elif len(self.line) >= LINE_BUFFER_SIZE - 1:
+                self.line_flags.add("overflow")
+            else:
+                self.line.append(c - 32 if ord("a") <= c <= ord("z") else c)
+
+    def _line(self, line: str, flags: set) -> None:
+        self.received.append(line)
+        n = len(self.received)
+        if self.cfg.vanish_at is not None and n >= self.cfg.vanish_at:
+            self.vanished = True
+            return
+        if not line and not flags:
+            self.crlf_lines += 1
+            self._reply("ok")  # an empty line is valid and answered
+            return
+        if n in self.cfg.error_at:
+            self._reply(f"error:{self.cfg.error_at[n]}")
+            return
+        if n in self.cfg.alarm_at:
+            self._alarm(self.cfg.alarm_at[n])
+            return
+        if "overflow" in flags:
+            self._reply("error:11")
+            return
+        if not line:
+            self._reply("ok")
+            return
+        if line.startswith("$"):
+            self._dollar(line)
+            return
+        if self.state == "Alarm":
+            self._reply("error:9")
+            return
+        try:
+            action = self._parse(line, n)
+        except _GcodeError as e:
+            self._reply(f"error:{e.code}")
+            return
+        self.pending = action
+        self._try_pending()
+
+    def _alarm(self, code: int) -> None:
+        self.planner.clear()
+        self.block_t = 0.0
+        self.hold = None
+        self.pending = None
+        self.state = "Alarm"
+        self._reply(f"ALARM:{code}")
+        if code in (1, 2):
+            self.critical = True
+            self._reply("[MSG:Reset to continue]")
+
+    def _dollar(self, line: str) -> None:
+        busy = bool(self.planner) or self.state in ("Run", "Hold")
+        if line == "$":
+            self._reply("[HLP:$$ $# $G $I $N $x=val $Nx=line $J=line $SLP $C $X $H ~ ! ? ctrl-x]")
+        elif line == "$$":
+            for k, v in sorted(self.settings.items()):
+                self._reply(f"${k}={v:g}" if isinstance(v, float) else f"${k}={v}")
+        elif line == "$C":
+            if busy:
+                self._reply("error:8")
+                return
+            self.check = not self.check
+            self._reply("[MSG:Enabled]" if self.check else "[MSG:Disabled]")
+            if not self.check:
+                self._reply("ok")
+                self._soft_reset()  # leaving check mode resets the parser
+                return
+        elif line == "$X":
+            if self.state == "Alarm":
+                self.state = "Idle"
+                self._reply("[MSG:Caution: Unlocked]")
+        elif line == "$H":
+            if busy:
+                self._reply("error:8")
+                return
+            self.pos = [0.0, 0.0, 0.0]
+            self.state = "Idle"
+        elif line == "$G":
+            m = self.modal
+            self._reply(f"[GC:G{m['motion']} G54 G17 {'G20' if m['inch'] else 'G21'} {'G90' if m['abs'] else 'G91'} "
+                        f"G94 M{m['spindle']} M9 T0 F{m['feed'] or 0:g} S{m['s']:g}]")
+        elif line == "$I":
+            self._reply("[VER:1.1h.20190825:doodlecam emulator]")
+            self._reply("[OPT:V,15,128]")
+        elif re.fullmatch(r"\$\d+=[-+]?[\d.]+", line):
+            if busy:
+                self._reply("error:8")
+                return
+            key, val = line[1:].split("=")
+            self.settings[int(key)] = float(val)
+        else:
+            self._reply("error:3")
+            return
+        self._reply("ok")
+
+    def _parse(self, line: str, n: int):
+        words = _WORD.findall(line)
+        if "".join(a + b for a, b in words) != line:
+            raise _GcodeError(1 if not line[:1].isalpha() else 2)
+        m = dict(self.modal)
+        target = {}
+        motion = None
+        dwell = None
+        sync = False
+        seen = set()
+        for letter, val in words:
+            v = float(val)
+            if letter == "G":
+                if v in (0, 1):
+                    if motion is not None:
+                        raise _GcodeError(21)
+                    motion = int(v)
+                elif v == 4:
+                    dwell = -1.0
+                elif v == 90:
+                    m["abs"] = True
+                elif v == 91:
+                    m["abs"] = False
+                elif v == 21:
+                    m["inch"] = False
+                elif v == 20:
+                    m["inch"] = True
+                elif v in (17, 94, 54):
+                    pass
+                else:
+                    raise _GcodeError(20)
+            elif letter == "M":
+                if v in (3, 4, 5):
+                    m["spindle"] = int(v)
+                    sync = True
+                elif v in (2, 30):
+                    sync = True
+                    m["end"] = True
+                else:
+                    raise _GcodeError(20)
+            elif letter in "XYZ":
+                if letter in seen:
+                    raise _GcodeError(25)
+                seen.add(letter)
+                target[letter] = v * (25.4 if m["inch"] else 1.0)
+            elif letter == "F":
+                m["feed"] = v * (25.4 if m["inch"] else 1.0)
+            elif letter == "S":
+                m["s"] = v
+                sync = True
+            elif letter == "P":
+                if dwell is None:
+                    raise _GcodeError(36)
+                dwell = v
+            elif letter == "N":
+                pass
+            else:
+                raise _GcodeError(20)
+        if dwell == -1.0:
+            raise _GcodeError(28)
+        if motion is not None:
+            m["motion"] = motion
+        block = None
+        if target:
+            if motion is None:
+                motion = m["motion"]
+            end = list(self._end_pos())
+            for i, k in enumerate("XYZ"):
+                if k in target:
+                    end[i] = target[k] if m["abs"] else end[i] + target[k]
+            if motion == 1 and not m["feed"]:
+                raise _GcodeError(22)
+            if self.settings.get(20) and not (0 <= end[0] <= self.settings[130] and 0 <= end[1] <= self.settings[131]):
+                return ("alarm", 2)
+            rate = m["feed"] if motion == 1 else float(self.settings[110])
+            start = self._end_pos()
+            length = sum((a - b) ** 2 for a, b in zip(end, start)) ** 0.5
+            block = _Block(tuple(start), tuple(end), 60.0 * length / rate, n)
+        elif motion == 1 and not m["feed"]:
+            raise _GcodeError(22)
+        end_prog = m.pop("end", False)
+        if end_prog:
+            m.update(motion=1 if m["motion"] else 0, abs=True, spindle=5)
+        self.modal = m
+        if n in self.cfg.alarm_at:
+            return ("alarm", self.cfg.alarm_at[n])
+        return ("exec", block, sync or dwell is not None or end_prog, dwell, end_prog, n)
+
+    def _end_pos(self) -> tuple[float, float, float]:
+        return self.planner[-1].end if self.planner else tuple(self.pos)
+
+    def _try_pending(self) -> bool:
+        """Execute the pending line if GRBL could now; True when done (ok sent)."""
+        kind, *rest = self.pending
+        if kind == "wait_empty":  # a dwell runs; G4 answers when it is over
+            if self.planner:
+                return False
+            self.pending = None
+            self._reply("ok")
+            return True
+        if kind == "alarm":
+            self.pending = None
+            self._alarm(rest[0])
+            return True
+        block, sync, dwell, end_prog, n = rest
+        if self.check:
+            self.pending = None
+            self._reply("ok")
+            return True
+        if sync and (self.planner or self.hold is not None):
+            return False  # protocol_buffer_synchronize(): wait for motion to finish
+        if block is not None and len(self.planner) >= PLANNER_BLOCKS:
+            return False  # planner full: GRBL waits before answering, the ring fills up
+        if dwell is not None and dwell > 0:
+            self.planner.append(_Block(tuple(self.pos), tuple(self.pos), dwell, n, dwell=True))
+            self.state = "Run"
+            self.pending = ("wait_empty",)
+            return False
+        if block is not None:
+            self.planner.append(block)
+            if self.state == "Idle":
+                self.state = "Run"
+        if end_prog:
+            self._reply("[MSG:Pgm End]")
+        self.pending = None
+        self._reply("ok")
+        return True
+
+
+class _GcodeError(Exception):
+    def __init__(self, code: int):
+        self.code = code

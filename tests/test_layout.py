@@ -1,0 +1,133 @@
+"""Layout: drawings placed in the work area, with the options a user sets."""
+
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from doodlecam.errors import InputError, MachineError
+from doodlecam.layout import fit_to_work_area, layout_options, order_options
+from doodlecam.machine import parse_machine
+from doodlecam.model import Drawing
+
+from conftest import PROFILE  # noqa: E402  (tests/ is on sys.path under pytest)
+
+
+def frame_drawing(w, h, units="px", y_down=True):
+    """The outline of the canvas, as an image tracer would place it (pixel centres at integers)."""
+    off = 0.5 if units == "px" else 0.0
+    x0, y0, x1, y1 = -off, -off, w - off, h - off
+    ring = np.array([[x0, y0], [x1, y0], [x1, y1], [x0, y1], [x0, y0]])
+    return Drawing((ring,), units=units, y_down=y_down, source="frame.png", extent=(float(w), float(h)))
+
+
+def bounds(d):
+    pts = np.concatenate(d.polylines)
+    return pts.min(axis=0), pts.max(axis=0)
+
+
+def test_canvas_fills_the_area_inside_the_margin_exactly(machine):
+    # 280 x 180 mm inside the margin of a 300 x 200 work area: a 280 x 180 px picture fills it.
+    d = fit_to_work_area(frame_drawing(280, 180), machine)
+    lo, hi = bounds(d)
+    assert np.allclose(lo, [10, 10]) and np.allclose(hi, [290, 190])
+    assert d.meta["scale_mm_per_unit"] == pytest.approx(1.0)
+    assert d.units == "mm" and not d.y_down
+
+
+def test_pixel_centres_and_y_flip(machine):
+    # A dot in the top-left pixel (0, 0) lands half a pixel in from the top-left corner.
+    frame = frame_drawing(280, 180)
+    dot = np.array([[0.0, 0.0], [1.0, 0.0]])
+    d = fit_to_work_area(Drawing((frame.polylines[0], dot), units="px", y_down=True, extent=(280.0, 180.0)), machine)
+    assert np.allclose(d.polylines[1][0], [10.5, 189.5])
+
+
+@settings(max_examples=30, deadline=None)
+@given(st.floats(1, 5000), st.floats(1, 5000), st.sampled_from(["0", "90", "180", "270", "auto"]))
+def test_aspect_kept_and_inside_margin(w, h, rotate):
+    machine = parse_machine(PROFILE, "test.toml")
+    rng = np.random.default_rng(0)
+    pts = rng.uniform([0, 0], [w, h], (20, 2))
+    d = fit_to_work_area(Drawing((pts,), units="mm", extent=(w, h)), machine, {"rotate": rotate})
+    q = d.polylines[0]
+    lo, hi = q.min(axis=0), q.max(axis=0)
+    assert (lo >= 10 - 1e-6).all() and hi[0] <= 290 + 1e-6 and hi[1] <= 190 + 1e-6
+    s = d.meta["scale_mm_per_unit"]
+    # distances scale uniformly: a similarity transform
+    assert np.allclose(np.hypot(*(q[1:] - q[:-1]).T), s * np.hypot(*(pts[1:] - pts[:-1]).T), rtol=1e-9)
+    turns = d.meta["rotation_deg"] // 90
+    cw, ch = (w, h) if turns % 2 == 0 else (h, w)
+    assert max(cw * s / 280, ch * s / 180) == pytest.approx(1.0)  # fills the area one way
+
+
+def test_rotation(machine):
+    tall = frame_drawing(100, 300, units="mm", y_down=False)
+    up = fit_to_work_area(tall, machine)
+    auto = fit_to_work_area(tall, machine, {"rotate": "auto"})
+    assert auto.meta["rotation_deg"] == 90 and auto.meta["scale_mm_per_unit"] > 1.5 * up.meta["scale_mm_per_unit"]
+    square = fit_to_work_area(frame_drawing(100, 100, "mm", False), machine, {"rotate": "auto"})
+    assert square.meta["rotation_deg"] == 0  # no turn unless it helps
+    arrow = Drawing((np.array([[0.0, 0.0], [10.0, 0.0]]),), units="mm", extent=(10.0, 10.0))
+    q = fit_to_work_area(arrow, machine, {"rotate": "90"}).polylines[0]
+    assert q[1][0] == pytest.approx(q[0][0]) and q[1][1] > q[0][1]  # +x turned to +y
+
+
+def test_target_size_scale_and_fit(machine):
+    d = frame_drawing(200, 100, "mm", False)
+    lo, hi = bounds(fit_to_work_area(d, machine, {"width": 100}))
+    assert hi - lo == pytest.approx([100, 50])
+    lo, hi = bounds(fit_to_work_area(d, machine, {"height": 20, "width": 100}))
+    assert hi - lo == pytest.approx([40, 20])  # fits both
+    lo, hi = bounds(fit_to_work_area(d, machine, {"scale": 0.5}))
+    assert hi - lo == pytest.approx([100, 50]) and (lo + hi) / 2 == pytest.approx([150, 100])  # centred
+    with pytest.raises(InputError, match="does not fit") as err:
+        fit_to_work_area(d, machine, {"scale": 2})
+    assert "\n" not in str(err.value)
+    ink = Drawing((np.array([[50.0, 50.0], [60.0, 55.0]]),), units="px", y_down=True, extent=(100.0, 100.0))
+    lo, hi = bounds(fit_to_work_area(ink, machine, {"fit": "ink"}))
+    assert hi[0] - lo[0] == pytest.approx(280)
+    lo, hi = bounds(fit_to_work_area(ink, machine))
+    assert hi[0] - lo[0] == pytest.approx(18)  # 10 px of a 100 px canvas 180 mm tall
+
+
+def test_short_strokes_dropped(machine):
+    tiny = np.array([[0.0, 0.0], [0.1, 0.0]])
+    long = np.array([[0.0, 10.0], [100.0, 10.0]])
+    d = fit_to_work_area(Drawing((tiny, long), units="mm", extent=(280.0, 180.0)), machine)
+    assert len(d.polylines) == 1 and d.meta["dropped_short"] == 1
+    assert len(fit_to_work_area(Drawing((tiny, long), units="mm", extent=(280.0, 180.0)), machine,
+                                {"min_length": 0}).polylines) == 2
+    with pytest.raises(InputError, match="shorter than"):
+        fit_to_work_area(Drawing((tiny,), units="mm", extent=(280.0, 180.0), source="dots.png"), machine)
+    with pytest.raises(InputError, match="nothing to draw"):
+        fit_to_work_area(Drawing((), source="empty.png"), machine)
+
+
+def test_option_checks():
+    assert layout_options({"rotate": 90})["rotate"] == "90"
+    assert layout_options({"width": "120"})["width"] == 120.0
+    for bad, words in (({"rotate": "sideways"}, "rotate"), ({"width": -1}, "width"), ({"widht": 1}, "unknown"),
+                       ({"scale": 1, "width": 10}, "not both"), ({"fit": "page"}, "fit"), ({"margin": "a"}, "number")):
+        with pytest.raises(InputError, match=words):
+            layout_options(bad)
+    assert order_options({"reverse": "no"})["reverse"] is False
+    with pytest.raises(InputError):
+        order_options({"reverse": "maybe"})
+    with pytest.raises(InputError):
+        order_options({"budget": -1})
+
+
+def test_profile_tables():
+    data = dict(PROFILE, layout={"rotate": "auto", "margin": 0, "width": 150}, order={"reverse": False, "budget": 0.2})
+    m = parse_machine(data, "p.toml")
+    assert m.layout["rotate"] == "auto" and m.layout["margin"] == 0.0 and m.order["reverse"] is False
+    with pytest.raises(MachineError, match=r"p.toml: \[layout\] rotate"):
+        parse_machine(dict(PROFILE, layout={"rotate": "sideways"}), "p.toml")
+    with pytest.raises(MachineError, match="unknown key"):
+        parse_machine(dict(PROFILE, layout={"sizee": 1}), "p.toml")
+    d = frame_drawing(200, 100, "mm", False)
+    lo, hi = bounds(fit_to_work_area(d, m))
+    assert hi - lo == pytest.approx([150, 75])  # the profile's width
+    lo, hi = bounds(fit_to_work_area(d, m, {"width": 100}))
+    assert hi - lo == pytest.approx([100, 50])  # the CLI wins

@@ -1,0 +1,129 @@
+"""`doodlecam motion` and `doodlecam learn` end to end, user errors included."""
+
+import json
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from doodlecam.cli import main
+from doodlecam.motion.export import read_table
+from doodlecam.motion.ilc import fir_coefficients, learn_step
+
+ROOT = Path(__file__).resolve().parent.parent
+FUSE = ROOT / "samples" / "motion" / "fuse.toml"
+
+
+def run(*args):
+    env = dict(os.environ, PYTHONWARNINGS="ignore")
+    return subprocess.run([sys.executable, "-m", "doodlecam", *map(str, args)], capture_output=True, text=True,
+                          cwd=ROOT, env=env, timeout=300)
+
+
+@pytest.fixture(scope="module")
+def fuse_out(tmp_path_factory):
+    out = tmp_path_factory.mktemp("motion")
+    r = run("motion", FUSE, "-o", out, "--split", "--json")
+    assert r.returncode == 0, r.stderr
+    return out, json.loads(r.stdout)
+
+
+def test_motion_writes_the_motdes_table_and_a_plot(fuse_out):
+    out, s = fuse_out
+    assert sorted(p.name for p in out.iterdir()) == ["fuse.csv", "fuse.png", "fuse_x.csv", "fuse_y.csv"]
+    header, rows = read_table(out / "fuse.csv")
+    assert header == ["t"] + [f"{a}_{c}" for a in "xy" for c in ("pos", "vel", "acc", "jerk")]
+    assert rows.shape == (300, 9)  # the thesis's 300 points
+    assert rows[0, 0] == 0.0 and rows[-1, 0] == pytest.approx(0.666)
+    assert rows[-1, 1] == pytest.approx(0.0, abs=1e-9) and rows[:, 1].max() == pytest.approx(150.0, abs=1e-6)
+    xh, xrows = read_table(out / "fuse_x.csv")
+    assert xh == ["pos", "vel", "acc", "jerk"] and np.allclose(xrows, rows[:, 1:5])
+    assert (out / "fuse.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    # the summary: the doodlebot cannot run Table 5.1 in 0.666 s, and says how slowly it can
+    assert s["machine"] == "doodlebot" and not s["ok"]
+    assert {f["kind"] for f in s["findings"]} == {"limit"}
+    assert 10 < s["fastest_cycle_s"] < 11
+
+
+def test_strict_fails_until_the_design_is_slow_enough(fuse_out, tmp_path):
+    _, s = fuse_out
+    r = run("motion", FUSE, "-o", tmp_path, "--no-plot", "--strict")
+    assert r.returncode == 1 and "check(s) failed" in r.stdout
+    slow = s["fastest_cycle_s"] * 1.001
+    assert main(["motion", str(FUSE), "-o", str(tmp_path), "--no-plot", "--strict", "--cycle-time", str(slow)]) == 0
+
+
+def test_samples_option_and_no_machine(tmp_path, capsys):
+    assert main(["motion", str(FUSE), "-o", str(tmp_path), "--samples", "51", "--no-machine", "--no-plot"]) == 0
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["fuse.csv"]
+    assert read_table(tmp_path / "fuse.csv")[1].shape == (51, 9)
+    assert "all pass" in capsys.readouterr().out
+
+
+def test_motion_errors_are_one_line_and_write_nothing(tmp_path):
+    bad = tmp_path / "bad.toml"
+    bad.write_text('[motion]\ninput = "time"\n[[axis.x.point]]\nt = 0\npos = 0\n[[axis.x.point]]\nt = 0\npos = 1\n')
+    out = tmp_path / "out"
+    r = run("motion", bad, "-o", out)
+    assert r.returncode == 2
+    assert r.stderr.count("\n") == 1 and "bad.toml: axis x: point 2 at t = 0 s does not come after point 1" in r.stderr
+    assert "Traceback" not in r.stderr and not out.exists()
+    r = run("motion", tmp_path / "missing.toml", "-o", out)
+    assert r.returncode == 2 and "no such design file" in r.stderr
+
+
+def response_of(r, lag=3, gain=0.97):
+    """A stand-in for a recorded cycle: the reference delayed a few samples and a little short."""
+    return gain * np.concatenate([np.full(lag, r[0]), r[:-lag]])
+
+
+def test_learn_writes_the_next_command(fuse_out, tmp_path, capsys):
+    out, _ = fuse_out
+    header, rows = read_table(out / "fuse.csv")
+    t, r = rows[:, 0], rows[:, [1, 5]]
+    y = np.column_stack([response_of(r[:, 0]), response_of(r[:, 1])])
+    resp = tmp_path / "run1.csv"
+    resp.write_text("t,x_pos,y_pos\n" + "\n".join(",".join(f"{v:.12g}" for v in row) for row in np.column_stack([t, y])))
+    nxt = tmp_path / "cmd2.csv"
+    assert main(["learn", str(out / "fuse.csv"), "--response", str(resp), "-o", str(nxt), "--cutoff", "300"]) == 0
+    h2, u2 = read_table(nxt)
+    assert h2 == ["t", "x_pos", "y_pos"] and np.allclose(u2[:, 0], t)
+    c = fir_coefficients(300 * (t[1] - t[0]))
+    for i in range(2):
+        assert np.allclose(u2[:, 1 + i], learn_step(r[:, i], r[:, i], y[:, i], 0.3, c), atol=1e-8)
+    # the second cycle: the command it ran with is given
+    plain = tmp_path / "cmd3.csv"
+    assert main(["learn", str(out / "fuse.csv"), "-r", str(resp), "-c", str(nxt), "-o", str(plain), "--no-filter",
+                 "--gain", "0.5"]) == 0
+    u3 = read_table(plain)[1]
+    assert np.allclose(u3[:, 1:], u2[:, 1:] + 0.5 * (r - y), atol=1e-8)
+    assert "wrote" in capsys.readouterr().out
+
+
+def test_learn_errors(fuse_out, tmp_path):
+    out, _ = fuse_out
+    short = tmp_path / "short.csv"
+    short.write_text("t,x_pos,y_pos\n0,0,0\n0.1,1,1\n0.2,2,2\n")
+    r = run("learn", out / "fuse.csv", "--response", short, "-o", tmp_path / "n.csv")
+    assert r.returncode == 2 and "3 rows but the reference has 300" in r.stderr and not (tmp_path / "n.csv").exists()
+    r = run("learn", out / "fuse.csv", "--response", short, "-o", tmp_path / "n.csv", "--gain", "1.5")
+    assert r.returncode == 2 and "between 0 and 1" in r.stderr
+    r = run("learn", out / "fuse.csv", "--simulate", "3", "--cutoff", "5000")
+    assert r.returncode == 2 and "Nyquist" in r.stderr
+
+
+def test_learn_simulate_shows_saturation_without_the_filter(tmp_path, capsys):
+    # the thesis's Example 1 run at 2 s a cycle, 600 samples: the same story as on its rig
+    assert main(["motion", str(FUSE), "-o", str(tmp_path), "--no-plot", "--no-machine", "--cycle-time", "2",
+                 "--samples", "600"]) == 0
+    capsys.readouterr()
+    assert main(["learn", str(tmp_path / "fuse.csv"), "--simulate", "16", "--gain", "0.5", "--column", "x_pos",
+                 "--json"]) == 0
+    res = json.loads(capsys.readouterr().out)["columns"]["x_pos"]
+    plain = [c["rms_error"] for c in res["plain"]]
+    filt = [c["rms_error"] for c in res["filtered"]]
+    assert any(c["saturated"] > 0 for c in res["plain"]) and plain[-1] > 3 * min(plain)
+    assert all(c["saturated"] == 0 for c in res["filtered"]) and filt[-1] < 0.05 * filt[0]
