@@ -209,6 +209,7 @@ class StrokeSamples:
     velocity: np.ndarray  # (M, 2)
     delta_time: float
     time_scale: float = 1.0  # plan time per executed time (< 1 when slowed to whole periods)
+    sample_u: np.ndarray | None = None  # curve parameter each instant t = 0, dT, ... tracks
 
     def __post_init__(self):
         object.__setattr__(self, "start", _frozen(self.start))

@@ -133,7 +133,8 @@ def plan_job(drawing: Drawing, machine: Machine, solver: str = "reach", plugin_d
     timings["plan"] = time.perf_counter() - t0
 
     t0 = time.perf_counter()
-    samples = tuple(sample_stroke(s, machine.delta_time, limits) for s in planned)
+    steps = (machine.x.steps_per_mm, machine.y.steps_per_mm)
+    samples = tuple(sample_stroke(s, machine.delta_time, limits, steps) for s in planned)
     timings["sample"] = time.perf_counter() - t0
 
     points = [np.asarray(machine.home, float)]

@@ -1,16 +1,26 @@
 """Sample: a planned stroke as velocity targets every dT for the PLC.
 
 The PLC ramps each axis linearly from one velocity target to the next over a
-period dT (report 2.1.0.5), so the position it reaches is the trapezoidal sum
-of the targets, and its acceleration on each period is (v_j - v_j-1)/dT.
-Sampling the planned velocity naively makes that sum drift off the curve (the
-report's footnote to 2.4.6). Instead the targets solve a small QP per stroke:
+period dT (report 2.1.0.5): the position it reaches is the trapezoidal sum of
+the targets and its acceleration on each period is (v_j - v_j-1) / dT.
+Sampling the planned velocity naively drifts off the curve (the report's
+footnote to 2.4.6): a time-optimal plan switches acceleration between sample
+instants, which whole-period ramps cannot follow in time.
 
-    minimise   sum_j |x_j - q(t_j)|^2 + lam |v_j - v_plan(t_j)|^2
-    subject to the end point reached exactly, the last target zero (rest),
-               |M (v_j - v_j-1)| <= A_max dT  and  |M v_j| <= V_max  per actuator,
+They can follow it in *space*. The targets solve a small QP per stroke whose
+reached positions x_j must lie within ``tolerance`` of the curve near the
+planned point q(s_j), with a free tangential shift d_j (the pen may run a
+little ahead or behind the plan, never off the path):
 
-so the executed stream itself respects the machine's limits.
+    minimise   sum_j d_j^2 + lam |v_j - v_plan(t_j)|^2
+    subject to |x_j - q(s_j) - q'(s_j) d_j| <= tol  per axis (linearised; then
+               re-linearised at s_j + d_j and checked exactly),
+               x_j = x_j-1 + dT (v_j-1 + v_j) / 2, the end point reached exactly
+               in whole machine steps, the last target zero (rest),
+               |M (v_j - v_j-1)| <= A_max dT and |M v_j| <= V_max per actuator.
+
+If the limits leave no such targets in ceil(T / dT) periods, periods are
+added (the stroke runs slightly slower than planned) until they do.
 """
 
 from __future__ import annotations
@@ -22,93 +32,122 @@ import numpy as np
 from .errors import PlanError
 from .model import Stroke, StrokeSamples
 
-# Weight of velocity fidelity against position fidelity, per dT^2.
+# Weight of velocity fidelity against timing fidelity (per dT^2).
 VELOCITY_WEIGHT = 1e-3
-# Largest distance (mm) between reached and planned positions at sample instants.
-TRACKING_TOLERANCE = 0.1
+# Largest distance per axis (in machine steps) from a sample instant's position to the curve;
+# half a step is the target, 0.4 leaves room for whole-steps/s rounding in the post.
+TRACKING_STEPS = 0.4
 
 
-def _solve(stroke: Stroke, dt: float, m: int, limits):
-    """Targets for the plan slowed uniformly to last exactly m periods, and
-    the largest position error at the sample instants (mm)."""
+def _qp(p, tang, v_plan, end, dt, tol, limits, L):
+    """One linearised QP. p: (m, 2) curve points (relative to the start),
+    tang: (m, 2) unit-length-scaled tangents, end: (2,). Returns (v, x, d) or None."""
     import scipy.sparse as sp
     from qpsolvers import solve_qp
 
-    prof, spline = stroke.profile, stroke.spline
-    c = prof.duration / (m * dt)  # time scale <= 1: slower is always within limits
-    t = dt * np.arange(1, m + 1)
-    u, ud, _ = prof.state_at(c * t)
-    target = spline(u) - spline.start  # positions to reach at each instant
-    target[-1] = spline.end - spline.start
-    v_plan = spline(u, 1) * (c * ud)[:, None]
-    v_plan[-1] = 0.0
-    # Unknowns per axis: targets v_1..v_n (n = m - 1; v_0 = v_m = 0) and the
-    # positions reached x_1..x_m, tied by the ramp: x_j = x_j-1 + dT (v_j-1 + v_j)/2.
-    # Keeping x as variables makes every matrix banded, so the QP is O(m).
+    m = len(p)
     n = m - 1
+    # unknowns: [vx (n), vy (n), xx (m), xy (m), d (m)]; d in mm along the tangent
+    nv, nx = 2 * n, 2 * m
+    N = nv + nx + m
     lam = VELOCITY_WEIGHT * dt * dt
-    I2 = sp.eye(2)
-    wv = np.full(n, lam)
-    wx = np.ones(m)
-    wx[-1] = 0.0  # the end point is an equality below
-    P = sp.csc_matrix(sp.kron(I2, sp.diags(np.concatenate([wv, wx]))))
-    q = -np.concatenate([np.concatenate([lam * v_plan[:n, i], target[:, i] * wx]) for i in range(2)])
-    S = sp.diags([1.0, 1.0], [0, -1], shape=(m, n))  # v_j-1 + v_j for j = 1..m
-    X = sp.diags([1.0, -1.0], [0, -1], shape=(m, m))  # x_j - x_j-1
-    ramp = sp.hstack([-dt / 2 * S, X])
-    end = sp.csr_matrix(([1.0], ([0], [n + m - 1])), shape=(1, n + m))
-    Aeq = sp.csc_matrix(sp.kron(I2, sp.vstack([ramp, end])))
-    beq = np.concatenate([np.append(np.zeros(m), target[-1, i]) for i in range(2)])
-    # differences v_j - v_j-1 for j = 1..m, mapped to actuators. (Nonlinear
-    # kinematics: the pen's targets cannot be bounded per actuator linearly;
-    # the plan itself is certified, the samples only track it.)
-    G = h = None
+    P = sp.diags(np.concatenate([np.full(nv, lam), np.zeros(nx), np.ones(m)]) + 1e-12, format="csc")
+    q = np.concatenate([-lam * v_plan[:n, 0], -lam * v_plan[:n, 1], np.zeros(nx + m)])
+    # ramp: x_j - x_j-1 - dT/2 (v_j-1 + v_j) = 0, j = 1..m (x_0 = 0, v_0 = v_m = 0)
+    S = sp.diags([1.0, 1.0], [0, -1], shape=(m, n))
+    X = sp.diags([1.0, -1.0], [0, -1], shape=(m, m))
+    zv, zx, zd = sp.csr_matrix((m, n)), sp.csr_matrix((m, m)), sp.csr_matrix((m, m))
+    ramp = sp.vstack([sp.hstack([-dt / 2 * S, zv, X, zx, zd]), sp.hstack([zv, -dt / 2 * S, zx, X, zd])])
+    endrow = sp.csr_matrix(([1.0, 1.0], ([0, 1], [nv + m - 1, nv + 2 * m - 1])), shape=(2, N))
+    A = sp.csc_matrix(sp.vstack([ramp, endrow]))
+    b = np.concatenate([np.zeros(2 * m), end])
+    # tracking box on instants 1..m-1 (the end is exact): x - tang * d within p +- tol
+    I = sp.eye(m, format="csr")[:-1]
+    Tx, Ty = sp.diags(tang[:, 0], format="csr")[:-1], sp.diags(tang[:, 1], format="csr")[:-1]
+    zvr = sp.csr_matrix((m - 1, n))
+    zxr = sp.csr_matrix((m - 1, m))
+    track = sp.vstack([sp.hstack([zvr, zvr, I, zxr, -Tx]), sp.hstack([zvr, zvr, zxr, I, -Ty])])
+    tr_h = np.concatenate([p[:-1, 0], p[:-1, 1]])
+    # the shifted parameter stays monotone: s_j + d_j / L <= s_j+1 + d_j+1 / L
+    Dm = sp.diags([1.0, -1.0], [0, 1], shape=(m - 1, m))
+    mono = sp.hstack([sp.csr_matrix((m - 1, nv + nx)), Dm])
+    mono_h = L * np.diff(p[:, 2])
+    rows = [track, -track, mono]
+    hs = [tr_h + tol, -(tr_h - tol), mono_h]
     if limits.M is not None:
-        D = sp.hstack([sp.diags([1.0, -1.0], [0, -1], shape=(m, n)), sp.csr_matrix((m, m))])
-        V = sp.hstack([sp.eye(n), sp.csr_matrix((n, m))])
-        Mact = sp.csr_matrix(limits.M)
-        Gd, Gv = sp.kron(Mact, D), sp.kron(Mact, V)
+        # actuator limits: differences v_j - v_j-1 (j = 1..m) and targets v_j
+        Dd = sp.diags([1.0, -1.0], [0, -1], shape=(m, n))
+        Mk = sp.csr_matrix(limits.M)
+        Gd = sp.hstack([sp.kron(Mk, Dd), sp.csr_matrix((Mk.shape[0] * m, nx + m))])
+        Gv = sp.hstack([sp.kron(Mk, sp.eye(n)), sp.csr_matrix((Mk.shape[0] * n, nx + m))])
         # a hair inside the limits so solver tolerance (~1e-8) never shows as overshoot
         da = np.repeat(limits.amax * dt * (1 - 1e-6), m)
         dv = np.repeat(limits.vmax * (1 - 1e-6), n)
-        G = sp.csc_matrix(sp.vstack([Gd, -Gd, Gv, -Gv]))
-        h = np.concatenate([da, da, dv, dv])
+        rows += [Gd, -Gd, Gv, -Gv]
+        hs += [da, da, dv, dv]
+    G = sp.csc_matrix(sp.vstack(rows))
+    h = np.concatenate(hs)
     with warnings.catch_warnings():  # "infeasible" is an expected answer here
         warnings.simplefilter("ignore")
-        v = solve_qp(P, q, G, h, Aeq, beq, solver="clarabel")
-    if v is None:
-        return None, np.inf
-    x = np.column_stack([v[n : n + m], v[2 * n + m :]])
-    return np.column_stack([v[:n], v[n + m : 2 * n + m]]), float(np.abs(x - target).max())
+        z = solve_qp(P, q, G, h, A, b, solver="clarabel", tol_feas=1e-10, tol_gap_abs=1e-10, tol_gap_rel=1e-10)
+    if z is None:
+        return None
+    v = np.column_stack([z[:n], z[n:nv]])
+    x = np.column_stack([z[nv : nv + m], z[nv + m : nv + 2 * m]])
+    return v, x, z[nv + nx :]
 
 
-def sample_stroke(stroke: Stroke, dt: float, limits, tolerance: float = TRACKING_TOLERANCE) -> StrokeSamples:
+def sample_stroke(stroke: Stroke, dt: float, limits, steps_per_mm=(80.0, 80.0), tracking_steps: float = TRACKING_STEPS,
+                  max_extra: float = 1.0) -> StrokeSamples:
     """Velocity targets (mm/s) for one planned stroke at t = dT, 2 dT, ...
 
-    A time-optimal plan switches acceleration between sample instants, which
-    a ramp of whole periods cannot follow within the same limits; where the
-    reached positions would stray more than ``tolerance`` (mm) from the curve,
-    the stroke is slowed uniformly by whole periods until they do not.
+    The stroke starts and ends on whole machine steps (``steps_per_mm``), so a
+    post that writes whole steps lands exactly on every stroke's end.
     """
-    m0 = max(int(np.ceil(stroke.profile.duration / dt - 1e-9)), 2)  # up, then down to rest
-    best = (None, np.inf, m0)
+    prof, spline = stroke.profile, stroke.spline
+    k = np.asarray(steps_per_mm, float)
+    start = np.round(spline.start * k) / k
+    end = np.round(spline.end * k) / k - start
+    tol = tracking_steps / k.max()
+    L = max(spline.length, 1e-9)
+    m0 = max(int(np.ceil(prof.duration / dt - 1e-9)), 2)  # up, then down to rest
     m = m0
-    while m <= 2 * m0 + 4:
-        v, err = _solve(stroke, dt, m, limits)
-        if v is not None and err < best[1]:
-            best = (v, err, m)
-        if err <= tolerance:
-            break
-        m += max(1, m0 // 10)
-    v, err, m = best
-    if v is None:
-        raise PlanError("cannot sample a stroke within the acceleration limits at this dT; use a shorter [sampling] delta_time")
-    vel = np.vstack([v, np.zeros((1, 2))])
-    return StrokeSamples(start=stroke.spline.start, velocity=vel, delta_time=dt, time_scale=stroke.profile.duration / (m * dt))
+    while m <= m0 * (1 + max_extra) + 4:
+        c = prof.duration / (m * dt)  # time scale <= 1: a uniformly slower plan is within limits
+        t = dt * np.arange(1, m + 1)
+        u, ud, _ = prof.state_at(c * t)
+        u[-1] = 1.0
+        v_plan = spline(u, 1) * (c * ud)[:, None]
+        v_plan[-1] = 0.0
+        ok = False
+        for _ in range(3):  # linearise, solve, re-linearise at the shifted points
+            p = spline(u) - start
+            tang = spline(u, 1) / L  # d is in mm of arc (roughly): q(u + d/L) ~ q + q' d / L
+            # the box is 3/4 of the tolerance: the rest absorbs the linearisation error
+            res = _qp(np.column_stack([p, u]), tang, v_plan, end, dt, 0.75 * tol, limits, L)
+            if res is None:
+                break
+            v, x, d = res
+            u_new = np.clip(u + d / L, 0.0, 1.0)
+            u_new[-1] = 1.0
+            err = np.abs(x - (spline(u_new) - start))[:-1]  # per axis: steps are per axis
+            if err.size == 0 or err.max() <= tol:
+                ok = True
+                u = u_new
+                break
+            u = np.maximum.accumulate(u_new)
+        if ok:
+            vel = np.vstack([v, np.zeros((1, 2))])
+            return StrokeSamples(start=start, velocity=vel, delta_time=dt, time_scale=c, sample_u=np.append(0.0, u))
+        m += max(1, m0 // 20)
+    raise PlanError("cannot follow the stroke within the limits with velocity samples every "
+                    f"{dt * 1000:g} ms; use a shorter [sampling] delta_time")
 
 
 def reference_positions(stroke: Stroke, samples: StrokeSamples) -> np.ndarray:
-    """Where the (uniformly slowed) plan puts the pen at t = 0, dT, ..., M dT (mm)."""
+    """The curve points the sampler aimed at for t = 0, dT, ..., M dT (mm)."""
+    if samples.sample_u is not None:
+        return stroke.spline(samples.sample_u)
     t = samples.delta_time * np.arange(len(samples.velocity) + 1)
     u, _, _ = stroke.profile.state_at(samples.time_scale * t)
     pos = stroke.spline(u)

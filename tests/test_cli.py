@@ -12,14 +12,14 @@ import pytest
 from doodlecam.machine import load_machine
 from doodlecam.plcfile import read_plc
 from doodlecam.pipeline import Settings, convert
-from doodlecam.sample import TRACKING_TOLERANCE, reference_positions
+from doodlecam.sample import reference_positions
 
 ROOT = Path(__file__).resolve().parent.parent
 CAMERA = ROOT / "samples" / "images" / "camera.png"
-# Integrating the PLC file's velocity samples must stay this close (mm) to the
-# fitted stroke at every sample instant: the sampler's tracking tolerance plus
-# one step (80 steps/mm) for whole steps/s rounding.
-DRIFT_TOLERANCE_MM = TRACKING_TOLERANCE + 1 / 80
+# Integrating the PLC file's whole-steps/s velocity samples must stay within
+# half a step (per axis, 80 steps/mm) of the fitted stroke at every sample
+# instant, and land on the stroke's end in whole steps.
+DRIFT_TOLERANCE_MM = 0.5 / 80
 
 
 def run(*args, cwd=None):
@@ -76,8 +76,10 @@ def test_plc_samples_reproduce_every_fitted_stroke(tmp_path):
         pos = st["start"] + np.vstack([[0, 0], np.cumsum(0.5 * header.delta_time * (v[1:] + v[:-1]), axis=0)])
         ref = reference_positions(stroke, smp)
         assert np.abs(st["start"] - stroke.spline.start).max() <= 0.5 / kx + 1e-9
-        worst = max(worst, float(np.abs(pos - ref).max()))
-    assert worst < DRIFT_TOLERANCE_MM
+        worst = max(worst, float(np.abs(pos - ref)[:-1].max(initial=0.0)))
+        end_steps = pos[-1] * [kx, ky]
+        assert np.allclose(end_steps, np.round(stroke.spline.end * [kx, ky]), atol=1e-6)  # 0 steps off at the end
+    assert worst <= DRIFT_TOLERANCE_MM
 
 
 def test_help_on_every_command():
