@@ -1,9 +1,10 @@
 """Link throughput: the UDP protocol through impaired networks, GRBL streaming vs send-and-wait.
 
 Everything runs on 127.0.0.1 with the project's own simulators (no extra
-packages): the PLC simulator in simulated time (so the link, not the
-machine, is measured) and the GRBL emulator with motion sped up 400x (so
-flow control, not motion, is measured).
+packages): the PLC simulator as a separate process in simulated time (so the
+link, not the machine, is measured; every run is checked against the plan)
+and the GRBL emulator with motion sped up 400x (so flow control, not motion,
+is measured).
 
     .venv/bin/python benchmarks/bench_link.py            # full table (~1 min)
     .venv/bin/python benchmarks/bench_link.py --quick    # smaller jobs
@@ -26,32 +27,47 @@ sys.path.insert(0, str(ROOT / "tests"))
 
 
 def udp_rows(n_strokes: int, repeats: int):
-    from test_udp import assert_drawn_as_planned, synth_job
+    """The sender in this process, the PLC simulator as its own process (as a real PLC would be)."""
+    import signal
+    import subprocess
 
-    from doodlecam.plcsim import Impairments, PlcConfig, PlcSimulator
+    from test_udp import synth_job
+
+    from doodlecam import plcproto as P
+    from doodlecam.plcfile import read_plc_array
     from doodlecam.udpsend import UdpSender
 
     data = synth_job(n_strokes=n_strokes, samples=98, seed=1)
-    n = n_strokes * 99 + 1
-    cases = [("clean", Impairments()),
-             ("5 % loss", Impairments(loss=0.05, seed=1)),
-             ("20 % loss + 10 % dup + 10 % reorder + 1 % corrupt", Impairments(loss=0.2, dup=0.1, reorder=0.1, corrupt=0.01, seed=1)),
-             ("as above + 1-3 ms delay", Impairments(loss=0.2, dup=0.1, reorder=0.1, corrupt=0.01, delay=0.001, jitter=0.002, seed=1))]
-    for name, imp in cases:
-        times, sent = [], []
-        for r in range(repeats):
-            imp.seed = r + 1 if imp.active else None
-            sim = PlcSimulator(PlcConfig(rto=0.02, impair=imp)).start()
-            try:
-                t0 = time.perf_counter()
-                res = UdpSender(*sim.address, data, timeout=5.0, rto=0.03).run()
-                times.append(time.perf_counter() - t0)
-                assert_drawn_as_planned(sim, data, res.job_id)
-                sent.append(res.stats["commands_sent"] / n)
-            finally:
-                sim.stop()
-        t = float(np.median(times))
-        yield name, n, t, n / t, float(np.mean(sent))
+    header, arr = read_plc_array(data)
+    planned, _ = P.planned_states(arr, header.delta_time)
+    n = len(arr)
+    bad = ["--loss", "0.2", "--dup", "0.1", "--reorder", "0.1", "--corrupt", "0.01"]
+    cases = [("clean", []), ("5 % loss", ["--loss", "0.05"]),
+             ("20 % loss + 10 % dup + 10 % reorder + 1 % corrupt", bad),
+             ("as above + 1-3 ms delay", bad + ["--delay", "0.001", "--jitter", "0.002"])]
+    with tempfile.TemporaryDirectory() as tmp:
+        for name, flags in cases:
+            times, sent = [], []
+            for r in range(repeats):
+                rec = Path(tmp) / f"trace{r}.csv"
+                sim = subprocess.Popen([sys.executable, "-m", "doodlecam", "sim", "plc", "--port", "0", "--rto", "0.02",
+                                        "--quiet", "--seed", str(r + 1), "--record", str(rec), *flags],
+                                       stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+                try:
+                    port = int(sim.stdout.readline().split(" on ")[1].split()[0].rsplit(":", 1)[1])
+                    t0 = time.perf_counter()
+                    res = UdpSender("127.0.0.1", port, data, timeout=5.0, rto=0.03).run()
+                    times.append(time.perf_counter() - t0)
+                    sent.append(res.stats["commands_sent"] / n)
+                finally:
+                    sim.send_signal(signal.SIGINT)
+                    sim.communicate(timeout=30)
+                rows = np.loadtxt(rec, delimiter=",", skiprows=1)
+                rows = rows[rows[:, 1] >= 0]
+                assert np.array_equal(rows[:, 0], np.arange(1, n + 1)), "a command was lost, repeated or reordered"
+                assert np.abs(rows[:, 3:5] - planned).max() < 1e-3, "the trajectory left the plan"
+            t = float(np.median(times))
+            yield name, n, t, n / t, float(np.mean(sent))
 
 
 def grbl_rows(n_strokes: int):
@@ -87,7 +103,7 @@ def main() -> None:
     ap.add_argument("--quick", action="store_true", help="smaller jobs, one repeat")
     args = ap.parse_args()
     strokes, reps, gstrokes = (30, 1, 20) if args.quick else (101, 3, 80)
-    print("UDP link, PLC simulator in simulated time (median of", reps, "runs):\n")
+    print("UDP link, PLC simulator (own process) in simulated time, median of", reps, "runs:\n")
     print("| network | commands | wall s | commands/s | commands sent per command |")
     print("|---|---|---|---|---|")
     for name, n, t, rate, sent in udp_rows(strokes, reps):

@@ -33,9 +33,16 @@ class Option:
     type: type
     default: Any
     help: str
+    choices: tuple[Any, ...] | None = None  # allowed values, when the option is an enumeration
 
     def coerce(self, value: Any, plugin: str) -> Any:
         """``value`` (a CLI string or a TOML value) as this option's type."""
+        value = self._coerce(value, plugin)
+        if self.choices is not None and value not in self.choices:
+            raise PluginError(f"{plugin}: option '{self.name}' must be one of {', '.join(map(str, self.choices))}, got {value!r}")
+        return value
+
+    def _coerce(self, value: Any, plugin: str) -> Any:
         try:
             if self.type is bool:
                 if isinstance(value, bool):
@@ -129,7 +136,14 @@ class Kinematics(Plugin):
 
 
 class PostProcessor(Plugin):
-    """Writes a planned Job as a file's bytes."""
+    """Writes a planned Job as a file's bytes.
+
+    ``write(job, options)`` receives the planned :class:`doodlecam.model.Job`
+    (read-only) and the resolved options (a dict: every declared option, with
+    the profile's ``[post.NAME]`` table and ``--post-opt NAME.KEY=VALUE``
+    applied, already coerced to each option's type). It returns ``bytes``,
+    written atomically to ``OUT/STEM{extension}``. See docs/plugins.md.
+    """
 
     kind = "postprocessor"
     extension: ClassVar[str] = ""  # e.g. ".gcode"

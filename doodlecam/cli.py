@@ -38,6 +38,8 @@ LAZY_COMMANDS: dict[str, str] = {
     "plot": "doodlecam.cli_plot:plot",
     "motion": "doodlecam.cli_motion:motion",
     "learn": "doodlecam.cli_motion:learn",
+    "batch": "doodlecam.cli_batch:batch",
+    "plugins": "doodlecam.cli_plugins:plugins",
 }
 
 
@@ -128,29 +130,15 @@ def convert(input, outdir, machine, tracer, tracer_opt, posts, post_opt, solver,
     click.echo(f"  strokes            {s['strokes']}  ({s['control_points']} control points, fit within {s['max_fit_error_mm']:.3f} mm)")
     click.echo(f"  pen-down length    {s['pen_down_mm']:.1f} mm")
     click.echo(f"  travel length      {s['travel_mm']:.1f} mm")
+    by_law = s["travel_time_by_law_s"]
+    if by_law:
+        base = by_law.get("trapezoid", 0.0)
+        click.echo(f"  travel law         {s['travel_law']}: {by_law.get(s['travel_law'], 0):.1f} s pen-up; smooth laws cost "
+                   + ", ".join(f"{k} {v - base:+.1f} s" for k, v in by_law.items() if k != "trapezoid"))
     click.echo(f"  planned job time   {s['job_time_s']:.1f} s  (drawing {s['draw_time_s']:.1f} s, {s['samples']} velocity samples)")
     click.echo(f"  limits             acceleration <= {s['worst_acceleration_ratio']:.6f}, velocity <= "
                f"{s['worst_velocity_ratio']:.6f} of the limit (checked on a 20x finer grid)")
     click.echo("  wrote              " + ", ".join(s["outputs"]))
-
-
-@cli.command()
-@PLUGIN_DIR
-def plugins(plugin_dirs):
-    """List tracer, machine, post-processor and transport plugins."""
-    from .registry import discover
-
-    infos = discover(plugin_dirs)
-    kinds = {"tracer": "Tracers", "machine": "Machines (kinematics)", "postprocessor": "Post-processors",
-             "transport": "Transports", "?": "Broken drop-ins"}
-    for kind, title in kinds.items():
-        rows = [i for i in infos if i.kind == kind]
-        if not rows:
-            continue
-        click.echo(f"{title}:")
-        for i in rows:
-            summary = i.summary if kind != "?" else f"BROKEN: {i.error}"
-            click.echo(f"  {i.name:<12} {summary}  [{i.origin}]")
 
 
 @cli.command()
@@ -195,7 +183,9 @@ def inspect(file, as_csv, limit):
 
 def main(argv=None) -> int:
     try:
-        cli.main(args=argv, prog_name="doodlecam", standalone_mode=False)
+        rv = cli.main(args=argv, prog_name="doodlecam", standalone_mode=False)
+        if isinstance(rv, int):  # click returns Exit codes instead of raising without standalone mode
+            return rv
     except click.exceptions.Exit as e:
         return e.exit_code
     except click.ClickException as e:

@@ -17,6 +17,16 @@ from .errors import DoodleError
 GCODE_EXTENSIONS = (".gcode", ".nc", ".gc", ".ngc", ".g")
 
 
+def _stop_on_sigterm() -> None:
+    """`kill PID` ends a simulator like Ctrl-C (background jobs of a script ignore SIGINT)."""
+    import signal
+
+    def handler(signum, frame):
+        raise KeyboardInterrupt
+
+    signal.signal(signal.SIGTERM, handler)
+
+
 def _fmt_s(s: float) -> str:
     s = max(0.0, s)
     return f"{int(s // 60)}:{int(s % 60):02d}" if s >= 60 else f"{s:.1f} s"
@@ -30,7 +40,7 @@ class _Progress:
 
         self.left = left
         self.bar = tqdm(total=total, desc=desc, unit=unit, file=sys.stderr, dynamic_ncols=True,
-                        disable=None if enabled else True, bar_format="{l_bar}{bar}| {n_fmt}/{total_fmt} {postfix}")
+                        disable=None if enabled else True, bar_format="{l_bar}{bar}| {n_fmt}/{total_fmt} {unit}{postfix}")
         self.last = 0.0
 
     def __call__(self, done: int, total: int, status=None) -> None:
@@ -248,6 +258,7 @@ def sim_plc(host, port, machine, buffer_size, realtime, speed, loss, dup, reorde
     click.echo(f"PLC simulator on {plc.address[0]}:{plc.address[1]} ({mode}, buffer {buffer_size}, machine "
                f"{machine}); Ctrl-C stops", err=False)
     sys.stdout.flush()
+    _stop_on_sigterm()
     try:
         plc.run()
     except KeyboardInterrupt:
@@ -301,6 +312,7 @@ def sim_grbl(speed, error_at, alarm_at, vanish_at, soft_limits, travel, link_pat
     emu.start()
     click.echo(f"GRBL emulator on {emu.port}" + (f" (also {link_path})" if link_path else "") + "; Ctrl-C stops")
     sys.stdout.flush()
+    _stop_on_sigterm()
     try:
         while not emu.vanished:
             time.sleep(0.2)

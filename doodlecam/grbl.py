@@ -680,6 +680,10 @@ class Streamer:
                 continue
             kind = ev[0]
             if kind in ("ok", "error"):
+                if not self.inflight:
+                    self._halt()
+                    raise GrblError(f"GRBL on {link.port} answered a line that was never sent; is another program "
+                                    "using the port? The job was stopped")
                 i, size = self.inflight.popleft()
                 self.used -= size
                 self._answered(i, kind, ev[1] if kind == "error" else 0, check)
@@ -688,8 +692,9 @@ class Streamer:
                 i = self.inflight[0][0] if self.inflight else self.sent - 1
                 raise link._alarm_error(ev[1], f"near {self.where(i)}")
             elif kind == "banner":
-                raise GrblError(f"GRBL reset itself during the job (near {self.where(max(self.acked, 0))}); check its "
-                                "power and wiring, home it, then send again with --from-line")
+                near = self.where(min(self.acked, len(self.lines) - 1))
+                raise GrblError(f"GRBL reset itself during the job (near {near}); check its power and wiring, "
+                                "home it, then send again with --from-line")
             elif kind == "status":
                 self.progress(self.acked, len(self.lines), ev[1])
         if not check and not self.stopping:

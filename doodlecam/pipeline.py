@@ -24,6 +24,10 @@ from .model import Drawing, Job, Stroke
 
 
 
+_UMASK = os.umask(0o022)
+os.umask(_UMASK)
+
+
 @dataclass
 class Settings:
     machine: Machine
@@ -142,7 +146,11 @@ def plan_job(drawing: Drawing, machine: Machine, solver: str = "reach", plugin_d
         points += [s.spline.start, s.spline.end]
     points.append(np.asarray(machine.home, float))
     travels = tuple(make_travel(points[2 * i], points[2 * i + 1], machine) for i in range(len(planned) + 1))
+    from .travel import machine_law, travel_time_by_law
+
     meta = {
+        "travel_law": machine_law(machine),
+        "travel_time_by_law": travel_time_by_law(travels, machine),
         "solver": solver,
         "worst_acceleration_ratio": worst_acc,
         "worst_velocity_ratio": worst_vel,
@@ -184,6 +192,7 @@ def write_outputs(outdir: Path, stem: str, outputs: list[tuple[str, str, bytes]]
             temps.append(tmp)
             with os.fdopen(fd, "wb") as f:
                 f.write(data)
+            os.chmod(tmp, 0o666 & ~_UMASK)  # mkstemp makes 0600; outputs get normal permissions
         for tmp, final in zip(temps, names):
             os.replace(tmp, final)
     except OSError as e:
@@ -215,6 +224,8 @@ class Result:
             "max_fit_error_mm": round(j.meta["max_fit_error_mm"], 4),
             "worst_acceleration_ratio": round(j.meta["worst_acceleration_ratio"], 9),
             "worst_velocity_ratio": round(j.meta["worst_velocity_ratio"], 9),
+            "travel_law": j.meta.get("travel_law", ""),
+            "travel_time_by_law_s": {k: round(v, 3) for k, v in j.meta.get("travel_time_by_law", {}).items()},
             "outputs": [str(p) for p in self.outputs],
             "timings_s": {k: round(v, 3) for k, v in self.timings.items()},
         }

@@ -174,7 +174,7 @@ def plan_stroke(spline: Spline, limits: Limits, solver: str = "reach", spacing: 
     base = solver if solver.startswith(("reach", "lp")) else "reach"
     nonlinear = limits.M is None and mode != "collocation"
     best_t = np.inf
-    for _ in range(max_rounds):
+    for _ in range(max_rounds):  # noqa: B007 (the last round is detected below)
         rows = build_rows(spline, u, limits, mode)
         b = _solve(rows, u, base, b0, bN)
         if mode == "collocation" or not (adaptive or nonlinear):
@@ -190,11 +190,9 @@ def plan_stroke(spline: Spline, limits: Limits, solver: str = "reach", spacing: 
                 break  # refinement no longer pays
             best_t = t
             split = (used > 1 - 1e-6) & (worst < 1 - 2e-3)  # binding, but the bound is loose
-        if not split.any() or len(u) + split.sum() > 200_000:
-            break
+        if not split.any() or len(u) + split.sum() > 200_000 or _ == max_rounds - 1:
+            break  # (u and b stay in step: split only when another solve follows)
         u = _split(u, split)
-        if nonlinear and _ == max_rounds - 1:
-            break
     if solver.startswith("qp"):
         backend = solver.partition(":")[2] or "clarabel"
         b = convex.solve_smooth(rows, u, smoothing if smoothing > 0 else 1.0, b, b0, bN, backend)

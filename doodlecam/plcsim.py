@@ -700,6 +700,9 @@ class PlcSimulator:
                 for r in tr:
                     f.write(f"{r['command_no']},{r['type']},{r['t']:.6f},{r['x']:.4f},{r['y']:.4f},"
                             f"{r['vx']:.3f},{r['vy']:.3f},{r['pen']}\n")
+            umask = os.umask(0)
+            os.umask(umask)
+            os.chmod(tmp, 0o666 & ~umask)  # mkstemp makes 0600; an output file gets the usual mode
             os.replace(tmp, path)
         except BaseException:
             if os.path.exists(tmp):

@@ -37,7 +37,7 @@ from .model import Job
 
 FORMATS = (".png", ".svg", ".pdf")
 DENSE = 1500  # points per planned curve
-PER_PERIOD = 8  # points per sample period on executed curves
+PER_PERIOD = 16  # points per sample period on executed curves
 
 
 def pick_strokes(job: Job, requested: tuple[int, ...] | list[int] = ()) -> list[int]:
@@ -240,8 +240,8 @@ def stroke_figure(job: Job, index: int, kinematics):
     ax.legend(fontsize=8, loc="best", ncol=2)
     ax_dd.legend(fontsize=8, loc="best", ncol=2)
 
-    # (h) drift: at sample instants from where the plan puts the pen (what
-    # the samples track); in between, from the curve itself (nearest point)
+    # (h) drift: at sample instants from the curve point the samples track;
+    # in between, from the nearest point of the stretch being drawn
     ax = axs[3, 1]
     if ex is None:
         ax.text(0.5, 0.5, "no velocity samples in this job", ha="center", va="center", transform=ax.transAxes)
@@ -249,11 +249,18 @@ def stroke_figure(job: Job, index: int, kinematics):
     else:
         te, _, _, _, ts, xs, ref, _, _ = ex
         _, xe, *_ = _executed(samples)
-        off_curve = _distance_to_curve(spline, xe, prof.state_at(samples.time_scale * te)[0])
-        k = np.searchsorted(te, ts).clip(0, len(te) - 1)
-        at = np.linalg.norm(xs - ref[k], axis=1)
+        aim_u = getattr(samples, "sample_u", None)
+        if aim_u is not None and len(aim_u) == len(ts):
+            # the sampler says which curve point each instant aims at (it may
+            # run a little ahead of or behind the plan, along the path)
+            u0, aimed, what = np.interp(te, ts, aim_u), spline(np.asarray(aim_u)), "from its aim point at samples"
+        else:
+            k = np.searchsorted(te, ts).clip(0, len(te) - 1)
+            u0, aimed, what = prof.state_at(samples.time_scale * te)[0], ref[k], "from the plan at samples"
+        off_curve = _distance_to_curve(spline, xe, u0)
+        at = np.linalg.norm(xs - aimed, axis=1)
         ax.plot(te, off_curve * 1000, color="0.5", lw=0.8, label=f"from the curve (max {off_curve.max() * 1000:.1f} µm)")
-        ax.plot(ts, at * 1000, ".", color="k", ms=4, label=f"from the plan at samples (max {at.max() * 1000:.1f} µm)")
+        ax.plot(ts, at * 1000, ".", color="k", ms=4, label=f"{what} (max {at.max() * 1000:.1f} µm)")
         tol = getattr(job.machine, "tolerance", None)
         if tol:
             ax.axhline(tol * 1000, color="tab:red", ls="--", lw=0.9, label=f"fit tolerance {tol:g} mm")

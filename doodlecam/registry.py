@@ -49,6 +49,11 @@ class PluginInfo:
             if not (inspect.isclass(cls) and issubclass(cls, base)):
                 self.error = f"not a {base.__name__} subclass"
                 raise PluginError(f"{self.kind} plugin '{self.name}' ({self.origin}) is {self.error}; fix the plugin")
+            wants = getattr(cls, "api_version", api.API_VERSION)
+            if not isinstance(wants, int) or not 1 <= wants <= api.API_VERSION:
+                self.error = f"written for plugin API {wants!r}, this doodlecam has API {api.API_VERSION}"
+                raise PluginError(f"{self.kind} plugin '{self.name}' ({self.origin}) is {self.error}; "
+                                  "upgrade doodlecam or the plugin")
             self._cls = cls
         return self._cls
 

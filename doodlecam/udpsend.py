@@ -455,7 +455,7 @@ class UdpSender:
         """Ctrl-C: stop at the end of the stroke (again: stop now), wait for the PLC to confirm."""
         mode = 0
         self.log("stopping at the end of the current stroke (Ctrl-C again stops at once)")
-        deadline = time.monotonic() + self.timeout + 5.0
+        self.last_heard = time.monotonic()
         while True:
             try:
                 self._send(P.stop(self.session, self._next_seq(), self.job_id, now=bool(mode)))
@@ -465,16 +465,20 @@ class UdpSender:
                     if m is None:
                         continue
                     outcome = self._on_message(m)
-                    if outcome in ("held", "done"):
+                    if outcome == "done":  # it finished before the stop took effect
+                        return
+                    if outcome is None and m.status.state == State.B_READY and not (
+                            m.status.held and m.job_id == self.job_id):
+                        self._save(force=True)  # the PLC has not taken the job (yet): nothing to stop
+                        raise Paused(f"stopped before the PLC started the job (after command {self.executed} of "
+                                     f"{self.n}); send the same job again to resume")
+                    if outcome == "held":
                         self._save(force=True)
-                        if outcome == "done":
-                            clear_state(self.state_file)
-                            raise Paused(f"the job had already finished ({self.n} commands)")
                         raise Paused(f"paused before command {self.executed + 1} of {self.n}, pen up; send the same job "
                                      "again to resume, or add --cancel to abandon it")
-                if time.monotonic() > deadline:
+                if time.monotonic() - self.last_heard > self.timeout:  # the stroke may be long: wait while it talks
                     self._save(force=True)
-                    raise LinkError(f"the PLC at {self.where} did not confirm the stop; check the machine "
+                    raise LinkError(f"the PLC at {self.where} stopped answering before confirming the stop; check the machine "
                                     f"(last executed command {self.executed} of {self.n})")
             except KeyboardInterrupt:
                 if mode == 1:
@@ -482,7 +486,6 @@ class UdpSender:
                     raise Paused(f"gave up waiting for the PLC to stop after command {self.executed}; check the machine")
                 mode = 1
                 self.log("stopping now")
-                deadline = time.monotonic() + self.timeout
 
     # ------------------------------------------------------------ entry points
 

@@ -1,14 +1,29 @@
-"""G-code post-processor (GRBL flavour) for pen plotters.
+"""G-code post-processor for pen plotters: GRBL, Marlin and LinuxCNC dialects.
 
 Each stroke becomes short G1 segments along its spline. Segment ends sit at
 the planned sample instants, split further until every chord stays within
 ``chord_tolerance`` of the spline. Each segment's feed is its chord length
 over the planned time between its ends, so a controller that follows F
-reproduces the time-optimal profile (GRBL's own planner smooths the joins).
+reproduces the time-optimal profile (the firmware's own planner smooths the
+joins; ``doodlecam.grbltime`` estimates how long GRBL 1.1 really takes).
+
+Dialects (``dialect``; every line stays within the firmware's line limit):
+
+* ``grbl`` — GRBL 1.1 (79 characters: its 80-byte line buffer holds a NUL).
+  Pen by servo on the spindle PWM (``M3 S0`` / ``M3 S1000``) or by Z.
+  Every M3 with a new S empties GRBL's planner outside laser mode, so the
+  settle dwell ``G4 P<s>`` costs nothing extra.
+* ``marlin`` — Marlin 2 (95 characters: MAX_CMD_SIZE 96). Pen by servo
+  ``M280 P0 S<angle>`` or by Z; ``G4 P`` is in milliseconds; no G94/G17.
+* ``linuxcnc`` — LinuxCNC (255 characters). Pen by Z by default; ``G64 P``
+  sets the path-blending tolerance to the chord tolerance.
+
+A built-in post is written exactly like a third-party one; see docs/plugins.md.
 """
 
 from __future__ import annotations
 
+from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
@@ -16,7 +31,27 @@ import numpy as np
 from doodlecam.api import Option, PostProcessor
 from doodlecam.errors import OutputError, PluginError
 
-MAX_LINE = 80  # GRBL's line buffer
+MAX_LINE = 79  # GRBL's line buffer is 80 bytes including the terminating NUL
+
+
+@dataclass(frozen=True)
+class Dialect:
+    name: str
+    max_line: int  # characters per line, without the newline
+    pen: str  # default pen mechanism: "servo" or "z"
+    servo_up: str
+    servo_down: str
+    dwell_ms: bool  # G4 P in milliseconds (Marlin) rather than seconds
+    preamble: tuple[str, ...]
+    program_end: str
+    firmware: str
+
+
+DIALECTS = {
+    "grbl": Dialect("grbl", MAX_LINE, "servo", "M3 S0", "M3 S1000", False, ("G21 G90 G94", "G17"), "M2", "GRBL 1.1"),
+    "marlin": Dialect("marlin", 95, "servo", "M280 P0 S90", "M280 P0 S0", True, ("G21", "G90"), "M84", "Marlin 2"),
+    "linuxcnc": Dialect("linuxcnc", 255, "z", "M3 S0", "M3 S1000", False, ("G21 G90 G94", "G17"), "M2", "LinuxCNC 2.9"),
+}
 
 
 def _num(v: float, decimals: int = 3) -> str:
@@ -57,24 +92,53 @@ def _refine(spline, u: np.ndarray, tol: float, max_rounds: int = 30) -> np.ndarr
 
 class GcodePost(PostProcessor):
     name = "gcode"
-    summary = "GRBL-style G-code: G0 travels, G1 strokes whose feeds follow the planned profile"
+    summary = "G-code (GRBL, Marlin, LinuxCNC): G0 travels, G1 strokes whose feeds follow the planned profile"
     extension = ".gcode"
     options = (
-        Option("pen_up", str, "M3 S0", "command that lifts the pen (servo on spindle PWM by default)"),
-        Option("pen_down", str, "M3 S1000", "command that lowers the pen"),
+        Option("dialect", str, "grbl", "firmware: sets line limit, pen commands, dwell units, preamble", tuple(DIALECTS)),
+        Option("pen", str, "", "pen mechanism: servo (M3 S / M280) or z; empty = the dialect's (grbl, marlin: servo; linuxcnc: z)",
+               ("", "servo", "z")),
+        Option("pen_up", str, "", "command that lifts the pen; empty = the dialect's (grbl servo: M3 S0; z: G0 Z<z_up>)"),
+        Option("pen_down", str, "", "command that lowers the pen; empty = the dialect's (grbl servo: M3 S1000; z: G1 Z<z_down>)"),
+        Option("z_up", float, 2.0, "pen-up height (mm) when pen = z"),
+        Option("z_down", float, 0.0, "pen-down height (mm) when pen = z"),
+        Option("z_feed", float, 1000.0, "feed (mm/min) that lowers the pen when pen = z"),
         Option("chord_tolerance", float, 0.05, "largest distance (mm) between a G1 segment and the spline"),
         Option("min_feed", float, 10.0, "smallest feed (mm/min) written, so no segment has F0"),
-        Option("program_end", str, "M2", "last line of the program (M2 or M30)"),
+        Option("program_end", str, "", "last line of the program; empty = the dialect's (grbl, linuxcnc: M2; marlin: M84)"),
+        Option("estimate", bool, True, "grbl: put GRBL 1.1's own job time (planner model, doodlecam.grbltime) in the header"),
     )
 
-    def _check(self, options: dict[str, Any]) -> None:
+    def _resolve(self, options: dict[str, Any]) -> tuple[Dialect, dict[str, Any]]:
+        """The dialect and the options with its defaults filled in, all checked."""
+        d = DIALECTS.get(options.get("dialect", "grbl"))
+        if d is None:
+            raise PluginError(f"postprocessor 'gcode': option 'dialect' must be one of {', '.join(DIALECTS)}, got {options['dialect']!r}")
+        o = dict(options)
+        o.setdefault("pen", "")
+        pen = o["pen"] or d.pen
+        if pen not in ("servo", "z"):
+            raise PluginError(f"postprocessor 'gcode': option 'pen' must be servo or z, got {pen!r}")
+        for key in ("z_up", "z_down", "z_feed"):
+            o.setdefault(key, dict((x.name, x.default) for x in self.options)[key])
+        if pen == "z":
+            up, down = f"G0 Z{_num(o['z_up'])}", f"G1 Z{_num(o['z_down'])} F{_num(o['z_feed'], 1)}"
+        else:
+            up, down = d.servo_up, d.servo_down
+        o["pen_up"] = o.get("pen_up") or up
+        o["pen_down"] = o.get("pen_down") or down
+        o["program_end"] = o.get("program_end") or d.program_end
+        o["pen"] = pen
         for key in ("pen_up", "pen_down", "program_end"):
-            v = options[key]
-            if not v.strip() or "\n" in v or "\r" in v or len(v) > MAX_LINE or not v.isascii():
-                raise PluginError(f"postprocessor 'gcode': option '{key}' must be one ASCII line of at most {MAX_LINE} characters, got {v!r}")
-        for key in ("chord_tolerance", "min_feed"):
-            if not options[key] > 0:
-                raise PluginError(f"postprocessor 'gcode': option '{key}' must be positive, got {options[key]!r}")
+            v = o[key]
+            if not v.strip() or "\n" in v or "\r" in v or len(v) > d.max_line or not v.isascii():
+                raise PluginError(f"postprocessor 'gcode': option '{key}' must be one ASCII line of at most {d.max_line} characters, got {v!r}")
+        for key in ("chord_tolerance", "min_feed", "z_feed"):
+            if not o[key] > 0:
+                raise PluginError(f"postprocessor 'gcode': option '{key}' must be positive, got {o[key]!r}")
+        if pen == "z" and not o["z_up"] > o["z_down"]:
+            raise PluginError(f"postprocessor 'gcode': option 'z_up' ({o['z_up']}) must be above 'z_down' ({o['z_down']})")
+        return d, o
 
     def _stroke_points(self, stroke, dt: float, tol: float, min_feed: float):
         """Rounded G1 points (n, 2) and the feed (mm/min) of each of the n-1 segments."""
@@ -103,13 +167,33 @@ class GcodePost(PostProcessor):
         return p, feed
 
     def write(self, job, options: dict[str, Any]) -> bytes:
-        self._check(options)
+        d, options = self._resolve(options)
         m = job.machine
         tol, min_feed = float(options["chord_tolerance"]), float(options["min_feed"])
         dts = [s.delta_time for s in job.samples] if len(job.samples) == len(job.strokes) else []
         paths = [self._stroke_points(s, dts[i] if dts else m.delta_time, tol, min_feed)
                  for i, s in enumerate(job.strokes)]
         home = job.travels[-1].end if job.travels else np.asarray(m.home, float)
+
+        body: list[str] = []
+
+        def pen(cmd: str, delay: float) -> None:
+            body.append(cmd)
+            if delay > 0:
+                body.append(f"G4 P{int(round(delay * 1000.0))}" if d.dwell_ms else f"G4 P{_num(delay)}")
+
+        pen(options["pen_up"], m.pen.up_delay)
+        for p, feed in paths:
+            body.append(f"G0 X{_num(p[0, 0])} Y{_num(p[0, 1])}")
+            pen(options["pen_down"], m.pen.down_delay)
+            last_f = ""
+            for (x, y), f in zip(p[1:].tolist(), feed.tolist()):
+                fs = _num(max(f, 0.1), 1)  # never print F0
+                body.append(f"G1 X{_num(x)} Y{_num(y)}" + (f" F{fs}" if fs != last_f else ""))
+                last_f = fs
+            pen(options["pen_up"], m.pen.up_delay)
+        body.append(f"G0 X{_num(home[0])} Y{_num(home[1])}")
+        body.append(options["program_end"])
 
         pts = [p for p, _ in paths] + [np.asarray([home])]
         lo, hi = np.concatenate(pts).min(0), np.concatenate(pts).max(0)
@@ -120,24 +204,20 @@ class GcodePost(PostProcessor):
             f"; pen-down {job.pen_down_length:.1f} mm, travel {job.travel_length:.1f} mm",
             f"; bounds X {_num(lo[0])}..{_num(hi[0])} Y {_num(lo[1])}..{_num(hi[1])} mm",
         ]
-        lines = [h[:MAX_LINE] for h in head]
-        lines += ["G21 G90 G94", "G17"]  # mm, absolute, feed per minute, XY plane
-
-        def pen(cmd: str, delay: float) -> None:
-            lines.append(cmd)
-            if delay > 0:  # GRBL's G4 P is in seconds
-                lines.append(f"G4 P{_num(delay)}")
-
-        pen(options["pen_up"], m.pen.up_delay)
-        for p, feed in paths:
-            lines.append(f"G0 X{_num(p[0, 0])} Y{_num(p[0, 1])}")
-            pen(options["pen_down"], m.pen.down_delay)
-            last_f = ""
-            for (x, y), f in zip(p[1:].tolist(), feed.tolist()):
-                fs = _num(max(f, 0.1), 1)  # never print F0
-                lines.append(f"G1 X{_num(x)} Y{_num(y)}" + (f" F{fs}" if fs != last_f else ""))
-                last_f = fs
-            pen(options["pen_up"], m.pen.up_delay)
-        lines.append(f"G0 X{_num(home[0])} Y{_num(home[1])}")
-        lines.append(options["program_end"])
+        if d.name != "grbl" or options["pen"] != "servo":
+            head.append(f"; dialect {d.name} ({d.firmware}), pen by {options['pen']}")
+        if d.name == "grbl" and options.get("estimate", False):
+            est = self._grbl_estimate(m, "\n".join(body))
+            if est is not None:
+                head.append(f"; GRBL 1.1 estimate {est:.1f} s (planner model: junctions, 16-block look-ahead)")
+        preamble = list(d.preamble)
+        if d.name == "linuxcnc":
+            preamble.append(f"G64 P{_num(tol)}")  # blend corners within the chord tolerance
+        lines = [h[:d.max_line] for h in head] + preamble + body
         return ("\n".join(lines) + "\n").encode("ascii")
+
+    @staticmethod
+    def _grbl_estimate(machine, body: str) -> float:
+        from doodlecam.grbltime import GrblSettings, estimate_gcode
+
+        return estimate_gcode(body, GrblSettings.from_machine(machine), start=tuple(machine.home)).total

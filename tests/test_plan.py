@@ -114,3 +114,35 @@ def test_profile_state_is_consistent(limits):
     mid = (u[2:] - u[:-2]) / (t[2:] - t[:-2])
     # exact for quadratics; where u-ddot jumps a central difference errs by <= |a| dt
     assert np.allclose(mid, ud[1:-1], rtol=0, atol=np.abs(prof.a).max() * (t[1] - t[0]))
+
+
+def test_fivebar_plan_is_verified_on_the_fine_grid():
+    from doodlecam.machine import load_machine
+    from doodlecam.pipeline import kinematics_for
+
+    m = load_machine("fivebar")
+    kin = kinematics_for(m)
+    lim = Limits.from_machine(m, kin)
+    assert lim.M is None  # nonlinear: sampled rows, verified and refined
+    c = report_curve().control
+    c = (c - c.min(0)) / np.ptp(c, axis=0) * [m.width - 60, m.height - 60] + 30
+    s = Spline(3, c)
+    kin.check_reachable(s(np.linspace(0, 1, 200)))
+    prof = plan_stroke(s, lim)
+    acc, vel = check_profile(s, prof, lim, refine=20)
+    assert acc <= 1 + 1e-9 and vel <= 1 + 1e-9 and max(acc, vel) > 0.95
+    assert prof.b[0] == 0 and prof.b[-1] == 0
+
+
+def test_impossible_start_speed_is_a_one_line_error(limits):
+    from doodlecam.errors import PlanError
+
+    s = report_curve()
+    with pytest.raises(PlanError) as e:
+        plan_stroke(s, limits, v_start=5000.0)  # far above the 150 mm/s axis limit
+    assert "\n" not in str(e.value)
+    prof = plan_stroke(s, limits, v_start=20.0, v_end=10.0)  # reachable start/end speeds hold
+    sp = np.linalg.norm(s(np.array([0.0, 1.0]), 1), axis=1) * np.sqrt(prof.b[[0, -1]])
+    assert np.allclose(sp, [20.0, 10.0])
+    acc, vel = check_profile(s, prof, limits)
+    assert acc <= 1 + 1e-9 and vel <= 1 + 1e-9

@@ -433,3 +433,14 @@ def test_wrong_job_type_and_bad_target_are_one_line_errors(tmp_path):
     r = subprocess.run([sys.executable, "-m", "doodlecam", "send", str(p), "--udp", "localhost"],
                        capture_output=True, text=True, env=ENV, cwd=ROOT, timeout=30)
     assert r.returncode != 0 and r.stderr.strip().count("\n") == 0 and "HOST:PORT" in r.stderr
+
+
+def test_transports_are_plugins_listed_by_the_cli():
+    from doodlecam import registry
+
+    assert registry.get("transport", "udp").extension == ".plc"
+    assert registry.get("transport", "serial").extension == ".gcode"
+    r = subprocess.run([sys.executable, "-m", "doodlecam", "plugins"], capture_output=True, text=True, env=ENV,
+                       cwd=ROOT, timeout=60)
+    block = r.stdout.split("Transports:")[1]
+    assert "udp " in block and "serial " in block

@@ -1,0 +1,1 @@
+"""Example doodlecam plugin package (see hpgl.py)."""
