@@ -7,7 +7,7 @@ from pathlib import Path
 
 import click
 
-from .cli import PLUGIN_DIR, _pairs
+from .cli import job_kwargs, job_options
 
 
 @click.command()
@@ -24,25 +24,8 @@ from .cli import PLUGIN_DIR, _pairs
                    "at the same paths. Needs: pip install 'doodlecam[dask]'.")
 @click.option("--no-progress", is_flag=True, help="No progress bar (it is shown only on a terminal anyway).")
 @click.option("--json", "as_json", is_flag=True, help="Print report.json's file list as JSON instead of the table.")
-@click.option("-m", "--machine", default="doodlebot", show_default=True, help="Machine profile: a name or a .toml path.")
-@click.option("--tracer", help="Tracer plugin (default: chosen by file type; 'edges' for pictures).")
-@click.option("--tracer-opt", multiple=True, metavar="KEY=VALUE", help="Tracer option (repeatable).")
-@click.option("--post", "posts", multiple=True, metavar="NAME",
-              help="Post-processor (repeatable). Default: plc, gcode and svg.")
-@click.option("--post-opt", multiple=True, metavar="POST.KEY=VALUE", help="Post option, e.g. gcode.pen_up='M5' (repeatable).")
-@click.option("--solver", help="Planner: reach (default), lp[:backend], qp[:backend]. Default: the profile's.")
-@click.option("--smoothing", type=float, help="Weight of the smoothing QP against time (solver qp).")
-@click.option("--width", type=float, metavar="MM", help="Target drawing width in mm (aspect kept).")
-@click.option("--height", type=float, metavar="MM", help="Target drawing height in mm (aspect kept).")
-@click.option("--scale", type=float, metavar="MM", help="Fixed scale: mm per source unit.")
-@click.option("--margin", type=float, metavar="MM", help="Margin inside the work area (default: the profile's).")
-@click.option("--rotate", type=click.Choice(["0", "90", "180", "270", "auto"]), help="Quarter turns counter-clockwise.")
-@click.option("--fit", type=click.Choice(["canvas", "ink"]), help="Fit the whole picture frame or only what is drawn.")
-@click.option("--keep-direction", is_flag=True, default=None, help="Never draw a stroke backwards.")
-@PLUGIN_DIR
-def batch(in_dir, out_dir, recursive, include, exclude, jobs, force, scheduler, no_progress, as_json, machine, tracer,
-          tracer_opt, posts, post_opt, solver, smoothing, width, height, scale, margin, rotate, fit, keep_direction,
-          plugin_dirs):
+@job_options
+def batch(in_dir, out_dir, recursive, include, exclude, jobs, force, scheduler, no_progress, as_json, **job):
     """Convert every picture in IN_DIR into OUT_DIR, in parallel.
 
     \b
@@ -53,24 +36,9 @@ def batch(in_dir, out_dir, recursive, include, exclude, jobs, force, scheduler, 
     """
     from .batch import BatchFailed, BatchInterrupted, BatchOptions, run_batch, summary_table
 
-    post_opts: dict[str, dict[str, str]] = {}
-    for key, val in _pairs(post_opt, "--post-opt").items():
-        name, dot, opt = key.partition(".")
-        if not dot:
-            raise click.BadParameter(f"'{key}' must be POST.KEY=VALUE, e.g. gcode.pen_up=M5", param_hint="--post-opt")
-        post_opts.setdefault(name, {})[opt] = val
-    options = BatchOptions(
-        machine=machine, tracer=tracer, tracer_options=_pairs(tracer_opt, "--tracer-opt"),
-        posts=tuple(posts) or ("plc", "gcode", "svg"), post_options=post_opts, solver=solver, smoothing=smoothing,
-        plugin_dirs=tuple(os.fspath(Path(d).resolve()) for d in plugin_dirs),
-        layout={k: v for k, v in dict(width=width, height=height, scale=scale, margin=margin, rotate=rotate, fit=fit).items()
-                if v is not None},
-        order={"reverse": False} if keep_direction else {},
-    )
-    unused = set(post_opts) - set(options.posts)
-    if unused:
-        raise click.BadParameter(f"options given for '{sorted(unused)[0]}', which is not among the posts {', '.join(options.posts)}",
-                                 param_hint="--post-opt")
+    kw = job_kwargs(**job)
+    kw["plugin_dirs"] = tuple(os.fspath(Path(d).resolve()) for d in kw["plugin_dirs"])  # workers may run elsewhere
+    options = BatchOptions(**kw)
     result = run_batch(in_dir, out_dir, options, recursive=recursive, include=include, exclude=exclude, jobs=jobs,
                        force=force, scheduler=scheduler, progress=False if no_progress else None)
     if as_json:

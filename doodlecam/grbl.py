@@ -23,7 +23,6 @@ from __future__ import annotations
 import json
 import os
 import queue
-import sys
 import re
 import threading
 import time

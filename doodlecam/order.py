@@ -8,12 +8,14 @@ Three steps, all in millimetres (any unit works; nothing here assumes mm):
    possible way into a stroke: either end of an open stroke (only its start
    when strokes may not be reversed) and every vertex of a closed one (a loop
    may start anywhere, so it is rotated to start where the pen arrives).
-3. Improvement within a time budget: a compiled 2-opt / Or-opt local search
-   (``doodlecam.order_search``) from every stroke end to its nearest other
-   ends, first improvement, until no move gains; then each loop's start
-   vertex is chosen again for its new neighbours, and the search repeats
-   while that helps. Without reversal only Or-opt moves that keep every
-   stroke's direction are used.
+3. Improvement within a time budget, compiled (``doodlecam.order_search``):
+   2-opt and Or-opt moves from every stroke end to its nearest other ends
+   until no move gains, one all-pairs 2-opt pass for the long-range
+   reversals neighbour lists miss, then random double-bridge kicks each
+   followed by a local search around it (kept only if the tour got shorter)
+   for half the time spent so far; then each loop's start vertex is chosen
+   again for its new neighbours, and the search repeats while that helps.
+   Without reversal only moves that keep every stroke's direction are used.
 
 ``home=None`` orders an open path (free start and end): pen-up legs to and
 from home then cost nothing, as vpype's ``linesort`` counts them.
@@ -28,6 +30,10 @@ from typing import Any, Sequence
 import numpy as np
 
 _EPS = 1e-9
+_FULL_2OPT_MAX = 6000  # strokes; above this an all-pairs 2-opt pass costs more than it gains
+_FULL_PASSES = 1  # all-pairs passes per round: most of their gain comes in the first
+_KICK_SHARE = 0.5  # kicks run for this share of the time spent before them
+_ALL = np.zeros(0, np.int64)  # local search seeds: every stroke
 
 
 @dataclass(frozen=True)
@@ -217,6 +223,7 @@ def _greedy(t: _Tour, allow_reverse: bool) -> None:
         hit = int(np.atleast_1d(tree.query(t.home, k=1)[1])[0])
     else:  # a free start: the lowest-left way in
         hit = int(np.lexsort((pts[:, 1], pts[:, 0]))[0])
+    hit_prev = -1  # the way in used last: the pen leaves from its exit
     for step in range(n):
         if step:
             hit = -1
@@ -283,14 +290,16 @@ def _rotate_loops(t: _Tour) -> None:
         t.rot[s] = k
 
 
-def _improve(t: _Tour, allow_reverse: bool, deadline: float, k_near: int) -> tuple[int, int]:
+def _improve(t: _Tour, allow_reverse: bool, deadline: float, k_near: int, spent_before: float = 0.0
+             ) -> tuple[int, int]:
     """2-opt / Or-opt local search (compiled), then loops re-started, until settled or out of time."""
     from scipy.spatial import cKDTree
 
-    from .order_search import local_search
+    from .order_search import full_two_opt, local_search, perturb
 
     n = len(t.seq)
     rounds = moves = 0
+    started = time.perf_counter() - spent_before
     # Few strokes: look further (every move is cheap); many: the k nearest ends suffice.
     k = min(max(k_near, 3000 // max(n, 1)), 2 * n - 1, 16)
     while True:
@@ -303,9 +312,35 @@ def _improve(t: _Tour, allow_reverse: bool, deadline: float, k_near: int) -> tup
         nbr = cKDTree(ends).query(ends, k=k + 1)[1][:, 1:].astype(np.int64)
         nbr[nbr >= 2 * n] = -1
         before = t.cost()
-        m = local_search(p0, p1, t.seq, t.flip, t.home, nbr, allow_reverse, 50 * n + 1000)
+        chunk = 5 * n + 100  # moves per call: the budget is checked between calls
+        while True:
+            m = local_search(p0, p1, t.seq, t.flip, t.home, nbr, allow_reverse, chunk, _ALL)
+            moves += m
+            if m < chunk or time.perf_counter() > deadline:
+                break
+            # Then reversals between any two pen-up edges (a pass is O(n^2): only
+            # while it stays cheap), and the neighbour search again after them.
+        for _ in range(_FULL_PASSES):
+            if not (allow_reverse and n <= _FULL_2OPT_MAX and time.perf_counter() < deadline):
+                break
+            m = full_two_opt(p0, p1, t.seq, t.flip, t.home, 1)
+            if not m:
+                break
+            moves += m + local_search(p0, p1, t.seq, t.flip, t.home, nbr, allow_reverse, chunk, _ALL)
+        # Kicks: random double bridges, each followed by a local search around it,
+        # for a share of the time the ordering has taken so far (within the budget).
+        spent = time.perf_counter() - started
+        stop = min(deadline, time.perf_counter() + _KICK_SHARE * spent)
+        seed, iters = 0, 4
+        while rounds == 0 and n >= 8:
+            t0 = time.perf_counter()
+            if t0 >= stop:
+                break
+            perturb(p0, p1, t.seq, t.flip, t.home, nbr, allow_reverse, iters, 30, seed)
+            seed += 1
+            each = (time.perf_counter() - t0) / iters  # size the next call to the time left
+            iters = int(np.clip((stop - time.perf_counter()) / max(each, 1e-7) / 2, 1, 200))
         rounds += 1
-        moves += m
         _rotate_loops(t)
         if (t.cost() >= before - 1e-9 * max(1.0, before) or time.perf_counter() > deadline or not len(c)
                 or rounds >= 3):  # loops re-started a few times: later rounds gain little
@@ -313,7 +348,7 @@ def _improve(t: _Tour, allow_reverse: bool, deadline: float, k_near: int) -> tup
 
 
 def order_strokes(polylines: Sequence[np.ndarray], home=(0.0, 0.0), allow_reverse: bool = True,
-                  merge: float = 0.0, budget: float = 1.0, neighbours: int = 10) -> Ordering:
+                  merge: float = 0.0, budget: float = 1.0, neighbours: int = 16) -> Ordering:
     """Order, orient and rotate strokes to keep pen-up travel short.
 
     ``merge``: join strokes whose ends meet within this distance first (0 = never).
@@ -346,7 +381,7 @@ def order_strokes(polylines: Sequence[np.ndarray], home=(0.0, 0.0), allow_revers
     rounds = moves = 0
     if budget > 0 and n >= 2:
         _rotate_loops(tour)
-        rounds, moves = _improve(tour, allow_reverse, t_start + budget, neighbours)
+        rounds, moves = _improve(tour, allow_reverse, t_start + budget, neighbours, time.perf_counter() - t_start)
     out = []
     for s, f in zip(tour.seq, tour.flip):
         p = polys[s]

@@ -32,13 +32,14 @@ def _refresh(P0, P1, seq, flip, pos, ent, ext, lo, hi):  # pragma: no cover - co
 
 
 @numba.njit(cache=True, nogil=True)
-def local_search(P0, P1, seq, flip, home, nbr, allow_reverse, max_moves):  # pragma: no cover - compiled
+def local_search(P0, P1, seq, flip, home, nbr, allow_reverse, max_moves, seeds):  # pragma: no cover - compiled
     """Improve the tour ``seq`` / ``flip`` in place; returns the number of moves made.
 
     P0 / P1: (n, 2) each stroke's entry / exit point when drawn forwards;
     home: (2,), NaN for a free start and end; nbr: (2n, k) the nearest other
-    ends of end 2i + side (side 0 = P0), -1 for none. Nodes: 0 is home,
-    p + 1 the stroke at tour position p, n + 1 home again.
+    ends of end 2i + side (side 0 = P0), -1 for none; seeds: the strokes to
+    look at first (empty: all). Nodes: 0 is home, p + 1 the stroke at tour
+    position p, n + 1 home again.
     """
     n = seq.shape[0]
     ent = np.empty((n + 2, 2))
@@ -49,12 +50,20 @@ def local_search(P0, P1, seq, flip, home, nbr, allow_reverse, max_moves):  # pra
     free = home[0] != home[0]
     buf_s = np.empty(n, np.int64)
     buf_f = np.empty(n, np.bool_)
-    active = np.ones(n, np.bool_)
+    active = np.zeros(n, np.bool_)
     stack = np.empty(4 * n + 16, np.int64)
     top = 0
-    for i in range(n - 1, -1, -1):
-        stack[top] = i
-        top += 1
+    if seeds.shape[0] == 0:
+        for i in range(n - 1, -1, -1):
+            stack[top] = i
+            top += 1
+            active[i] = True
+    else:
+        for i in seeds:
+            if 0 <= i < n and not active[i]:
+                stack[top] = i
+                top += 1
+                active[i] = True
     moves = 0
 
     while top > 0 and moves < max_moves:
@@ -62,7 +71,7 @@ def local_search(P0, P1, seq, flip, home, nbr, allow_reverse, max_moves):  # pra
         i = stack[top]
         active[i] = False
         found = True
-        while found:  # keep improving around stroke i while it pays
+        while found and moves < max_moves:  # keep improving around stroke i while it pays
             found = False
             for side in range(2):
                 a = 2 * i + side
@@ -220,3 +229,125 @@ def _gor(ext, ent, s, e, k, rev, n, free):  # pragma: no cover - compiled
     if rev:
         return g - _xx(ext, k, e, n, free) - _nn(ent, s, k + 1, n, free)
     return g - _e(ext, ent, k, s, n, free) - _e(ext, ent, e, k + 1, n, free)
+
+
+@numba.njit(cache=True, nogil=True)
+def full_two_opt(P0, P1, seq, flip, home, max_passes):  # pragma: no cover - compiled
+    """2-opt over every pair of pen-up edges (not only near ones), best move per edge.
+
+    O(n^2) per pass, which compiled is tens of milliseconds for thousands of
+    strokes; it finds the long-range reversals the neighbour lists miss.
+    Returns the number of moves made.
+    """
+    n = seq.shape[0]
+    ent = np.empty((n + 2, 2))
+    ext = np.empty((n + 2, 2))
+    ent[0], ext[0], ent[n + 1], ext[n + 1] = home, home, home, home
+    pos = np.empty(n, np.int64)
+    _refresh(P0, P1, seq, flip, pos, ent, ext, 0, n - 1)
+    free = home[0] != home[0]
+    moves = 0
+    for _ in range(max_passes):
+        improved = False
+        for lo in range(1, n + 1):  # reverse nodes lo..hi: edges (lo-1, lo) and (hi, hi+1) change
+            old_a = _e(ext, ent, lo - 1, lo, n, free)
+            best = _EPS
+            best_hi = -1
+            for hi in range(lo, n + 1):
+                g = (old_a + _e(ext, ent, hi, hi + 1, n, free)
+                     - _xx(ext, lo - 1, hi, n, free) - _nn(ent, lo, hi + 1, n, free))
+                if g > best:
+                    best = g
+                    best_hi = hi
+            if best_hi > 0:
+                s, e = lo - 1, best_hi - 1
+                while s < e:
+                    t = seq[s]
+                    seq[s] = seq[e]
+                    seq[e] = t
+                    tf = flip[s]
+                    flip[s] = not flip[e]
+                    flip[e] = not tf
+                    s += 1
+                    e -= 1
+                if s == e:
+                    flip[s] = not flip[s]
+                _refresh(P0, P1, seq, flip, pos, ent, ext, lo - 1, best_hi - 1)
+                moves += 1
+                improved = True
+        if not improved:
+            break
+    return moves
+
+
+@numba.njit(cache=True, nogil=True)
+def tour_cost(P0, P1, seq, flip, home):  # pragma: no cover - compiled
+    """Pen-up length of the tour (legs to an absent, NaN, home cost nothing)."""
+    n = seq.shape[0]
+    free = home[0] != home[0]
+    total = 0.0
+    px, py = home[0], home[1]
+    for p in range(n):
+        i = seq[p]
+        if flip[p]:
+            ax, ay, bx, by = P1[i, 0], P1[i, 1], P0[i, 0], P0[i, 1]
+        else:
+            ax, ay, bx, by = P0[i, 0], P0[i, 1], P1[i, 0], P1[i, 1]
+        if not (free and p == 0):
+            total += _dist(px, py, ax, ay)
+        px, py = bx, by
+    if not free and n:
+        total += _dist(px, py, home[0], home[1])
+    return total
+
+
+@numba.njit(cache=True, nogil=True)
+def perturb(P0, P1, seq, flip, home, nbr, allow_reverse, iterations, window, seed):  # pragma: no cover - compiled
+    """Iterated local search: a random double bridge within ``window`` positions
+    (runs B and C of A B C D swapped), the local search from the strokes at the
+    cuts, kept only if the whole tour got shorter. Returns the tour's length."""
+    n = seq.shape[0]
+    np.random.seed(seed)
+    cost = tour_cost(P0, P1, seq, flip, home)
+    if n < 8:
+        return cost
+    keep_s = seq.copy()
+    keep_f = flip.copy()
+    buf_s = np.empty(n, np.int64)
+    buf_f = np.empty(n, np.bool_)
+    seeds = np.empty(6, np.int64)
+    for _ in range(iterations):
+        span = min(window, n - 1)
+        a = np.random.randint(1, n - span + 1) if n - span >= 1 else 1
+        b = a + np.random.randint(1, span - 1)
+        c = b + np.random.randint(1, max(2, a + span - b))
+        if c > n:
+            c = n
+        if not (a < b < c):
+            continue
+        m = 0
+        for p in range(b, c):
+            buf_s[m] = seq[p]
+            buf_f[m] = flip[p]
+            m += 1
+        for p in range(a, b):
+            buf_s[m] = seq[p]
+            buf_f[m] = flip[p]
+            m += 1
+        for t in range(m):
+            seq[a + t] = buf_s[t]
+            flip[a + t] = buf_f[t]
+        k = 0
+        for p in (a - 1, a, a + c - b - 1, a + c - b, c - 1, min(c, n - 1)):
+            seeds[k] = seq[p]
+            k += 1
+        local_search(P0, P1, seq, flip, home, nbr, allow_reverse, 20 * window + 100, seeds)
+        new = tour_cost(P0, P1, seq, flip, home)
+        if new < cost - 1e-9:
+            cost = new
+            keep_s[:] = seq
+            keep_f[:] = flip
+        else:
+            seq[:] = keep_s
+            flip[:] = keep_f
+    return cost

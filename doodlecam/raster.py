@@ -84,8 +84,13 @@ def load_gray(path: str | os.PathLike) -> np.ndarray:
             kind = type(e).__name__
             if kind == "UnidentifiedImageError":
                 msg = f"not a readable image (cannot identify image file); {_FIX}"
-            elif "DecompressionBomb" in kind:
-                msg = f"more than {MAX_PIXELS // 1_000_000} megapixels ({_one_line(e)}); scale the picture down"
+            elif "DecompressionBomb" in kind:  # Pillow refused it from the header already
+                import re
+
+                m = re.search(r"\((\d+) pixels\)", str(e))
+                size = f"{int(m.group(1)) / 1e6:.0f} megapixels" if m else "the picture"
+                msg = (f"{size} is more than {MAX_PIXELS // 1_000_000} megapixels; "
+                       "scale the picture down (a plotter cannot draw that much detail)")
             else:
                 msg = f"damaged or truncated image ({_one_line(e)}); re-save or re-download it"
             raise InputError(f"{name}: {msg}") from None

@@ -5,6 +5,8 @@ import sys
 
 import numpy as np
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 from PIL import Image
 from scipy import ndimage as ndi
 from scipy.spatial import cKDTree
@@ -265,3 +267,31 @@ def test_cli_contours_end_to_end(tmp_path):
     assert main(["convert", str(blank), "-o", str(tmp_path / "none"), "--tracer", "contours"]) != 0
     assert not (tmp_path / "none").exists() or not any((tmp_path / "none").iterdir())
     assert main(["convert", str(path), "-o", str(out), "--tracer", "contours", "--scale", "100"]) != 0  # too big
+
+
+@settings(max_examples=40, deadline=None)
+@given(st.integers(0, 10_000), st.floats(0.5, 12), st.floats(-360, 360), st.floats(0, 1), st.booleans())
+def test_hatch_lines_stay_on_the_mask_and_cover_it(seed, spacing, angle, offset, join):
+    rng = np.random.default_rng(seed)
+    h, w = rng.integers(1, 90, 2)
+    mask = ndi.gaussian_filter(rng.random((h, w)), 3) > 0.5
+    lines = hatch_mask(mask, spacing, angle, offset=offset, join=join)
+    if not mask.any():
+        assert lines == []
+        return
+    dist_out = ndi.distance_transform_edt(~mask)
+    pad = np.pad(dist_out, 1, constant_values=np.inf)
+    for p in lines:
+        assert np.isfinite(p).all() and len(p) >= 2
+        assert p[:, 0].min() >= -0.5 - 1e-9 and p[:, 0].max() <= w - 0.5 + 1e-9
+        assert p[:, 1].min() >= -0.5 - 1e-9 and p[:, 1].max() <= h - 0.5 + 1e-9
+    segs = [p for q in lines for p in (q[:2],)] if join else lines
+    for s in segs:  # a hatch run lies on dark pixels (its ends within a pixel of them)
+        pts = densify(s, 0.5)
+        xi = np.clip(np.rint(pts[:, 0]).astype(int), 0, w - 1) + 1  # x = w - 0.5 rounds to w: the last pixel
+        yi = np.clip(np.rint(pts[:, 1]).astype(int), 0, h - 1) + 1
+        assert (pad[yi, xi] <= 1.5).all()
+    if spacing <= 3 and lines:
+        pts = np.vstack([densify(p, 0.5) for p in lines])
+        near = cKDTree(pts).query(np.argwhere(mask)[:, ::-1])[0]
+        assert (near <= spacing / 2 + 1.0).mean() > 0.97
