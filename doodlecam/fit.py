@@ -78,27 +78,32 @@ def _lsq_regularised(points: np.ndarray, u: np.ndarray, n_control: int, degree: 
     return Spline(degree, ctrl)
 
 
-def deviation(spline: Spline, dense_poly: np.ndarray, u: np.ndarray, tolerance: float = 0.0) -> float:
+def deviation(spline: Spline, dense_poly: np.ndarray, u: np.ndarray, tolerance: float = 0.0, poly_tree=None) -> float:
     """Upper bound (mm) on the two-way (Hausdorff) distance spline <-> polyline.
 
     Cheap bound first: every data point P_i is within r_i = |q(u_i) - P_i| of
     the curve and vice versa, and a point between two samples is within half
     their gap of one of them. If that bound is not already within
-    ``tolerance``, nearest-sample distances (KD-tree, both ways) give a tighter
-    one: they over-estimate the distance to a set, and the same half-gap term
-    covers the points between samples.
+    ``tolerance``, nearest-sample distances (KD-trees, both ways) give a
+    tighter one: they over-estimate the distance to a set, and the same
+    half-gap term covers the points between samples. Only the points whose
+    cheap bound fails are looked up, and the polyline's tree is reused across
+    attempts (``poly_tree``).
     """
     from scipy.spatial import cKDTree
 
     curve = spline(u)
     gap = lambda p: np.hypot(*np.diff(p, axis=0).T).max()  # noqa: E731
     half = max(gap(curve), gap(dense_poly)) / 2
-    cheap = float(np.hypot(*(curve - dense_poly).T).max() + half)
+    r = np.hypot(*(curve - dense_poly).T) + half
+    cheap = float(r.max())
     if cheap <= tolerance:
         return cheap
-    d1 = cKDTree(dense_poly).query(curve)[0].max()
-    d2 = cKDTree(curve).query(dense_poly)[0].max()
-    return min(cheap, float(max(d1, d2) + half))
+    bad = r > tolerance  # only these can fail; the rest are within tolerance already
+    tree = poly_tree if poly_tree is not None else cKDTree(dense_poly)
+    d1 = tree.query(curve[bad])[0].max()
+    d2 = cKDTree(curve).query(dense_poly[bad])[0].max()
+    return min(cheap, float(max(d1, d2, float(r[~bad].max(initial=0.0)) - half) + half))
 
 
 def fit_polyline(points, degree: int = 3, tolerance: float = 0.1, max_control: int = 2000) -> tuple[Spline, float]:
@@ -114,12 +119,17 @@ def fit_polyline(points, degree: int = 3, tolerance: float = 0.1, max_control: i
     n_min = degree + 1
     n_max = int(min(max_control, max(n_min, 2 * len(dense))))
 
+    from scipy.spatial import cKDTree
+
     cache: dict[int, tuple[Spline, float]] = {}
+    tree: list = []  # the polyline's KD-tree, built on first need
 
     def attempt(n: int) -> tuple[Spline, float]:
         if n not in cache:
             s = lsq_spline(dense, u, n, degree)
-            cache[n] = (s, deviation(s, dense, u, tolerance))
+            if not tree:
+                tree.append(cKDTree(dense))
+            cache[n] = (s, deviation(s, dense, u, tolerance, tree[0]))
         return cache[n]
 
     # A polyline needs a few control points per vertex to turn its corners
