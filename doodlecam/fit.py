@@ -156,7 +156,8 @@ def fit_pieces(points, degree: int = 3, tolerance: float = 0.1, max_control: int
     p = _dedupe(np.asarray(points, dtype=float))
     # Cap the search: a polyline that needs far more control points than it
     # has vertices has a corner no smooth curve turns cheaply; split there.
-    cap = min(max_control, 8 * len(p) + 20)
+    length = float(np.hypot(*np.diff(p, axis=0).T).sum())
+    cap = min(max_control, 8 * len(p) + 20 + int(length / (4 * tolerance)))
     spline, err = fit_polyline(p, degree, tolerance, cap)
     if err <= tolerance or len(p) < 3:
         return [(spline, err)]
