@@ -237,7 +237,10 @@ def _greedy(t: _Tour, allow_reverse: bool) -> None:
                 if dead > len(live) // 2:  # drop used points, keep queries short
                     live = live[~np.array(used)[owner[live]]]
                     live_tree, dead = cKDTree(pts[live]), 0
-                k = 8
+                # the nearest ways in are often the vertices of the loop just
+                # drawn: look past all of them in the first query
+                sp = owner_l[hit_prev]
+                k = 8 + (ring_l[sp] if closed_l[sp] else 0)
                 while hit < 0:
                     k = min(k, len(live))
                     _, idx = live_tree.query(exits[hit_prev], k=k)
