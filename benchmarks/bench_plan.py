@@ -64,7 +64,6 @@ def overshoot(spline, u, b, limits):
 
 
 def toppra_solve(spline: Spline, u: np.ndarray):
-    import toppra
     import toppra.algorithm as algo
     import toppra.constraint as constraint
     from toppra.interpolator import AbstractGeometricPath
