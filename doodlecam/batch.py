@@ -42,6 +42,7 @@ from pathlib import Path
 from typing import Any, Callable, Iterable
 
 from . import __version__
+from .atomic import write_bytes
 from .errors import DoodleError, InputError, OutputError
 
 MANIFEST_NAME = ".doodlecam-manifest.json"
@@ -62,12 +63,6 @@ class BatchInterrupted(DoodleError):
     """A batch was stopped (Ctrl-C); what finished is kept and a re-run resumes."""
 
     exit_code = 130
-
-
-def _umask() -> int:
-    mask = os.umask(0)
-    os.umask(mask)
-    return mask
 
 
 # ---------------------------------------------------------------- options
@@ -211,16 +206,7 @@ def file_hash(path: Path) -> str:
 
 
 def write_atomic(path: Path, data: bytes) -> None:
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
-    try:
-        with os.fdopen(fd, "wb") as f:
-            f.write(data)
-        os.chmod(tmp, 0o666 & ~_umask())  # mkstemp makes 0600; give the usual permissions
-        os.replace(tmp, path)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
+    write_bytes(path, data)
 
 
 def load_manifest(out_dir: Path) -> dict[str, Any]:
@@ -292,11 +278,9 @@ def convert_one(options: BatchOptions, key: str, in_dir: str, out_dir: str, rel:
         final = out_root / stem
         final.parent.mkdir(parents=True, exist_ok=True)
         outputs = []
-        mode = 0o666 & ~_umask()
-        for p in result.outputs:
+        for p in result.outputs:  # convert wrote them atomically with the usual mode: just move them
             suffix = p.name[len(src.stem):]
             target = final.parent / (final.name + suffix)
-            os.chmod(p, mode)
             os.replace(p, target)
             outputs.append(target.relative_to(out_root).as_posix())
         summary = result.summary()

@@ -8,8 +8,6 @@ so a failure never leaves a half-written job behind.
 
 from __future__ import annotations
 
-import os
-import tempfile
 import time
 from dataclasses import dataclass, field, replace
 from pathlib import Path
@@ -18,14 +16,11 @@ from typing import Any
 import numpy as np
 
 from . import registry
+from .atomic import replace_all
 from .errors import DoodleError, InputError, OutputError, PlanError, PluginError
 from .machine import Machine
 from .model import Drawing, Job, Stroke
 
-
-
-_UMASK = os.umask(0o022)
-os.umask(_UMASK)
 
 
 @dataclass
@@ -185,21 +180,10 @@ def write_outputs(outdir: Path, stem: str, outputs: list[tuple[str, str, bytes]]
     dupes = {n for n in names if names.count(n) > 1}
     if dupes:
         raise OutputError(f"two posts write {sorted(dupes)[0]}; request each post once")
-    temps: list[str] = []
     try:
-        for (_, _, data), final in zip(outputs, names):
-            fd, tmp = tempfile.mkstemp(prefix=f".{final.name}.", suffix=".tmp", dir=outdir)
-            temps.append(tmp)
-            with os.fdopen(fd, "wb") as f:
-                f.write(data)
-            os.chmod(tmp, 0o666 & ~_UMASK)  # mkstemp makes 0600; outputs get normal permissions
-        for tmp, final in zip(temps, names):
-            os.replace(tmp, final)
+        return replace_all((final, data) for (_, _, data), final in zip(outputs, names))
     except OSError as e:
-        for tmp in temps:
-            Path(tmp).unlink(missing_ok=True)
         raise OutputError(f"{outdir}: cannot write output ({e.strerror}); check space and permissions") from None
-    return names
 
 
 @dataclass

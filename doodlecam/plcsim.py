@@ -687,24 +687,12 @@ class PlcSimulator:
 
     def write_trace_csv(self, path) -> None:
         """The trajectory as CSV (steps, steps/s, s), written atomically."""
-        import os
-        import tempfile
         from pathlib import Path
 
-        path = Path(path)
+        from .atomic import write_bytes
+
         tr = self.trajectory()
-        fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
-        try:
-            with os.fdopen(fd, "w") as f:
-                f.write("command_no,type,t,x,y,vx,vy,pen\n")
-                for r in tr:
-                    f.write(f"{r['command_no']},{r['type']},{r['t']:.6f},{r['x']:.4f},{r['y']:.4f},"
-                            f"{r['vx']:.3f},{r['vy']:.3f},{r['pen']}\n")
-            umask = os.umask(0)
-            os.umask(umask)
-            os.chmod(tmp, 0o666 & ~umask)  # mkstemp makes 0600; an output file gets the usual mode
-            os.replace(tmp, path)
-        except BaseException:
-            if os.path.exists(tmp):
-                os.unlink(tmp)
-            raise
+        rows = ["command_no,type,t,x,y,vx,vy,pen\n"]
+        rows += [f"{r['command_no']},{r['type']},{r['t']:.6f},{r['x']:.4f},{r['y']:.4f},"
+                 f"{r['vx']:.3f},{r['vy']:.3f},{r['pen']}\n" for r in tr]
+        write_bytes(Path(path), "".join(rows).encode())

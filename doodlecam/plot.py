@@ -26,12 +26,11 @@ imported only here, with the Agg backend (no display needed).
 
 from __future__ import annotations
 
-import os
-import tempfile
 from pathlib import Path
 
 import numpy as np
 
+from .atomic import replace_all
 from .errors import InputError, OutputError
 from .model import Job
 
@@ -280,24 +279,14 @@ def stroke_figure(job: Job, index: int, kinematics):
 
 def write_figures(figures, paths: list[Path]) -> list[Path]:
     """Save each figure atomically: temp files first, renamed only when all are written."""
-    temps: list[str] = []
-    umask = os.umask(0)
-    os.umask(umask)
     try:
-        for fig, final in zip(figures, paths):
-            final.parent.mkdir(parents=True, exist_ok=True)
-            fd, tmp = tempfile.mkstemp(prefix=f".{final.name}.", suffix=".tmp", dir=final.parent)
-            temps.append(tmp)
-            with os.fdopen(fd, "wb") as f:
-                fig.savefig(f, format=final.suffix.lower()[1:], dpi=110, metadata={"Date": None} if final.suffix.lower() == ".svg" else None)
-            os.chmod(tmp, 0o666 & ~umask)  # mkstemp makes 0600; a figure is an ordinary file
-        for tmp, final in zip(temps, paths):
-            os.replace(tmp, final)
+        return replace_all(
+            (final, lambda f, fig=fig, final=final: fig.savefig(
+                f, format=final.suffix.lower()[1:], dpi=110,
+                metadata={"Date": None} if final.suffix.lower() == ".svg" else None))
+            for fig, final in zip(figures, paths))
     except OSError as e:
-        for tmp in temps:
-            Path(tmp).unlink(missing_ok=True)
         raise OutputError(f"{paths[0].parent}: cannot write the figure ({e.strerror}); check the path and permissions") from None
-    return paths
 
 
 def plot_job(job: Job, out: Path, strokes=(), kinematics=None, plugin_dirs=()) -> list[tuple[int, Path]]:

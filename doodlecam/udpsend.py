@@ -20,7 +20,6 @@ import json
 import os
 import random
 import socket
-import tempfile
 import time
 import zlib
 from dataclasses import dataclass, field
@@ -30,6 +29,7 @@ from typing import Callable
 import numpy as np
 
 from . import plcproto as P
+from .atomic import write_bytes
 from .errors import DoodleError
 from .plcfile import read_plc_array
 from .plcproto import Fault, Msg, Nak, State
@@ -87,19 +87,7 @@ def save_state(path: Path | None, state: dict) -> None:
     """Write the record atomically (temp file + rename): a kill never leaves half a file."""
     if path is None:
         return
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
-    try:
-        with os.fdopen(fd, "w") as f:
-            json.dump(state, f)
-        os.replace(tmp, path)
-    except BaseException:
-        try:
-            os.unlink(tmp)
-        except OSError:
-            pass
-        raise
+    write_bytes(Path(path), json.dumps(state).encode(), mode=0o600)  # a private record, as mkstemp makes it
 
 
 def clear_state(path: Path | None) -> None:

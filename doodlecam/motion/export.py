@@ -12,35 +12,21 @@ Every file is written to a temporary name and renamed into place.
 from __future__ import annotations
 
 import io
-import os
-import tempfile
 from pathlib import Path
 
 import numpy as np
 
+from ..atomic import write_bytes
 from ..errors import OutputError
 
 COLUMNS = ("pos", "vel", "acc", "jerk")
 
 
 def atomic_write(path: Path, data: bytes) -> Path:
-    path = Path(path)
     try:
-        path.parent.mkdir(parents=True, exist_ok=True)
-        fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
-        try:
-            with os.fdopen(fd, "wb") as f:
-                f.write(data)
-            umask = os.umask(0)
-            os.umask(umask)
-            os.chmod(tmp, 0o666 & ~umask)  # mkstemp makes 0600; give the usual file mode
-            os.replace(tmp, path)
-        except BaseException:
-            Path(tmp).unlink(missing_ok=True)
-            raise
-    except OSError as e:
-        raise OutputError(f"{path}: cannot write ({e.strerror}); check the folder and permissions") from None
-    return path
+        return write_bytes(Path(path), data)
+    except OSError as err:
+        raise OutputError(f"{path}: cannot write ({err.strerror}); check the folder and permissions") from None
 
 
 def _fmt(a: np.ndarray) -> np.ndarray:
