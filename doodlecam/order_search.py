@@ -18,6 +18,22 @@ _EPS = 1e-9
 
 
 @numba.njit(cache=True, nogil=True)
+def _reverse(seq, flip, s, e):  # pragma: no cover - compiled
+    """Reverse positions s..e of the tour: their order, and each one's direction."""
+    while s < e:
+        t = seq[s]
+        seq[s] = seq[e]
+        seq[e] = t
+        tf = flip[s]
+        flip[s] = not flip[e]
+        flip[e] = not tf
+        s += 1
+        e -= 1
+    if s == e:
+        flip[s] = not flip[s]
+
+
+@numba.njit(cache=True, nogil=True)
 def _refresh(P0, P1, seq, flip, pos, ent, ext, lo, hi):  # pragma: no cover - compiled
     """Entry / exit points and positions of tour positions lo..hi (node p + 1 in ent / ext)."""
     for p in range(lo, hi + 1):
@@ -135,18 +151,7 @@ def local_search(P0, P1, seq, flip, home, nbr, allow_reverse, max_moves, seeds):
                     if kind == 0:
                         continue
                     if kind == 1:  # reverse positions x1-1..x2-1
-                        s, e = x1 - 1, x2 - 1
-                        while s < e:
-                            t = seq[s]
-                            seq[s] = seq[e]
-                            seq[e] = t
-                            tf = flip[s]
-                            flip[s] = not flip[e]
-                            flip[e] = not tf
-                            s += 1
-                            e -= 1
-                        if s == e:
-                            flip[s] = not flip[s]
+                        _reverse(seq, flip, x1 - 1, x2 - 1)
                         lo_p, hi_p = x1 - 1, x2 - 1
                     else:  # move positions x1-1..x2-1 after position x3-1
                         s, e, k = x1 - 1, x2 - 1, x3 - 1
@@ -260,18 +265,7 @@ def full_two_opt(P0, P1, seq, flip, home, max_passes):  # pragma: no cover - com
                     best = g
                     best_hi = hi
             if best_hi > 0:
-                s, e = lo - 1, best_hi - 1
-                while s < e:
-                    t = seq[s]
-                    seq[s] = seq[e]
-                    seq[e] = t
-                    tf = flip[s]
-                    flip[s] = not flip[e]
-                    flip[e] = not tf
-                    s += 1
-                    e -= 1
-                if s == e:
-                    flip[s] = not flip[s]
+                _reverse(seq, flip, lo - 1, best_hi - 1)
                 _refresh(P0, P1, seq, flip, pos, ent, ext, lo - 1, best_hi - 1)
                 moves += 1
                 improved = True
