@@ -1,5 +1,6 @@
 import numpy as np
 import pytest
+from PIL import Image
 
 from doodlecam.machine import parse_machine
 
@@ -34,3 +35,16 @@ def report_curve():
 
     ctrl = np.array([[20, 20], [60, 90], [110, 30], [150, 110], [90, 150], [40, 120], [100, 60], [160, 40]], float)
     return Spline(3, ctrl)
+
+
+def save(tmp_path, name, array, mode=None, **kw):
+    """A picture file made from an array (PIL infers the format from the name)."""
+    path = tmp_path / name
+    (Image.fromarray(array, mode) if mode else Image.fromarray(array)).save(path, **kw)
+    return path
+
+
+def assert_one_line(err, path):
+    """A user error: one line that names the file."""
+    msg = str(err.value)
+    assert "\n" not in msg and path.name in msg

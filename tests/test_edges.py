@@ -11,19 +11,13 @@ from skimage import data, draw, feature
 from skimage.measure import approximate_polygon
 
 from doodlecam.errors import InputError
+from doodlecam.fit import densify
 from doodlecam.plugins.edges import EdgesTracer, link_edges, simplify
 from doodlecam.raster import IMAGE_EXTENSIONS, load_gray
 
+from conftest import assert_one_line, save
+
 TRACER = EdgesTracer()
-
-
-def densify(p, step=0.25):
-    """Points along every segment of ``p``, at most ``step`` apart."""
-    a, b = p[:-1], p[1:]
-    k = np.maximum(1, np.ceil(np.hypot(*(b - a).T) / step)).astype(int)
-    seg = np.repeat(np.arange(len(a)), k)
-    t = (np.arange(k.sum()) - np.repeat(np.cumsum(k) - k, k)) / np.repeat(k, k)
-    return np.vstack([a[seg] + t[:, None] * (b - a)[seg], p[-1:]])
 
 
 def canny_edges(path, **options):
@@ -45,17 +39,11 @@ def check_on_edges(drawing, canny, thin, coverage=0.98):
     assert len(px) > 0
     vertices = np.vstack(drawing.polylines)
     assert cKDTree(px).query(vertices)[0].max() <= 1.5
-    near = cKDTree(np.vstack([densify(p) for p in drawing.polylines])).query(px)[0]
+    near = cKDTree(np.vstack([densify(p, 0.25) for p in drawing.polylines])).query(px)[0]
     assert (near <= 1.5).mean() >= coverage
     # Contour tracing of a 1-px edge map goes round both sides: about 2x.
     assert drawing.length < 1.3 * thin.sum() <= 1.3 * len(px)
     return (near <= 1.5).mean()
-
-
-def save(tmp_path, name, array, mode=None, **kw):
-    path = tmp_path / name
-    (Image.fromarray(array, mode) if mode else Image.fromarray(array)).save(path, **kw)
-    return path
 
 
 def shapes(h=200, w=220):
@@ -77,11 +65,6 @@ def assert_disk_traced(drawing, centre=(60, 70), radius=35):
     r = np.hypot(pts[:, 0] - centre[1], pts[:, 1] - centre[0])
     assert np.abs(r - radius).max() < 2.5
     assert drawing.length == pytest.approx(2 * np.pi * radius, rel=0.1)
-
-
-def assert_one_line(err, path):
-    msg = str(err.value)
-    assert "\n" not in msg and path.name in msg
 
 
 # --- geometry ---------------------------------------------------------------

@@ -14,26 +14,15 @@ from skimage import data, draw
 
 from doodlecam import registry
 from doodlecam.errors import InputError, PluginError
+from doodlecam.fit import densify
 from doodlecam.plugins.contours import ContoursTracer
 from doodlecam.plugins.edges import EdgesTracer
 from doodlecam.plugins.hatch import HatchTracer, hatch_mask
 
+from conftest import assert_one_line, save
+
 CONTOURS, HATCH = ContoursTracer(), HatchTracer()
 IMAGE_TRACERS = [EdgesTracer(), CONTOURS, HATCH]
-
-
-def save(tmp_path, name, array):
-    path = tmp_path / name
-    Image.fromarray(array).save(path)
-    return path
-
-
-def densify(p, step=0.25):
-    a, b = p[:-1], p[1:]
-    k = np.maximum(1, np.ceil(np.hypot(*(b - a).T) / step)).astype(int)
-    seg = np.repeat(np.arange(len(a)), k)
-    t = (np.arange(k.sum()) - np.repeat(np.cumsum(k) - k, k)) / np.repeat(k, k)
-    return np.vstack([a[seg] + t[:, None] * (b - a)[seg], p[-1:]])
 
 
 def ring_image(h=160, w=200, centre=(80, 90), r_out=50, r_in=20):
@@ -41,11 +30,6 @@ def ring_image(h=160, w=200, centre=(80, 90), r_out=50, r_in=20):
     img[draw.disk(centre, r_out)] = 20
     img[draw.disk(centre, r_in)] = 240
     return img
-
-
-def one_line(err, path):
-    msg = str(err.value)
-    assert "\n" not in msg and path.name in msg
 
 
 # --- contours --------------------------------------------------------------------
@@ -174,7 +158,7 @@ def test_blank_and_tiny_pictures_are_one_line_errors(tmp_path, tracer):
             continue
         with pytest.raises(InputError) as err:
             tracer.trace(path, {})
-        one_line(err, path)
+        assert_one_line(err, path)
 
 
 @pytest.mark.parametrize("tracer", IMAGE_TRACERS, ids=lambda t: t.name)
@@ -216,12 +200,12 @@ def test_absurd_sizes_are_refused_from_the_header(tmp_path, tracer):
         before = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
         with pytest.raises(InputError, match="megapixels") as err:
             tracer.trace(path, {})
-        one_line(err, path)
+        assert_one_line(err, path)
         assert resource.getrusage(resource.RUSAGE_SELF).ru_maxrss - before < 200_000  # KiB: nothing allocated
     truncated = _png_header_only(tmp_path / "cut.png", 300, 200)  # a small header, no real pixel data
     with pytest.raises(InputError, match="truncated|damaged") as err:
         tracer.trace(truncated, {})
-    one_line(err, truncated)
+    assert_one_line(err, truncated)
 
 
 # --- choosing a tracer, the plugin contract, the CLI ---------------------------------------
