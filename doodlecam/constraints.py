@@ -19,7 +19,7 @@ by sampling inside each interval; the planner verifies and refines those.
 from __future__ import annotations
 
 from dataclasses import dataclass
-from functools import lru_cache
+from functools import cached_property, lru_cache
 from math import comb
 
 import numpy as np
@@ -44,6 +44,21 @@ class Rows:
     @property
     def alpha(self) -> np.ndarray:
         return self.tot - self.beta
+
+    @cached_property
+    def implied_ub(self) -> np.ndarray:
+        """Finite upper bounds on every b_k implied by rows whose coefficients are
+        both >= 0 (velocity rows): alpha b_k <= gamma and beta b_k+1 <= gamma.
+        (Computed once: the LP/QP back-ends use it for bounds, scaling and row pruning.)"""
+        alpha = self.alpha
+        ok = np.isfinite(self.gamma) & (alpha >= 0) & (self.beta >= 0)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            left = np.where(ok & (alpha > 0), self.gamma / alpha, np.inf).min(axis=1)
+            right = np.where(ok & (self.beta > 0), self.gamma / self.beta, np.inf).min(axis=1)
+        ub = self.ub.copy()
+        ub[:-1] = np.minimum(ub[:-1], left)
+        ub[1:] = np.minimum(ub[1:], right)
+        return ub
 
     def ratios(self, b: np.ndarray) -> np.ndarray:
         """(K, R) constraint usage (tot b_k + beta (b_k+1 - b_k)) / gamma."""

@@ -29,7 +29,7 @@ def _sparse(rows: Rows, scale: float):
     import scipy.sparse as sp
 
     K, R = rows.alpha.shape
-    ub = implied_ub(rows)
+    ub = rows.implied_ub
     # drop rows that cannot bind inside the box 0 <= b <= ub: they only hurt conditioning
     reach_max = np.maximum(rows.alpha, 0) * ub[:-1, None] + np.maximum(rows.beta, 0) * ub[1:, None]
     keep = np.isfinite(rows.gamma) & ~(reach_max <= rows.gamma * (1 - 1e-9))
@@ -42,19 +42,6 @@ def _sparse(rows: Rows, scale: float):
     return G, rows.gamma[keep] / norm
 
 
-def implied_ub(rows: Rows) -> np.ndarray:
-    """Finite upper bounds on every b_k implied by rows whose coefficients are
-    both >= 0 (velocity rows): alpha b_k <= gamma and beta b_k+1 <= gamma."""
-    ok = np.isfinite(rows.gamma) & (rows.alpha >= 0) & (rows.beta >= 0)
-    with np.errstate(divide="ignore", invalid="ignore"):
-        left = np.where(ok & (rows.alpha > 0), rows.gamma / rows.alpha, np.inf).min(axis=1)
-        right = np.where(ok & (rows.beta > 0), rows.gamma / rows.beta, np.inf).min(axis=1)
-    ub = rows.ub.copy()
-    ub[:-1] = np.minimum(ub[:-1], left)
-    ub[1:] = np.minimum(ub[1:], right)
-    return ub
-
-
 def _options(backend: str) -> dict:
     if backend == "osqp":  # ADMM: tighter tolerances cost minutes; results are certified afterwards anyway
         return {"eps_abs": 1e-6, "eps_rel": 1e-6, "max_iter": 200000, "polish": True}
@@ -63,7 +50,7 @@ def _options(backend: str) -> dict:
 
 def _bounds(rows: Rows, b0: float, bN: float, scale: float):
     lb = np.zeros(len(rows.ub))
-    ub = np.minimum(implied_ub(rows), 1e12 * scale)
+    ub = np.minimum(rows.implied_ub, 1e12 * scale)
     lb[0] = ub[0] = b0
     lb[-1] = ub[-1] = bN
     return lb / scale, ub / scale
@@ -97,7 +84,7 @@ def _weights(u: np.ndarray) -> np.ndarray:
 
 
 def _scale(rows: Rows) -> float:
-    finite = implied_ub(rows)
+    finite = rows.implied_ub
     finite = finite[np.isfinite(finite)]
     if finite.size:
         return float(max(np.median(finite), 1e-12))
