@@ -91,14 +91,11 @@ def plan_job(drawing: Drawing, machine: Machine, solver: str = "reach", plugin_d
     from .fit import fit_pieces
     from .layout import order_options
     from .order import order_strokes
-    from .plan import Limits, check_profile, plan_stroke
+    from .plan import Limits, check_profile, check_solver, plan_stroke
     from .sample import sample_stroke
-    from .travel import make_travel
+    from .travel import machine_law, make_travel, travel_time_by_law
 
-    from .plan import SOLVERS
-
-    if solver not in SOLVERS:
-        raise PlanError(f"unknown solver '{solver}'; choose one of {', '.join(SOLVERS)}")
+    check_solver(solver)  # before the fitting, not after it
     smoothing = machine.smoothing if smoothing is None else smoothing
     kin = kinematics_for(machine, plugin_dirs)
     kin.check_reachable(np.concatenate(drawing.polylines))
@@ -141,8 +138,6 @@ def plan_job(drawing: Drawing, machine: Machine, solver: str = "reach", plugin_d
         points += [s.spline.start, s.spline.end]
     points.append(np.asarray(machine.home, float))
     travels = tuple(make_travel(points[2 * i], points[2 * i + 1], machine) for i in range(len(planned) + 1))
-    from .travel import machine_law, travel_time_by_law
-
     meta = {
         "travel_law": machine_law(machine),
         "travel_time_by_law": travel_time_by_law(travels, machine),

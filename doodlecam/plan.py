@@ -160,13 +160,17 @@ def _split(u: np.ndarray, which: np.ndarray) -> np.ndarray:
     return np.sort(np.concatenate([u, mid]))
 
 
+def check_solver(solver: str) -> None:
+    if solver not in SOLVERS:
+        raise PlanError(f"unknown solver '{solver}'; choose one of {', '.join(SOLVERS)}")
+
+
 def plan_stroke(spline: Spline, limits: Limits, solver: str = "reach", spacing: float = 0.5,
                 n_points: int | None = None, adaptive: bool = True, smoothing: float = 0.0,
                 v_start: float = 0.0, v_end: float = 0.0, mode: str = "bernstein",
                 max_rounds: int = 6) -> Profile:
     """Time-optimal profile along ``spline``; v_start / v_end are pen speeds (mm/s)."""
-    if solver not in SOLVERS:
-        raise PlanError(f"unknown solver '{solver}'; choose one of {', '.join(SOLVERS)}")
+    check_solver(solver)
     u = make_grid(spline, spacing, n_points=n_points)
     speed_ends = np.linalg.norm(spline(np.array([0.0, 1.0]), 1), axis=1)
     b0 = (v_start / max(speed_ends[0], 1e-300)) ** 2
@@ -174,7 +178,7 @@ def plan_stroke(spline: Spline, limits: Limits, solver: str = "reach", spacing: 
     base = solver if solver.startswith(("reach", "lp")) else "reach"
     nonlinear = limits.M is None and mode != "collocation"
     best_t = np.inf
-    for _ in range(max_rounds):  # noqa: B007 (the last round is detected below)
+    for round_ in range(max_rounds):
         rows = build_rows(spline, u, limits, mode)
         b = _solve(rows, u, base, b0, bN)
         if mode == "collocation" or not (adaptive or nonlinear):
@@ -190,7 +194,7 @@ def plan_stroke(spline: Spline, limits: Limits, solver: str = "reach", spacing: 
                 break  # refinement no longer pays
             best_t = t
             split = (used > 1 - 1e-6) & (worst < 1 - 2e-3)  # binding, but the bound is loose
-        if not split.any() or len(u) + split.sum() > 200_000 or _ == max_rounds - 1:
+        if not split.any() or len(u) + split.sum() > 200_000 or round_ == max_rounds - 1:
             break  # (u and b stay in step: split only when another solve follows)
         u = _split(u, split)
     if solver.startswith("qp"):
