@@ -137,6 +137,37 @@ def supported_extensions(tracer: str | None = None, plugin_dirs: Iterable[str] =
     return exts
 
 
+def check_posts(posts: Iterable[str], plugin_dirs: Iterable[str] = ()) -> None:
+    """A misspelt post is one error now, not one per file (names only: loading stays in the workers)."""
+    from . import registry
+
+    known = {i.name for i in registry.discover(plugin_dirs) if i.kind == "postprocessor"}
+    for post in posts:
+        if post not in known:
+            registry.get("postprocessor", post, plugin_dirs)  # raises the usual "unknown ...; available: ..."
+
+
+def nothing_to_convert(in_dir: Path, out_dir: Path, recursive: bool, filtered: bool,
+                       unsupported: list[str]) -> InputError:
+    """The one-line error for a folder with no file to convert, saying what to try."""
+    where = " matching --include/--exclude" if filtered else ""
+    if unsupported:
+        types = sorted({Path(u).suffix.lower() or "(no extension)" for u in unsupported})
+        found = (f"only {len(unsupported)} file{'s' if len(unsupported) != 1 else ''}{where}, of types no tracer reads "
+                 f"({', '.join(types[:4])}{', ...' if len(types) > 4 else ''})")
+    else:
+        found = f"no files{where}"
+    hints = []
+    out_res = out_dir.resolve()
+    if not recursive and any(p.is_dir() and not p.name.startswith(".") and p.resolve() != out_res
+                             for p in in_dir.iterdir()):
+        hints.append("add -r to convert sub-folders")
+    if filtered:
+        hints.append("loosen --include/--exclude")
+    hints.append("put pictures there ('doodlecam plugins' lists the file types)")
+    return InputError(f"{in_dir}: nothing to convert, {found}; " + " or ".join(hints))
+
+
 def _matches(rel: str, patterns: Iterable[str]) -> bool:
     name = rel.rsplit("/", 1)[-1]
     return any(fnmatch.fnmatchcase(rel, p) or ("/" not in p and fnmatch.fnmatchcase(name, p)) for p in patterns)
@@ -229,7 +260,10 @@ def _worker_init(options: BatchOptions, key: str) -> None:
     import signal
 
     signal.signal(signal.SIGINT, signal.SIG_IGN)  # the coordinator decides how to stop
-    _settings_for(options, key)
+    try:
+        _settings_for(options, key)
+    except Exception:  # an initializer that raises breaks the pool; convert_one reports it per file instead
+        pass
 
 
 def _settings_for(options: BatchOptions, key: str):
@@ -394,13 +428,17 @@ def run_batch(in_dir: str | os.PathLike, out_dir: str | os.PathLike, options: Ba
         raise InputError(f"{in_dir}: not a folder; give the folder of pictures to convert")
     if in_dir.resolve() == out_dir.resolve():
         raise OutputError(f"{out_dir}: the output folder is the input folder; choose another OUT_DIR")
+    # Every check a user can fail comes before anything is written.
+    key = options.fingerprint()
+    check_posts(options.posts, options.plugin_dirs)
+    exts = supported_extensions(options.tracer, options.plugin_dirs)
+    rels, unsupported = find_inputs(in_dir, out_dir, recursive, include, exclude, exts)
+    if not rels:
+        raise nothing_to_convert(in_dir, out_dir, recursive, bool(include or exclude), unsupported)
     try:
         out_dir.mkdir(parents=True, exist_ok=True)
     except OSError as e:
         raise OutputError(f"{out_dir}: cannot create output folder ({e.strerror}); choose another OUT_DIR") from None
-    key = options.fingerprint()
-    exts = supported_extensions(options.tracer, options.plugin_dirs)
-    rels, unsupported = find_inputs(in_dir, out_dir, recursive, include, exclude, exts)
     stems = output_stems(rels)
     manifest = _Manifest(out_dir)
     shutil.rmtree(out_dir / STAGING_NAME, ignore_errors=True)  # leftovers of a killed run

@@ -32,7 +32,8 @@ def batch(in_dir, out_dir, recursive, include, exclude, jobs, force, scheduler, 
     Outputs mirror the input tree: IN_DIR/sub/a.png -> OUT_DIR/sub/a.plc, .gcode, .svg.
     Up-to-date files are skipped (OUT_DIR/.doodlecam-manifest.json); an interrupted
     batch resumes on re-run. Writes OUT_DIR/report.json and OUT_DIR/index.html.
-    Exit code 1 if any file failed.
+    Exit code: 0 all converted, 1 some file failed (listed), 2 nothing was done
+    (no file to convert, bad option), 130 interrupted (re-run to resume).
     """
     from .batch import BatchFailed, BatchInterrupted, BatchOptions, run_batch, summary_table
 
