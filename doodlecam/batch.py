@@ -37,6 +37,7 @@ import shutil
 import sys
 import tempfile
 import time
+from contextlib import contextmanager
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Callable, Iterable
@@ -46,6 +47,7 @@ from .atomic import write_bytes
 from .errors import DoodleError, InputError, OutputError
 
 MANIFEST_NAME = ".doodlecam-manifest.json"
+LOCK_NAME = ".doodlecam-lock"
 STAGING_NAME = ".doodlecam-tmp"
 REPORT_NAME = "report.json"
 INDEX_NAME = "index.html"
@@ -238,6 +240,50 @@ def file_hash(path: Path) -> str:
 
 def write_atomic(path: Path, data: bytes) -> None:
     write_bytes(path, data)
+
+
+@contextmanager
+def locked(out_dir: Path):
+    """Hold an exclusive lock on ``out_dir`` (``OUT/.doodlecam-lock``) for one batch.
+
+    Two batches into one folder would clear each other's staging folder and
+    overwrite each other's manifest, so the second one stops with a one-line
+    error instead. The kernel drops the lock when its holder exits in any way
+    (even SIGKILL), so a stale lock file never blocks a re-run.
+    """
+    path = out_dir / LOCK_NAME
+    try:
+        fd = os.open(path, os.O_RDWR | os.O_CREAT, 0o666)
+    except OSError as e:
+        raise OutputError(f"{out_dir}: cannot create {LOCK_NAME} ({e.strerror}); check the folder's permissions") from None
+    try:
+        if not _try_lock(fd):
+            holder = os.read(fd, 32).decode(errors="replace").strip()
+            raise OutputError(f"{out_dir}: another doodlecam batch{f' (pid {holder})' if holder.isdigit() else ''} "
+                              "is writing to this folder; wait for it to finish or choose another OUT_DIR")
+        os.ftruncate(fd, 0)
+        os.write(fd, f"{os.getpid()}\n".encode())  # only for the message above
+        yield
+    finally:
+        os.close(fd)  # releases the lock
+
+
+def _try_lock(fd: int) -> bool:
+    try:
+        import fcntl
+    except ImportError:  # Windows
+        import msvcrt
+
+        try:
+            msvcrt.locking(fd, msvcrt.LK_NBLCK, 1)
+            return True
+        except OSError:
+            return False
+    try:
+        fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        return True
+    except BlockingIOError:
+        return False
 
 
 def load_manifest(out_dir: Path) -> dict[str, Any]:
@@ -439,62 +485,63 @@ def run_batch(in_dir: str | os.PathLike, out_dir: str | os.PathLike, options: Ba
         out_dir.mkdir(parents=True, exist_ok=True)
     except OSError as e:
         raise OutputError(f"{out_dir}: cannot create output folder ({e.strerror}); choose another OUT_DIR") from None
-    stems = output_stems(rels)
-    manifest = _Manifest(out_dir)
-    shutil.rmtree(out_dir / STAGING_NAME, ignore_errors=True)  # leftovers of a killed run
+    with locked(out_dir):
+        stems = output_stems(rels)
+        manifest = _Manifest(out_dir)
+        shutil.rmtree(out_dir / STAGING_NAME, ignore_errors=True)  # leftovers of a killed run (we hold the lock)
 
-    records: dict[str, dict[str, Any]] = {}
-    todo: list[str] = []
-    digests: dict[str, str] = {}
-    for rel in rels:
-        try:
-            digests[rel] = file_hash(in_dir / rel)
-        except OSError as e:
-            records[rel] = {"input": rel, "status": "failed", "error": _one_line(f"{in_dir / rel}: cannot read ({e.strerror}); check the file"),
+        records: dict[str, dict[str, Any]] = {}
+        todo: list[str] = []
+        digests: dict[str, str] = {}
+        for rel in rels:
+            try:
+                digests[rel] = file_hash(in_dir / rel)
+            except OSError as e:
+                records[rel] = {"input": rel, "status": "failed", "error": _one_line(f"{in_dir / rel}: cannot read ({e.strerror}); check the file"),
+                                "outputs": [], "summary": None}
+                continue
+            entry = manifest.files.get(rel)
+            if not force and _up_to_date(entry, digests[rel], key, out_dir):
+                records[rel] = {"input": rel, "status": "skipped" if entry["status"] == "converted" else "failed",
+                                "error": entry.get("error"), "outputs": entry.get("outputs", []),
+                                "summary": entry.get("summary"), "cached": True}
+            else:
+                todo.append(rel)
+        for rel in unsupported:
+            records[rel] = {"input": rel, "status": "unsupported",
+                            "error": f"no tracer reads '{Path(rel).suffix.lower() or 'files without extension'}' files",
                             "outputs": [], "summary": None}
-            continue
-        entry = manifest.files.get(rel)
-        if not force and _up_to_date(entry, digests[rel], key, out_dir):
-            records[rel] = {"input": rel, "status": "skipped" if entry["status"] == "converted" else "failed",
-                            "error": entry.get("error"), "outputs": entry.get("outputs", []),
-                            "summary": entry.get("summary"), "cached": True}
-        else:
-            todo.append(rel)
-    for rel in unsupported:
-        records[rel] = {"input": rel, "status": "unsupported",
-                        "error": f"no tracer reads '{Path(rel).suffix.lower() or 'files without extension'}' files",
-                        "outputs": [], "summary": None}
 
-    def finished(rec: dict[str, Any]) -> None:
-        rel = rec["input"]
-        rec.pop("pid", None)
-        records[rel] = rec
-        if rec["status"] == "converted" or not rec.get("retry", True):
-            manifest.record(rel, {"input_hash": digests[rel], "options_hash": key, "status": rec["status"],
-                                  "error": rec["error"], "retry": rec.get("retry", False),
-                                  "outputs": rec["outputs"], "summary": rec["summary"]})
-        else:
-            manifest.record(rel, None)  # retried next time
-        if on_result is not None:
-            on_result(rec)
+        def finished(rec: dict[str, Any]) -> None:
+            rel = rec["input"]
+            rec.pop("pid", None)
+            records[rel] = rec
+            if rec["status"] == "converted" or not rec.get("retry", True):
+                manifest.record(rel, {"input_hash": digests[rel], "options_hash": key, "status": rec["status"],
+                                      "error": rec["error"], "retry": rec.get("retry", False),
+                                      "outputs": rec["outputs"], "summary": rec["summary"]})
+            else:
+                manifest.record(rel, None)  # retried next time
+            if on_result is not None:
+                on_result(rec)
 
-    interrupted = False
-    peak: list[float] = []
-    if todo:
-        runner = _run_dask if scheduler else _run_local
-        try:
-            interrupted = runner(todo, stems, options, key, in_dir, out_dir, jobs, scheduler, progress,
-                                 finished, peak)
-        finally:
-            manifest.flush()
-            shutil.rmtree(out_dir / STAGING_NAME, ignore_errors=True)
-    manifest.flush()
-    files = [records[r] for r in sorted(records)]
-    for f in files:
-        f["warnings"] = warnings_for(f.get("summary"))
-    result = BatchResult(files=files, elapsed_s=round(time.perf_counter() - t_start, 3), interrupted=interrupted)
-    write_reports(result, in_dir, out_dir, options, key, peak)
-    return result
+        interrupted = False
+        peak: list[float] = []
+        if todo:
+            runner = _run_dask if scheduler else _run_local
+            try:
+                interrupted = runner(todo, stems, options, key, in_dir, out_dir, jobs, scheduler, progress,
+                                     finished, peak)
+            finally:
+                manifest.flush()
+                shutil.rmtree(out_dir / STAGING_NAME, ignore_errors=True)
+        manifest.flush()
+        files = [records[r] for r in sorted(records)]
+        for f in files:
+            f["warnings"] = warnings_for(f.get("summary"))
+        result = BatchResult(files=files, elapsed_s=round(time.perf_counter() - t_start, 3), interrupted=interrupted)
+        write_reports(result, in_dir, out_dir, options, key, peak)
+        return result
 
 
 def _progress_bar(total: int, progress: bool | None):

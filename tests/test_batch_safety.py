@@ -43,3 +43,46 @@ def test_unknown_post_is_one_error_before_any_work(tmp_path, capsys):
     err = capsys.readouterr().err.strip()
     assert rc == 2 and "\n" not in err and "unknown postprocessor 'nosuch'" in err
     assert not (tmp_path / "out").exists()
+
+
+def _slow_folder(tmp_path: Path, n: int = 6) -> tuple[Path, Path]:
+    """n small pictures and a drop-in post that sleeps 0.3 s per file, so a batch is still running when poked."""
+    src = tmp_path / "in"
+    for i in range(n):
+        _picture(src / ("sub" if i % 2 else "") / f"p{i}.png", i)
+    plugins = tmp_path / "plugins"
+    plugins.mkdir()
+    (plugins / "slowpost.py").write_text(SLOW_POST)
+    return src, plugins
+
+
+def _wait_for(cond, proc, what: str, timeout: float = 60) -> None:
+    deadline = time.monotonic() + timeout
+    while not cond():
+        assert proc.poll() is None, f"the batch ended before {what}"
+        assert time.monotonic() < deadline, f"timed out waiting for {what}"
+        time.sleep(0.05)
+
+
+def _manifest_files(out: Path) -> dict:
+    try:
+        return json.loads((out / ".doodlecam-manifest.json").read_text())["files"]
+    except (OSError, ValueError):
+        return {}
+
+
+def test_second_batch_into_same_folder_is_refused(tmp_path):
+    src, plugins = _slow_folder(tmp_path)
+    out = tmp_path / "out"
+    first = subprocess.Popen(_batch_cmd(src, out, plugins), stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
+    lock = out / ".doodlecam-lock"
+    _wait_for(lambda: lock.exists() and lock.read_text().strip() == str(first.pid), first, "it took the lock")
+    second = subprocess.run(_batch_cmd(src, out, plugins), capture_output=True, text=True, timeout=120)
+    assert second.returncode == 2
+    err = second.stderr.strip()
+    assert "\n" not in err and str(out) in err and f"another doodlecam batch (pid {first.pid})" in err, err
+    assert first.wait(timeout=120) == 0, first.stderr.read()
+    assert _report(out)["counts"]["converted"] == 6
+    # the lock goes with its holder: the next batch runs (and finds everything up to date)
+    again = subprocess.run(_batch_cmd(src, out, plugins), capture_output=True, text=True, timeout=120)
+    assert again.returncode == 0 and _report(out)["counts"]["skipped"] == 6, again.stderr
