@@ -153,6 +153,8 @@ def convert(input, outdir, as_json, **options):
     click.echo(f"  planned job time   {s['job_time_s']:.1f} s  (drawing {s['draw_time_s']:.1f} s, {s['samples']} velocity samples)")
     click.echo(f"  limits             acceleration <= {s['worst_acceleration_ratio']:.6f}, velocity <= "
                f"{s['worst_velocity_ratio']:.6f} of the limit (checked on a 20x finer grid)")
+    click.echo(f"  pen on the curve   within half a step at every sample instant; up to "
+               f"{s['max_between_samples_mm']:.3f} mm off between instants (the PLC's linear ramps)")
     click.echo("  wrote              " + ", ".join(s["outputs"]))
 
 

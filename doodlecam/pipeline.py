@@ -89,6 +89,7 @@ def plan_job(drawing: Drawing, machine: Machine, solver: str = "reach", plugin_d
     ``order`` overrides the profile's [order] options (doodlecam.layout.ORDER_DEFAULTS).
     """
     from .fit import fit_pieces
+    from .follow import path_deviation
     from .layout import order_options
     from .order import order_strokes
     from .plan import Limits, check_profile, check_solver, plan_stroke
@@ -131,6 +132,9 @@ def plan_job(drawing: Drawing, machine: Machine, solver: str = "reach", plugin_d
     t0 = time.perf_counter()
     steps = (machine.x.steps_per_mm, machine.y.steps_per_mm)
     samples = tuple(sample_stroke(s, machine.delta_time, limits, steps) for s in planned)
+    # how far the ramps stray from the curve between instants (at them: < half a step)
+    between = max((float(path_deviation(s.spline, smp).max()) for s, smp in zip(planned, samples) if len(smp.velocity)),
+                  default=0.0)
     timings["sample"] = time.perf_counter() - t0
 
     points = [np.asarray(machine.home, float)]
@@ -145,6 +149,7 @@ def plan_job(drawing: Drawing, machine: Machine, solver: str = "reach", plugin_d
         "worst_acceleration_ratio": worst_acc,
         "worst_velocity_ratio": worst_vel,
         "max_fit_error_mm": max((s.fit_error for s in planned), default=0.0),
+        "max_between_samples_mm": between,
         "control_points": sum(len(s.spline.control) for s in planned),
         "timings": timings,
     }
@@ -201,6 +206,7 @@ class Result:
             "samples": sum(len(s.velocity) for s in j.samples),
             "control_points": j.meta["control_points"],
             "max_fit_error_mm": round(j.meta["max_fit_error_mm"], 4),
+            "max_between_samples_mm": round(j.meta.get("max_between_samples_mm", 0.0), 4),
             "worst_acceleration_ratio": round(j.meta["worst_acceleration_ratio"], 9),
             "worst_velocity_ratio": round(j.meta["worst_velocity_ratio"], 9),
             "travel_law": j.meta.get("travel_law", ""),
