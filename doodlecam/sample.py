@@ -25,8 +25,6 @@ added (the stroke runs slightly slower than planned) until they do.
 
 from __future__ import annotations
 
-import warnings
-
 import numpy as np
 
 from .errors import PlanError
@@ -47,10 +45,10 @@ class _Coo:
         self.r, self.c, self.v, self.n, self.ncols = [], [], [], 0, ncols
 
     def add(self, rows, cols, vals):
-        rows, cols = np.asarray(rows), np.asarray(cols)
-        self.r.append(rows + self.n)
-        self.c.append(cols)
-        self.v.append(np.broadcast_to(vals, rows.shape).astype(float))
+        rows = np.asarray(rows)
+        self.r.append((rows + self.n).ravel())
+        self.c.append(np.broadcast_to(cols, rows.shape).ravel())
+        self.v.append(np.broadcast_to(np.asarray(vals, float), rows.shape).ravel())
 
     def close(self, nrows: int):
         self.n += nrows
@@ -62,12 +60,24 @@ class _Coo:
                              shape=(self.n, self.ncols))
 
 
+def _clarabel(P_diag, q, A, b, n_eq):
+    """min 1/2 z'diag(P)z + q'z s.t. the first ``n_eq`` rows of A z = b, the rest <= b.
+    Clarabel directly: qpsolvers' checks and re-stacking cost more than the solve."""
+    import clarabel
+    import scipy.sparse as sp
+
+    n = len(q)
+    P = sp.csc_matrix((P_diag, np.arange(n), np.arange(n + 1)), shape=(n, n))
+    settings = clarabel.DefaultSettings()
+    settings.verbose = False
+    cones = [clarabel.ZeroConeT(n_eq), clarabel.NonnegativeConeT(A.shape[0] - n_eq)]
+    res = clarabel.DefaultSolver(P, q, A, b, cones, settings).solve()
+    return np.asarray(res.x) if res.status == clarabel.SolverStatus.Solved else None
+
+
 def _qp(p, tang, v_plan, end, dt, tol, limits, L):
     """One linearised QP. p: (m, 3) curve points relative to the start and
     their u, tang: (m, 2) tangents per mm of shift, end: (2,). Returns (v, x, d) or None."""
-    import scipy.sparse as sp
-    from qpsolvers import solve_qp
-
     m = len(p)
     n = m - 1
     # unknowns: [vx (n), vy (n), xx (m), xy (m), d (m)]; d in mm along the tangent
@@ -77,52 +87,53 @@ def _qp(p, tang, v_plan, end, dt, tol, limits, L):
     X = lambda a, j: nv + a * m + j  # noqa: E731  column of x_{j+1}
     D = lambda j: nv + nx + j  # noqa: E731
     lam = VELOCITY_WEIGHT * dt * dt
-    P = sp.diags(np.concatenate([np.full(nv, lam), np.zeros(nx), np.ones(m)]) + 1e-12, format="csc")
+    P = np.concatenate([np.full(nv, lam), np.zeros(nx), np.ones(m)]) + 1e-12
     q = np.concatenate([-lam * v_plan[:n, 0], -lam * v_plan[:n, 1], np.zeros(nx + m)])
     j, jn = np.arange(m), np.arange(n)
-    # ramp: x_j - x_j-1 - dT/2 (v_j-1 + v_j) = 0 at instants 1..m (x_0 = 0, v_0 = v_m = 0); end exact
-    A = _Coo(N)
+    # equalities first: ramp x_j - x_j-1 - dT/2 (v_j-1 + v_j) = 0 at instants 1..m
+    # (x_0 = 0, v_0 = v_m = 0), then the end point exactly
+    A, rhs = _Coo(N), []
     for a in range(2):
         A.add(j, X(a, j), 1.0)
         A.add(j[1:], X(a, j[1:] - 1), -1.0)
         A.add(jn, V(a, jn), -dt / 2)
         A.add(jn + 1, V(a, jn), -dt / 2)
         A.close(m)
+        rhs.append(np.zeros(m))
     A.add(np.arange(2), [X(0, m - 1), X(1, m - 1)], 1.0)
     A.close(2)
-    b = np.concatenate([np.zeros(2 * m), end])
-    G, h = _Coo(N), []
+    rhs.append(end)
+    n_eq = A.n
     # tracking box at instants 1..m-1 (the end is exact): x - tang * d within p +- tol
     k = np.arange(m - 1)
     for sign in (1.0, -1.0):
         for a in range(2):
-            G.add(k, X(a, k), sign)
-            G.add(k, D(k), -sign * tang[:-1, a])
-            G.close(m - 1)
-            h.append(sign * p[:-1, a] + tol)
+            A.add(k, X(a, k), sign)
+            A.add(k, D(k), -sign * tang[:-1, a])
+            A.close(m - 1)
+            rhs.append(sign * p[:-1, a] + tol)
     # the shifted parameter stays monotone: u_j + d_j / L <= u_j+1 + d_j+1 / L
-    G.add(k, D(k), 1.0)
-    G.add(k, D(k + 1), -1.0)
-    G.close(m - 1)
-    h.append(L * np.diff(p[:, 2]))
+    A.add(k, D(k), 1.0)
+    A.add(k, D(k + 1), -1.0)
+    A.close(m - 1)
+    rhs.append(L * np.diff(p[:, 2]))
     if limits.M is not None:
         # actuator limits on v_j - v_j-1 (j = 1..m) and on v_j; a hair inside the
         # limits so solver tolerance (~1e-8) never shows as overshoot
         Mk = np.asarray(limits.M, float)
+        na = Mk.shape[0]
+        # rows (sign, actuator) blocks: m acceleration rows, then n velocity rows
         for sign in (1.0, -1.0):
-            for i in range(Mk.shape[0]):
-                for a in range(2):
-                    G.add(jn, V(a, jn), sign * Mk[i, a])
-                    G.add(jn + 1, V(a, jn), -sign * Mk[i, a])
-                G.close(m)
-                h.append(np.full(m, limits.amax[i] * dt * (1 - 1e-6)))
-                for a in range(2):
-                    G.add(jn, V(a, jn), sign * Mk[i, a])
-                G.close(n)
-                h.append(np.full(n, limits.vmax[i] * (1 - 1e-6)))
-    with warnings.catch_warnings():  # "infeasible" is an expected answer here
-        warnings.simplefilter("ignore")
-        z = solve_qp(P, q, G.csc(), np.concatenate(h), A.csc(), b, solver="clarabel")
+            for a in range(2):
+                c = sign * Mk[:, a]  # (na,)
+                off = (np.arange(na) * (m + n))[:, None]
+                A.add(off + jn, np.broadcast_to(V(a, jn), (na, n)), np.repeat(c[:, None], n, 1))
+                A.add(off + jn + 1, np.broadcast_to(V(a, jn), (na, n)), np.repeat(-c[:, None], n, 1))
+                A.add(off + m + jn, np.broadcast_to(V(a, jn), (na, n)), np.repeat(c[:, None], n, 1))
+            A.close(na * (m + n))
+            for i in range(na):
+                rhs += [np.full(m, limits.amax[i] * dt * (1 - 1e-6)), np.full(n, limits.vmax[i] * (1 - 1e-6))]
+    z = _clarabel(P, q, A.csc(), np.concatenate(rhs), n_eq)
     if z is None:
         return None
     v = np.column_stack([z[:n], z[n:nv]])
