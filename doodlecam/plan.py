@@ -120,22 +120,14 @@ def profile_times(u: np.ndarray, b: np.ndarray) -> np.ndarray:
 def interval_ratios(spline: Spline, u: np.ndarray, b: np.ndarray, limits: Limits, refine: int = CHECK_REFINE):
     """Per interval, the worst (acceleration, velocity, pen speed) / limit on
     ``refine`` points inside it, straight from the spline (no bounds)."""
-    K = len(u) - 1
-    a = np.diff(b) / (2 * np.diff(u))
+    from .kernels import interval_worst
+
+    h = np.diff(u)
     tau = np.linspace(0.0, 1.0, refine + 1)
-    k = np.repeat(np.arange(K), refine + 1)
-    tt = np.tile(tau, K)
-    uu = u[k] + tt * np.diff(u)[k]
-    bb = b[k] * (1 - tt) + b[k + 1] * tt
+    uu = (u[:-1, None] + tau[None, :] * h[:, None]).ravel()
     t1, t2, sp = limits.derivatives(spline, uu)
-    acc = np.abs(t1 * a[k][:, None] + t2 * bb[:, None]) / limits.amax
-    vel = np.abs(t1) * np.sqrt(np.maximum(bb, 0.0))[:, None] / limits.vmax
-    worst_a = acc.max(axis=1).reshape(K, -1).max(axis=1)
-    worst_v = vel.max(axis=1).reshape(K, -1).max(axis=1)
-    worst_p = np.zeros(K)
-    if limits.pen_speed is not None:
-        worst_p = (sp * np.sqrt(np.maximum(bb, 0.0)) / limits.pen_speed).reshape(K, -1).max(axis=1)
-    return worst_a, worst_v, worst_p
+    return interval_worst(np.asarray(b, float), h, t1, t2, sp, limits.amax, limits.vmax,
+                          float(limits.pen_speed or 0.0), refine)
 
 
 def check_profile(spline: Spline, profile: Profile, limits: Limits, refine: int = CHECK_REFINE):
