@@ -21,9 +21,15 @@ Safety and resumption:
   user can cause (``DoodleError``) are remembered in the manifest and not retried
   until the file or the options change; write errors and internal errors are retried.
 
+* One batch per output folder: an exclusive lock on ``OUT/.doodlecam-lock``; a
+  second batch stops with a one-line error. Every check a user can fail (nothing
+  to convert, unknown plugin, ...) comes before anything is written.
+
 Heavy imports (the pipeline, NumPy, scikit-image, numba kernels, plugins) load
 once per worker process, in the pool initializer, never in the coordinator
 when there is nothing to do: a re-run with nothing changed only hashes files.
+Workers are replaced every ``recycle_after`` files, so memory cannot grow over
+a long batch; report.json records each worker's memory.
 """
 
 from __future__ import annotations
@@ -34,6 +40,7 @@ import hashlib
 import json
 import os
 import shutil
+import socket
 import sys
 import tempfile
 import time
@@ -52,6 +59,9 @@ STAGING_NAME = ".doodlecam-tmp"
 REPORT_NAME = "report.json"
 INDEX_NAME = "index.html"
 MANIFEST_VERSION = 1
+# Files a local worker converts before a fresh process replaces it: bounds what a long
+# batch can leak, while start-up (imports, plugins, JIT warm-up) stays rare.
+RECYCLE_AFTER = 250
 
 
 
@@ -329,14 +339,22 @@ def _one_line(text: str) -> str:
     return " ".join(str(text).split())
 
 
-def _peak_rss_mb() -> float | None:
+def _memory_mb() -> tuple[float | None, float | None]:
+    """(current, peak) resident memory of this process in MB. /proc's VmHWM is this
+    process's own peak; ru_maxrss (the fallback) also counts the parent's memory at fork."""
+    try:
+        with open("/proc/self/status") as f:
+            kb = {k: int(v.split()[0]) for k, _, v in (line.partition(":") for line in f) if k in ("VmRSS", "VmHWM")}
+        return round(kb["VmRSS"] / 1024, 1), round(kb["VmHWM"] / 1024, 1)
+    except (OSError, KeyError, ValueError, IndexError):
+        pass
     try:
         import resource
 
         kb = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
-        return round(kb / (1024 * 1024 if sys.platform == "darwin" else 1024), 1)
+        return None, round(kb / (1024 * 1024 if sys.platform == "darwin" else 1024), 1)
     except Exception:  # pragma: no cover - not on POSIX
-        return None
+        return None, None
 
 
 def convert_one(options: BatchOptions, key: str, in_dir: str, out_dir: str, rel: str, stem: str) -> dict[str, Any]:
@@ -347,7 +365,7 @@ def convert_one(options: BatchOptions, key: str, in_dir: str, out_dir: str, rel:
     src = Path(in_dir) / rel
     out_root = Path(out_dir)
     rec: dict[str, Any] = {"input": rel, "status": "failed", "error": None, "retry": False,
-                           "outputs": [], "summary": None, "pid": os.getpid()}
+                           "outputs": [], "summary": None}
     staging = None
     try:
         settings = _settings_for(options, key)
@@ -379,7 +397,8 @@ def convert_one(options: BatchOptions, key: str, in_dir: str, out_dir: str, rel:
         if staging is not None:
             shutil.rmtree(staging, ignore_errors=True)
     rec["seconds"] = round(time.perf_counter() - t0, 3)
-    rec["peak_rss_mb"] = _peak_rss_mb()
+    rec["rss_mb"], rec["peak_rss_mb"] = _memory_mb()
+    rec["worker"] = [socket.gethostname(), os.getpid()]
     return rec
 
 
@@ -405,6 +424,12 @@ class BatchResult:
     files: list[dict[str, Any]]
     elapsed_s: float
     interrupted: bool = False
+    workers: list[dict[str, Any]] = field(default_factory=list)  # see _Workers
+
+    @property
+    def peak_rss_mb(self) -> float | None:
+        """The largest peak resident memory of any worker, MB."""
+        return max((w["peak_rss_mb"] for w in self.workers if w["peak_rss_mb"] is not None), default=None)
 
     def count(self, status: str) -> int:
         return sum(1 for f in self.files if f["status"] == status)
@@ -416,6 +441,25 @@ class BatchResult:
     @property
     def ok(self) -> bool:
         return self.failed == 0 and not self.interrupted
+
+
+class _Workers:
+    """Memory per worker process, from the figures each file's record brings back:
+    resident memory after its first and its last file, and its peak."""
+
+    def __init__(self):
+        self.by_id: dict[tuple, dict[str, Any]] = {}
+
+    def add(self, rec: dict[str, Any]) -> None:
+        worker, rss = rec.pop("worker", None), rec.pop("rss_mb", None)
+        if not worker:
+            return
+        w = self.by_id.setdefault(tuple(worker), {"host": worker[0], "pid": worker[1], "files": 0,
+                                                  "rss_mb_first": rss, "rss_mb_last": rss, "peak_rss_mb": None})
+        w["files"] += 1
+        w["rss_mb_last"] = rss
+        if rec.get("peak_rss_mb") is not None:
+            w["peak_rss_mb"] = max(w["peak_rss_mb"] or 0.0, rec["peak_rss_mb"])
 
 
 class _Manifest:
@@ -460,10 +504,11 @@ def _up_to_date(entry: dict[str, Any] | None, digest: str, key: str, out_dir: Pa
 def run_batch(in_dir: str | os.PathLike, out_dir: str | os.PathLike, options: BatchOptions, *,
               recursive: bool = False, include: Iterable[str] = (), exclude: Iterable[str] = (),
               jobs: int | None = None, force: bool = False, scheduler: str | None = None,
-              progress: bool | None = None, on_result: Callable[[dict[str, Any]], None] | None = None) -> BatchResult:
+              recycle_after: int = RECYCLE_AFTER, progress: bool | None = None, on_result: Callable[[dict[str, Any]], None] | None = None) -> BatchResult:
     """Convert a folder. See the module docstring; ``doodlecam batch`` is the CLI.
 
-    ``jobs``: worker processes (default ``os.cpu_count()``). ``scheduler``: a Dask
+    ``jobs``: worker processes (default ``os.cpu_count()``). ``recycle_after``: files per
+    local worker before it is replaced by a fresh one (0 = never). ``scheduler``: a Dask
     distributed scheduler address; workers must see ``in_dir`` and ``out_dir`` at
     the same paths. ``progress``: a tqdm bar (None = only on a terminal).
     Writes the manifest, ``report.json`` and ``index.html`` into ``out_dir``.
@@ -514,7 +559,7 @@ def run_batch(in_dir: str | os.PathLike, out_dir: str | os.PathLike, options: Ba
 
         def finished(rec: dict[str, Any]) -> None:
             rel = rec["input"]
-            rec.pop("pid", None)
+            workers.add(rec)
             records[rel] = rec
             if rec["status"] == "converted" or not rec.get("retry", True):
                 manifest.record(rel, {"input_hash": digests[rel], "options_hash": key, "status": rec["status"],
@@ -526,12 +571,14 @@ def run_batch(in_dir: str | os.PathLike, out_dir: str | os.PathLike, options: Ba
                 on_result(rec)
 
         interrupted = False
-        peak: list[float] = []
+        workers = _Workers()
         if todo:
-            runner = _run_dask if scheduler else _run_local
             try:
-                interrupted = runner(todo, stems, options, key, in_dir, out_dir, jobs, scheduler, progress,
-                                     finished, peak)
+                if scheduler:
+                    interrupted = _run_dask(todo, stems, options, key, in_dir, out_dir, scheduler, progress, finished)
+                else:
+                    interrupted = _run_local(todo, stems, options, key, in_dir, out_dir, jobs, progress, finished,
+                                             recycle_after)
             finally:
                 manifest.flush()
                 shutil.rmtree(out_dir / STAGING_NAME, ignore_errors=True)
@@ -539,8 +586,9 @@ def run_batch(in_dir: str | os.PathLike, out_dir: str | os.PathLike, options: Ba
         files = [records[r] for r in sorted(records)]
         for f in files:
             f["warnings"] = warnings_for(f.get("summary"))
-        result = BatchResult(files=files, elapsed_s=round(time.perf_counter() - t_start, 3), interrupted=interrupted)
-        write_reports(result, in_dir, out_dir, options, key, peak)
+        result = BatchResult(files=files, elapsed_s=round(time.perf_counter() - t_start, 3), interrupted=interrupted,
+                             workers=list(workers.by_id.values()))
+        write_reports(result, in_dir, out_dir, options, key)
         return result
 
 
@@ -552,25 +600,57 @@ def _progress_bar(total: int, progress: bool | None):
                 bar_format="{l_bar}{bar}| {n_fmt}/{total_fmt} files [{elapsed}<{remaining}]{postfix}")
 
 
-def _run_local(todo, stems, options, key, in_dir, out_dir, jobs, scheduler, progress, finished, peak) -> bool:
-    """A process pool ('spawn': safe with numba and threads). Returns True if interrupted."""
+def _run_local(todo, stems, options, key, in_dir, out_dir, jobs, progress, finished, recycle_after) -> bool:
+    """Process pools ('spawn': safe with numba and threads). Returns True if interrupted.
+
+    Recycling: a pool takes ``jobs * recycle_after`` files, then is retired (its workers
+    finish the files they hold and exit) while a fresh pool takes the next files, so
+    memory cannot grow over a long batch. Not ``max_tasks_per_child``: it deadlocks on
+    Python 3.11-3.14 (cpython gh-115634).
+    A worker that dies (killed, out of memory) breaks its pool and fails every file the
+    pool holds; each of those is tried once more in a fresh pool, and fails if it happens again.
+    """
     import multiprocessing
+    from collections import deque
     from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
     from concurrent.futures.process import BrokenProcessPool
 
     jobs = max(1, min(jobs or os.cpu_count() or 1, len(todo)))
+    quota = jobs * recycle_after if recycle_after and recycle_after > 0 else 0
     ctx = multiprocessing.get_context("spawn")
+    src, dst = str(in_dir.resolve()), str(out_dir.resolve())
     bar = _progress_bar(len(todo), progress)
     failures = 0
-    pool = ProcessPoolExecutor(max_workers=jobs, mp_context=ctx, initializer=_worker_init, initargs=(options, key))
-    pending = {}
-    queue = list(todo)
+    pools: list = []  # every pool started; the last one takes new files
+    processes: list[dict] = []  # each pool's pid -> process map (shutdown(wait=False) drops the pool's own reference)
+    used = 0  # files given to the current pool
+    pending: dict = {}  # future -> input
+    queue = deque(todo)
+    died: set[str] = set()  # inputs whose worker died once
     interrupted = False
 
+    def new_pool():
+        nonlocal used
+        pool = ProcessPoolExecutor(max_workers=jobs, mp_context=ctx, initializer=_worker_init, initargs=(options, key))
+        pools.append(pool)
+        processes.append(pool._processes)
+        used = 0
+
     def submit_more():
+        nonlocal used
         while queue and len(pending) < 2 * jobs:  # a short queue: Ctrl-C leaves little to cancel
-            rel = queue.pop(0)
-            fut = pool.submit(convert_one, options, key, str(in_dir.resolve()), str(out_dir.resolve()), rel, stems[rel])
+            if not pools or (quota and used >= quota):
+                if pools:
+                    pools[-1].shutdown(wait=False)  # retire: its workers finish what they hold, then exit
+                new_pool()
+            rel = queue[0]
+            try:
+                fut = pools[-1].submit(convert_one, options, key, src, dst, rel, stems[rel])
+            except BrokenProcessPool:
+                new_pool()
+                continue
+            queue.popleft()
+            used += 1
             pending[fut] = rel
 
     def take(fut):
@@ -578,19 +658,24 @@ def _run_local(todo, stems, options, key, in_dir, out_dir, jobs, scheduler, prog
         rel = pending.pop(fut)
         try:
             rec = fut.result()
-        except BrokenProcessPool as e:
+        except BrokenProcessPool:
+            if rel not in died:  # maybe only a bystander of another file's crash: once more, in a fresh pool
+                died.add(rel)
+                queue.append(rel)
+                return
             rec = {"input": rel, "status": "failed", "retry": True, "outputs": [], "summary": None,
-                   "error": _one_line(f"internal error: a worker process died ({e or 'killed'}); re-run to retry")}
+                   "error": "internal error: the worker process died twice while converting it "
+                            "(killed, or out of memory?); re-run to retry"}
         except Exception as e:
             rec = {"input": rel, "status": "failed", "retry": True, "outputs": [], "summary": None,
                    "error": _one_line(f"internal error: {type(e).__name__}: {e}")}
-        if rec.get("peak_rss_mb"):
-            peak.append(rec["peak_rss_mb"])
         if rec["status"] == "failed":
             failures += 1
+        mem = rec.get("rss_mb")
         finished(rec)
         bar.update(1)
-        bar.set_postfix_str(f"{failures} failed" if failures else "", refresh=False)
+        bar.set_postfix_str(", ".join(([f"{failures} failed"] if failures else [])
+                                      + ([f"worker {mem:.0f} MB"] if mem else [])), refresh=False)
 
     try:
         submit_more()
@@ -601,7 +686,8 @@ def _run_local(todo, stems, options, key, in_dir, out_dir, jobs, scheduler, prog
             submit_more()
     except KeyboardInterrupt:
         interrupted = True
-        bar.write("doodlecam: interrupted; finishing the files in progress (Ctrl-C again to stop now)")
+        bar.write("doodlecam: interrupted; finishing the files in progress (Ctrl-C again to stop now)", file=sys.stderr)
+        queue.clear()
         for fut in list(pending):
             if fut.cancel():
                 pending.pop(fut)
@@ -611,15 +697,17 @@ def _run_local(todo, stems, options, key, in_dir, out_dir, jobs, scheduler, prog
                 for fut in done:
                     take(fut)
         except KeyboardInterrupt:
-            for p in list(getattr(pool, "_processes", {}).values()):  # stop now: kill our own workers
-                p.terminate()
+            for procs in processes:  # stop now: kill our own workers
+                for p in list(procs.values()):
+                    p.terminate()
     finally:
-        pool.shutdown(wait=True, cancel_futures=True)
+        for pool in pools:
+            pool.shutdown(wait=True, cancel_futures=True)
         bar.close()
     return interrupted
 
 
-def _run_dask(todo, stems, options, key, in_dir, out_dir, jobs, scheduler, progress, finished, peak) -> bool:
+def _run_dask(todo, stems, options, key, in_dir, out_dir, scheduler, progress, finished) -> bool:
     """Submit to a Dask distributed cluster; results come back to this process,
     which alone writes the manifest and reports. Returns True if interrupted."""
     try:
@@ -646,8 +734,6 @@ def _run_dask(todo, stems, options, key, in_dir, out_dir, jobs, scheduler, progr
             except Exception as e:
                 rec = {"input": rel, "status": "failed", "retry": True, "outputs": [], "summary": None,
                        "error": _one_line(f"internal error: {type(e).__name__}: {e}")}
-            if rec.get("peak_rss_mb"):
-                peak.append(rec["peak_rss_mb"])
             failures += rec["status"] == "failed"
             finished(rec)
             bar.update(1)
@@ -665,8 +751,7 @@ def _run_dask(todo, stems, options, key, in_dir, out_dir, jobs, scheduler, progr
 # ---------------------------------------------------------------- reports
 
 
-def write_reports(result: BatchResult, in_dir: Path, out_dir: Path, options: BatchOptions, key: str,
-                  peak: list[float]) -> None:
+def write_reports(result: BatchResult, in_dir: Path, out_dir: Path, options: BatchOptions, key: str) -> None:
     from .report import index_html
 
     report = {
@@ -678,7 +763,8 @@ def write_reports(result: BatchResult, in_dir: Path, out_dir: Path, options: Bat
         "elapsed_s": result.elapsed_s,
         "interrupted": result.interrupted,
         "counts": {s: result.count(s) for s in ("converted", "skipped", "failed", "unsupported")},
-        "peak_worker_rss_mb": max(peak) if peak else None,
+        "peak_worker_rss_mb": result.peak_rss_mb,
+        "workers": result.workers,
         "files": result.files,
     }
     write_atomic(out_dir / REPORT_NAME, json.dumps(report, indent=1, ensure_ascii=False).encode("utf-8"))
@@ -709,4 +795,7 @@ def summary_table(result: BatchResult, limit: int = 40) -> str:
     lines.append(f"{result.count('converted')} converted, {result.count('skipped')} up to date, "
                  f"{result.failed} failed, {result.count('unsupported')} unsupported in {result.elapsed_s:.1f} s"
                  + ("  (interrupted: re-run to resume)" if result.interrupted else ""))
+    if result.workers:
+        lines.append(f"{len(result.workers)} worker processes, peak memory {result.peak_rss_mb or 0:.0f} MB "
+                     f"(per worker: report.json 'workers')")
     return "\n".join(lines)

@@ -19,13 +19,17 @@ from .cli import job_kwargs, job_options
 @click.option("-j", "--jobs", type=click.IntRange(min=1), default=None,
               help="Worker processes. Default: the number of cores.")
 @click.option("--force", is_flag=True, help="Convert every file again, even if up to date.")
+@click.option("--recycle-after", type=click.IntRange(min=0), default=None, metavar="FILES",
+              help="Replace each worker process by a fresh one after about this many files, so memory cannot "
+                   "grow over a long batch (0 = never). Default: 250.")
 @click.option("--scheduler", metavar="ADDRESS",
               help="Run on a Dask distributed cluster (e.g. tcp://host:8786); IN_DIR and OUT_DIR must be shared "
                    "at the same paths. Needs: pip install 'doodlecam[dask]'.")
 @click.option("--no-progress", is_flag=True, help="No progress bar (it is shown only on a terminal anyway).")
 @click.option("--json", "as_json", is_flag=True, help="Print report.json's file list as JSON instead of the table.")
 @job_options
-def batch(in_dir, out_dir, recursive, include, exclude, jobs, force, scheduler, no_progress, as_json, **job):
+def batch(in_dir, out_dir, recursive, include, exclude, jobs, force, recycle_after, scheduler, no_progress, as_json,
+          **job):
     """Convert every picture in IN_DIR into OUT_DIR, in parallel.
 
     \b
@@ -35,13 +39,14 @@ def batch(in_dir, out_dir, recursive, include, exclude, jobs, force, scheduler, 
     Exit code: 0 all converted, 1 some file failed (listed), 2 nothing was done
     (no file to convert, bad option), 130 interrupted (re-run to resume).
     """
-    from .batch import BatchFailed, BatchInterrupted, BatchOptions, run_batch, summary_table
+    from .batch import RECYCLE_AFTER, BatchFailed, BatchInterrupted, BatchOptions, run_batch, summary_table
 
     kw = job_kwargs(**job)
     kw["plugin_dirs"] = tuple(os.fspath(Path(d).resolve()) for d in kw["plugin_dirs"])  # workers may run elsewhere
     options = BatchOptions(**kw)
     result = run_batch(in_dir, out_dir, options, recursive=recursive, include=include, exclude=exclude, jobs=jobs,
-                       force=force, scheduler=scheduler, progress=False if no_progress else None)
+                       force=force, scheduler=scheduler, progress=False if no_progress else None,
+                       recycle_after=RECYCLE_AFTER if recycle_after is None else recycle_after)
     if as_json:
         import json
 

@@ -86,3 +86,81 @@ def test_second_batch_into_same_folder_is_refused(tmp_path):
     # the lock goes with its holder: the next batch runs (and finds everything up to date)
     again = subprocess.run(_batch_cmd(src, out, plugins), capture_output=True, text=True, timeout=120)
     assert again.returncode == 0 and _report(out)["counts"]["skipped"] == 6, again.stderr
+
+
+def _workers(pid: int) -> list[int]:
+    """The pool worker processes under a batch process (Linux /proc)."""
+    found = []
+    for d in Path("/proc").iterdir():
+        if d.name.isdigit():
+            try:
+                ppid = int((d / "stat").read_text().rsplit(")", 1)[1].split()[1])
+                cmd = (d / "cmdline").read_bytes()
+            except (OSError, IndexError, ValueError):
+                continue
+            if ppid == pid and b"multiprocessing-fork" in cmd:
+                found.append(int(d.name))
+    return found
+
+
+def test_recycled_workers_give_the_same_outputs(tmp_path):
+    src = tmp_path / "in"
+    for i in range(6):
+        _picture(src / f"p{i}.png", i)
+    one = tmp_path / "one"
+    assert main(["batch", str(src), str(one), *FAST, "--recycle-after", "0"]) == 0
+    rep = _report(one)
+    assert 1 <= len(rep["workers"]) <= 2 and sum(w["files"] for w in rep["workers"]) == 6
+    for w in rep["workers"]:  # the per-worker memory figures report.json promises
+        assert w["pid"] > 0 and 20 < w["rss_mb_first"] <= w["peak_rss_mb"] and w["rss_mb_last"] <= w["peak_rss_mb"]
+    assert rep["peak_worker_rss_mb"] == max(w["peak_rss_mb"] for w in rep["workers"])
+
+    many = tmp_path / "many"
+    assert main(["batch", str(src), str(many), *FAST, "--recycle-after", "1"]) == 0
+    rep = _report(many)
+    # 2 jobs x 1 file per pool: three pools, each worker gone after at most 2 files
+    assert len({w["pid"] for w in rep["workers"]}) >= 3 and max(w["files"] for w in rep["workers"]) <= 2
+    assert _files(many) == _files(one)
+
+
+@pytest.mark.skipif(not Path("/proc/self/stat").exists(), reason="finds the workers through /proc")
+def test_killed_worker_is_retried_and_the_batch_completes(tmp_path):
+    src, plugins = _slow_folder(tmp_path)
+    ref = tmp_path / "ref"
+    subprocess.run(_batch_cmd(src, ref, plugins), check=True, capture_output=True, timeout=120)
+
+    out = tmp_path / "out"
+    proc = subprocess.Popen(_batch_cmd(src, out, plugins), stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
+    _wait_for(lambda: _manifest_files(out) and _workers(proc.pid), proc, "a file was done")
+    victim = _workers(proc.pid)[0]
+    os.kill(victim, signal.SIGKILL)  # as the out-of-memory killer would
+    assert proc.wait(timeout=120) == 0, proc.stderr.read()
+    rep = _report(out)
+    assert rep["counts"]["converted"] == 6 and rep["counts"]["failed"] == 0
+    assert _files(out) == _files(ref)
+    assert not (out / ".doodlecam-tmp").exists() and not list(out.rglob("*.tmp"))
+
+
+def test_ctrl_c_keeps_finished_files_and_a_rerun_completes_them(tmp_path):
+    src, plugins = _slow_folder(tmp_path, n=10)
+    ref = tmp_path / "ref"
+    subprocess.run(_batch_cmd(src, ref, plugins), check=True, capture_output=True, timeout=120)
+
+    out = tmp_path / "out"
+    proc = subprocess.Popen(_batch_cmd(src, out, plugins), stdout=subprocess.DEVNULL, stderr=subprocess.PIPE,
+                            text=True, start_new_session=True)
+    _wait_for(lambda: _manifest_files(out), proc, "a file was done")
+    os.killpg(proc.pid, signal.SIGINT)  # Ctrl-C in a terminal reaches the whole process group
+    assert proc.wait(timeout=120) == 130
+    err = proc.stderr.read()
+    assert "finishing the files in progress" in err and "Traceback" not in err, err
+    rep = _report(out)
+    assert rep["interrupted"] and 0 < rep["counts"]["converted"] < 10
+    kept = set(_manifest_files(out))
+    assert kept == {f["input"] for f in rep["files"] if f["status"] == "converted"}
+
+    again = subprocess.run(_batch_cmd(src, out, plugins), capture_output=True, text=True, timeout=120)
+    assert again.returncode == 0, again.stderr
+    rep = _report(out)
+    assert {f["input"] for f in rep["files"] if f["status"] == "skipped"} == kept
+    assert _files(out) == _files(ref)
