@@ -83,6 +83,28 @@ def test_random_splines_never_violate_limits(spline, amax, vmax):
     assert acc <= 1 + 1e-9 and vel <= 1 + 1e-9
     assert prof.b[0] == 0 and prof.b[-1] == 0
     assert np.all(np.isfinite(prof.t)) and np.all(np.diff(prof.t) > 0)
+    # never faster than the reference: collocation (limits only at grid points) on a
+    # fine grid is a relaxation of the continuous problem, so it bounds the optimum below
+    ref = plan_stroke(spline, lim, n_points=20_000, mode="collocation", adaptive=False).duration
+    assert prof.duration >= ref * (1 - 1e-9)
+
+
+@settings(max_examples=20, deadline=None)
+@given(splines(), st.floats(0.0, 1.0), st.floats(0.0, 1.0))
+def test_random_start_and_end_speeds_hold_or_are_refused_in_one_line(spline, fs, fe):
+    from doodlecam.errors import PlanError
+
+    lim = Limits(np.array([150.0, 150.0]), np.array([2000.0, 2000.0]), np.eye(2))
+    v0, v1 = 40.0 * fs, 40.0 * fe
+    try:
+        prof = plan_stroke(spline, lim, v_start=v0, v_end=v1)
+    except PlanError as e:
+        assert "\n" not in str(e) and "speed" in str(e)
+        return
+    speed = np.linalg.norm(spline(np.array([0.0, 1.0]), 1), axis=1) * np.sqrt(prof.b[[0, -1]])
+    assert np.allclose(speed, [v0, v1], rtol=1e-6, atol=1e-9)
+    acc, vel = check_profile(spline, prof, lim)
+    assert acc <= 1 + 1e-9 and vel <= 1 + 1e-9
 
 
 def test_samples_reproduce_the_stroke(limits):
