@@ -25,6 +25,8 @@ added (the stroke runs slightly slower than planned) until they do.
 
 from __future__ import annotations
 
+import functools
+
 import numpy as np
 
 from .errors import PlanError
@@ -75,65 +77,102 @@ def _clarabel(P_diag, q, A, b, n_eq):
     return np.asarray(res.x) if res.status == clarabel.SolverStatus.Solved else None
 
 
-def _qp(p, tang, v_plan, end, dt, tol, limits, L):
-    """One linearised QP. p: (m, 3) curve points relative to the start and
-    their u, tang: (m, 2) tangents per mm of shift, end: (2,). Returns (v, x, d) or None."""
-    m = len(p)
+_TAG = 1e9
+
+
+@functools.lru_cache(maxsize=256)
+def _pattern(m: int, dt: float, M: tuple | None):
+    """The constraint matrix for m instants, built once per (m, dT, kinematics):
+    only the tangent coefficients of the tracking rows change between solves
+    (assembling the rest every time cost as much as the solve). Returns the CSC
+    matrix with zeros there, the number of equality rows, and where in the CSC
+    data the tangent coefficients go (positions, and the sign, instant and axis
+    of each).
+
+    Unknowns: [vx (n), vy (n), xx (m), xy (m), d (m)], n = m - 1: targets v_1..v_n
+    (v_0 = v_m = 0), positions x_1..x_m from the start, shifts d in mm along the
+    tangent. Rows: ramps and end point (equalities); tracking boxes at instants
+    1..m-1; monotone shifted parameter; per actuator |M dv| <= A dT and |M v| <= V.
+    """
     n = m - 1
-    # unknowns: [vx (n), vy (n), xx (m), xy (m), d (m)]; d in mm along the tangent
     nv, nx = 2 * n, 2 * m
     N = nv + nx + m
     V = lambda a, j: a * n + j  # noqa: E731  column of v_{j+1} on axis a
     X = lambda a, j: nv + a * m + j  # noqa: E731  column of x_{j+1}
     D = lambda j: nv + nx + j  # noqa: E731
-    lam = VELOCITY_WEIGHT * dt * dt
-    P = np.concatenate([np.full(nv, lam), np.zeros(nx), np.ones(m)]) + 1e-12
-    q = np.concatenate([-lam * v_plan[:n, 0], -lam * v_plan[:n, 1], np.zeros(nx + m)])
-    j, jn = np.arange(m), np.arange(n)
-    # equalities first: ramp x_j - x_j-1 - dT/2 (v_j-1 + v_j) = 0 at instants 1..m
-    # (x_0 = 0, v_0 = v_m = 0), then the end point exactly
-    A, rhs = _Coo(N), []
+    j, jn, k = np.arange(m), np.arange(n), np.arange(m - 1)
+    A = _Coo(N)
+    # ramp: x_j - x_j-1 - dT/2 (v_j-1 + v_j) = 0 at instants 1..m; then the end exactly
     for a in range(2):
         A.add(j, X(a, j), 1.0)
         A.add(j[1:], X(a, j[1:] - 1), -1.0)
         A.add(jn, V(a, jn), -dt / 2)
         A.add(jn + 1, V(a, jn), -dt / 2)
         A.close(m)
-        rhs.append(np.zeros(m))
     A.add(np.arange(2), [X(0, m - 1), X(1, m - 1)], 1.0)
     A.close(2)
-    rhs.append(end)
     n_eq = A.n
-    # tracking box at instants 1..m-1 (the end is exact): x - tang * d within p +- tol
-    k = np.arange(m - 1)
+    # tracking box: sign (x - tang d) <= sign p + tol; the tangent entries hold
+    # -(_TAG + their index) so they can be found after the CSC sort
+    tags = []
     for sign in (1.0, -1.0):
         for a in range(2):
             A.add(k, X(a, k), sign)
-            A.add(k, D(k), -sign * tang[:-1, a])
+            A.add(k, D(k), -(_TAG + len(tags) * (m - 1) + k))
+            tags.append((sign, a))
             A.close(m - 1)
-            rhs.append(sign * p[:-1, a] + tol)
     # the shifted parameter stays monotone: u_j + d_j / L <= u_j+1 + d_j+1 / L
     A.add(k, D(k), 1.0)
     A.add(k, D(k + 1), -1.0)
     A.close(m - 1)
-    rhs.append(L * np.diff(p[:, 2]))
-    if limits.M is not None:
-        # actuator limits on v_j - v_j-1 (j = 1..m) and on v_j; a hair inside the
-        # limits so solver tolerance (~1e-8) never shows as overshoot
-        Mk = np.asarray(limits.M, float)
+    if M is not None:
+        Mk = np.asarray(M, float).reshape(-1, 2)
         na = Mk.shape[0]
-        # rows (sign, actuator) blocks: m acceleration rows, then n velocity rows
-        for sign in (1.0, -1.0):
+        for sign in (1.0, -1.0):  # blocks of m acceleration rows, then n velocity rows
             for a in range(2):
-                c = sign * Mk[:, a]  # (na,)
+                c = sign * Mk[:, a]
                 off = (np.arange(na) * (m + n))[:, None]
                 A.add(off + jn, np.broadcast_to(V(a, jn), (na, n)), np.repeat(c[:, None], n, 1))
                 A.add(off + jn + 1, np.broadcast_to(V(a, jn), (na, n)), np.repeat(-c[:, None], n, 1))
                 A.add(off + m + jn, np.broadcast_to(V(a, jn), (na, n)), np.repeat(c[:, None], n, 1))
             A.close(na * (m + n))
-            for i in range(na):
+    csc = A.csc()
+    tagged = np.flatnonzero(csc.data <= -_TAG)
+    idx = (-csc.data[tagged] - _TAG).astype(np.int64)  # 0 .. 4 (m-1) - 1
+    block, inst = np.divmod(idx, max(m - 1, 1))
+    signs = np.array([t[0] for t in tags])[block]
+    axes = np.array([t[1] for t in tags])[block]
+    csc.data[tagged] = 0.0
+    return csc, n_eq, tagged, signs, inst, axes
+
+
+def _qp(p, tang, v_plan, end, dt, tol, limits, L):
+    """One linearised QP. p: (m, 3) curve points relative to the start and
+    their u, tang: (m, 2) tangents per mm of shift, end: (2,). Returns (v, x, d) or None."""
+    import scipy.sparse as sp
+
+    m = len(p)
+    n = m - 1
+    nv, nx = 2 * n, 2 * m
+    M = None if limits.M is None else tuple(np.asarray(limits.M, float).ravel())
+    base, n_eq, tagged, signs, inst, axes = _pattern(m, float(dt), M)
+    data = base.data.copy()
+    data[tagged] = -signs * tang[inst, axes]
+    A = sp.csc_matrix((data, base.indices, base.indptr), shape=base.shape)
+    lam = VELOCITY_WEIGHT * dt * dt
+    P = np.concatenate([np.full(nv, lam), np.zeros(nx), np.ones(m)]) + 1e-12
+    q = np.concatenate([-lam * v_plan[:n, 0], -lam * v_plan[:n, 1], np.zeros(nx + m)])
+    rhs = [np.zeros(2 * m), end]
+    for sign in (1.0, -1.0):
+        for a in range(2):
+            rhs.append(sign * p[:-1, a] + tol)
+    rhs.append(L * np.diff(p[:, 2]))
+    if M is not None:
+        # a hair inside the limits so solver tolerance (~1e-8) never shows as overshoot
+        for _sign in (1.0, -1.0):
+            for i in range(len(limits.amax)):
                 rhs += [np.full(m, limits.amax[i] * dt * (1 - 1e-6)), np.full(n, limits.vmax[i] * (1 - 1e-6))]
-    z = _clarabel(P, q, A.csc(), np.concatenate(rhs), n_eq)
+    z = _clarabel(P, q, A, np.concatenate(rhs), n_eq)
     if z is None:
         return None
     v = np.column_stack([z[:n], z[n:nv]])
