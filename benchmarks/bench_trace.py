@@ -2,6 +2,8 @@
 
     .venv/bin/python benchmarks/bench_trace.py            # all tables
     .venv/bin/python benchmarks/bench_trace.py --quick    # skip the 4000 x 3000 photo and the fits
+    .venv/bin/python benchmarks/bench_trace.py --fits     # only the spline sizes (table 4)
+    .venv/bin/python benchmarks/bench_trace.py --fits --against REV   # ... and doodlecam/fit.py at git REV, same run
 
 Tables (Markdown):
 
@@ -130,30 +132,57 @@ def big_photo() -> None:
             print(f"| {label} | {r['strokes']} | {r['s']:.2f} | {r['cpu']:.2f} | {wall:.2f} | {r['peak_mb']:.0f} |", flush=True)
 
 
-def spline_size() -> None:
+def _fit_at(rev: str):
+    """doodlecam.fit as it was at git revision ``rev`` (loaded beside today's, for an A/B in one run)."""
+    import importlib.util
+
+    src = subprocess.run(["git", "-C", str(ROOT), "show", f"{rev}:doodlecam/fit.py"], capture_output=True, text=True,
+                         check=True).stdout
+    path = Path(tempfile.mkdtemp()) / "fit_at_rev.py"
+    path.write_text(src)
+    spec = importlib.util.spec_from_file_location("doodlecam._fit_at_rev", path)
+    mod = importlib.util.module_from_spec(spec)
+    mod.__package__ = "doodlecam"
+    spec.loader.exec_module(mod)
+    return mod
+
+
+def spline_size(against: str | None = None) -> None:
     from doodlecam import registry
     from doodlecam.fit import fit_pieces
     from doodlecam.layout import fit_to_work_area
     from doodlecam.machine import load_machine
 
+    fitters = [fit_pieces] + ([_fit_at(against).fit_pieces] if against else [])
     m = load_machine("doodlebot")
-    print(f"| input | tracer | strokes | pen-down mm | polyline vertices / mm | control points / mm | fit s |  (tolerance {m.tolerance} mm, degree {m.degree})")
-    print("|---|---|---|---|---|---|---|")
+    for f in fitters:
+        f(np.array([[0.0, 0.0], [1.0, 0.0], [1.0, 1.0]]))  # imports and numba's start, outside the timings
+    cols = "control points / mm | fit s |" + (f" control points / mm at {against} | fit s at {against} |" if against else "")
+    print(f"| input | tracer | strokes | pen-down mm | polyline vertices / mm | {cols}  (tolerance {m.tolerance} mm, degree {m.degree})")
+    print("|---|---|---|---|---|---|---|" + ("---|---|" if against else ""))
     jobs = [(img, "edges") for img in IMAGES] + [(IMAGES[0], "contours"), (IMAGES[0], "hatch")] + [(v, "vector") for v in VECTORS]
     for path, tracer in jobs:
         d = fit_to_work_area(registry.get("tracer", tracer)().trace(path, {}), m)
-        t = time.perf_counter()
-        ctrl = sum(len(s.control) for p in d.polylines for s, _ in fit_pieces(p, m.degree, m.tolerance))
-        dt = time.perf_counter() - t
+        cells = []
+        for f in fitters:
+            t = time.perf_counter()
+            ctrl = sum(len(s.control) for p in d.polylines for s, _ in f(p, m.degree, m.tolerance))
+            cells.append(f"{ctrl / d.length:.3f} | {time.perf_counter() - t:.3f}")
         verts = sum(len(p) for p in d.polylines)
-        print(f"| {path.name} | {tracer} | {len(d.polylines)} | {d.length:.0f} | {verts / d.length:.3f} | {ctrl / d.length:.3f} | {dt:.1f} |", flush=True)
+        print(f"| {path.name} | {tracer} | {len(d.polylines)} | {d.length:.0f} | {verts / d.length:.3f} | {' | '.join(cells)} |",
+              flush=True)
 
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--quick", action="store_true", help="skip the big photo and the spline fits")
+    ap.add_argument("--fits", action="store_true", help="only the spline sizes and fit times")
+    ap.add_argument("--against", metavar="REV", help="with --fits: also time doodlecam/fit.py as at git revision REV")
     args = ap.parse_args()
     warnings.simplefilter("ignore")
+    if args.fits:
+        spline_size(args.against)
+        return
     fidelity()
     print()
     hatch_speed()
