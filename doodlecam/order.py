@@ -172,7 +172,7 @@ def _improve(tour: dict, allow_reverse: bool, deadline: float, k_near: int) -> t
     while True:
         nbr = _neighbours(p0, p1, k)
         before = cost
-        chunk = 5 * n + 100  # moves per call: the budget is checked between calls
+        chunk = min(5 * n + 100, 5000)  # moves per call: the budget is checked between calls
         while True:
             m = local_search(p0, p1, seq, flip, home, nbr, allow_reverse, chunk, _ALL)
             moves += m
@@ -231,8 +231,10 @@ def order_strokes(polylines: Sequence[np.ndarray], home=(0.0, 0.0), allow_revers
     """Order, orient and rotate strokes to keep pen-up travel short.
 
     ``merge``: join strokes whose ends meet within this distance first (0 = never).
-    ``budget``: at most this many seconds in all (0 = greedy only); small sets
-    settle in milliseconds and stop there.
+    ``budget``: seconds after which the improvement stops (0 = greedy only),
+    counted from the call and checked between compiled steps, so very large
+    sets may overrun it a little; small sets settle in milliseconds and stop
+    there.
     ``home``: where the pen starts and ends; ``None`` for a free start and end.
     """
     t_start = time.perf_counter()
