@@ -249,7 +249,12 @@ def file_hash(path: Path) -> str:
 
 
 def write_atomic(path: Path, data: bytes) -> None:
-    write_bytes(path, data)
+    """Atomically, or an OutputError that says what to do: a full disk ends in one line, not a traceback."""
+    try:
+        write_bytes(path, data)
+    except OSError as e:
+        raise OutputError(f"{path}: cannot write ({e.strerror or e}); free some space or fix permissions and re-run "
+                          "the same command: finished files are kept") from None
 
 
 @contextmanager
@@ -580,8 +585,8 @@ def run_batch(in_dir: str | os.PathLike, out_dir: str | os.PathLike, options: Ba
                     interrupted = _run_local(todo, stems, options, key, in_dir, out_dir, jobs, progress, finished,
                                              recycle_after)
             finally:
-                manifest.flush()
                 shutil.rmtree(out_dir / STAGING_NAME, ignore_errors=True)
+                manifest.flush()
         manifest.flush()
         files = [records[r] for r in sorted(records)]
         for f in files:

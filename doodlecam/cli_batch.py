@@ -36,8 +36,11 @@ def batch(in_dir, out_dir, recursive, include, exclude, jobs, force, recycle_aft
     Outputs mirror the input tree: IN_DIR/sub/a.png -> OUT_DIR/sub/a.plc, .gcode, .svg.
     Up-to-date files are skipped (OUT_DIR/.doodlecam-manifest.json); an interrupted
     batch resumes on re-run. Writes OUT_DIR/report.json and OUT_DIR/index.html.
-    Exit code: 0 all converted, 1 some file failed (listed), 2 nothing was done
-    (no file to convert, bad option), 130 interrupted (re-run to resume).
+    One batch at a time per OUT_DIR (a lock). Worker processes are replaced every
+    --recycle-after files so memory stays flat; report.json has each one's memory.
+    Exit code: 0 all converted; 1 some files failed (listed); 2 an error that is not
+    one file's (nothing to convert, a bad option, OUT_DIR busy with another batch,
+    the manifest or report cannot be written); 130 interrupted (re-run to resume).
     """
     from .batch import RECYCLE_AFTER, BatchFailed, BatchInterrupted, BatchOptions, run_batch, summary_table
 

@@ -164,3 +164,30 @@ def test_ctrl_c_keeps_finished_files_and_a_rerun_completes_them(tmp_path):
     rep = _report(out)
     assert {f["input"] for f in rep["files"] if f["status"] == "skipped"} == kept
     assert _files(out) == _files(ref)
+
+
+def test_full_disk_ends_in_one_line_and_a_rerun_completes(tmp_path):
+    """A disk that fills up mid-batch, simulated with RLIMIT_FSIZE: writes past the limit
+    fail (EFBIG) the way they would on a full disk (ENOSPC), in the workers and in the
+    batch process alike. Nothing half-written may be taken for done."""
+    resource = pytest.importorskip("resource")
+    src = tmp_path / "in"
+    for i in range(6):
+        _picture(src / f"p{i}.png", i)
+    ref = tmp_path / "ref"
+    assert main(["batch", str(src), str(ref), *FAST]) == 0
+    sizes = sorted(p.stat().st_size for p in ref.iterdir() if p.suffix in (".plc", ".gcode", ".svg"))
+    limit = sizes[len(sizes) // 2]  # about half the outputs fit
+
+    out = tmp_path / "out"
+    cmd = [sys.executable, "-m", "doodlecam", "batch", str(src), str(out), *FAST]
+    full = subprocess.run(cmd, capture_output=True, text=True, timeout=120,
+                          preexec_fn=lambda: resource.setrlimit(resource.RLIMIT_FSIZE, (limit, limit)))
+    assert full.returncode in (1, 2) and "Traceback" not in full.stderr, full.stderr
+    assert full.stderr.strip().splitlines()[-1].startswith("doodlecam: error:")
+    assert "File too large" in full.stdout + full.stderr
+    assert not list(out.rglob("*.tmp")) and not (out / ".doodlecam-tmp").exists()
+
+    again = subprocess.run(cmd, capture_output=True, text=True, timeout=120)
+    assert again.returncode == 0, again.stderr
+    assert _files(out) == _files(ref)
