@@ -509,7 +509,8 @@ def _up_to_date(entry: dict[str, Any] | None, digest: str, key: str, out_dir: Pa
 def run_batch(in_dir: str | os.PathLike, out_dir: str | os.PathLike, options: BatchOptions, *,
               recursive: bool = False, include: Iterable[str] = (), exclude: Iterable[str] = (),
               jobs: int | None = None, force: bool = False, scheduler: str | None = None,
-              recycle_after: int = RECYCLE_AFTER, progress: bool | None = None, on_result: Callable[[dict[str, Any]], None] | None = None) -> BatchResult:
+              recycle_after: int = RECYCLE_AFTER, progress: bool | None = None,
+              on_result: Callable[[dict[str, Any]], None] | None = None) -> BatchResult:
     """Convert a folder. See the module docstring; ``doodlecam batch`` is the CLI.
 
     ``jobs``: worker processes (default ``os.cpu_count()``). ``recycle_after``: files per
@@ -547,8 +548,8 @@ def run_batch(in_dir: str | os.PathLike, out_dir: str | os.PathLike, options: Ba
             try:
                 digests[rel] = file_hash(in_dir / rel)
             except OSError as e:
-                records[rel] = {"input": rel, "status": "failed", "error": _one_line(f"{in_dir / rel}: cannot read ({e.strerror}); check the file"),
-                                "outputs": [], "summary": None}
+                records[rel] = {"input": rel, "status": "failed", "outputs": [], "summary": None,
+                                "error": _one_line(f"{in_dir / rel}: cannot read ({e.strerror}); check the file")}
                 continue
             entry = manifest.files.get(rel)
             if not force and _up_to_date(entry, digests[rel], key, out_dir):
@@ -561,6 +562,8 @@ def run_batch(in_dir: str | os.PathLike, out_dir: str | os.PathLike, options: Ba
             records[rel] = {"input": rel, "status": "unsupported",
                             "error": f"no tracer reads '{Path(rel).suffix.lower() or 'files without extension'}' files",
                             "outputs": [], "summary": None}
+
+        workers = _Workers()
 
         def finished(rec: dict[str, Any]) -> None:
             rel = rec["input"]
@@ -576,7 +579,6 @@ def run_batch(in_dir: str | os.PathLike, out_dir: str | os.PathLike, options: Ba
                 on_result(rec)
 
         interrupted = False
-        workers = _Workers()
         if todo:
             try:
                 if scheduler:
