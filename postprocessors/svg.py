@@ -3,7 +3,9 @@
 One SVG user unit is one machine millimetre. Machine y points up and SVG y
 points down, so every point is written as (x, height - y): the preview looks
 upright without a transform (which would confuse editors' layer coordinates).
-Pen-down strokes and pen-up travels are separate Inkscape layers.
+Pen-down strokes and pen-up travels are separate Inkscape layers. A cubic
+stroke is written exactly, one SVG cubic Bezier per polynomial piece of the
+spline; other degrees as a polyline ``step`` mm apart.
 """
 
 from __future__ import annotations
@@ -41,6 +43,19 @@ class SvgPost(PostProcessor):
         n = max(int(np.ceil(spline.length / step)), 8 * (len(spline.breakpoints) - 1), 2)
         return spline(np.linspace(0.0, 1.0, n + 1))
 
+    def _stroke_d(self, spline, step: float, flip) -> str:
+        if spline.degree != 3:
+            return _path_d(self._stroke_points(spline, step) * flip[0] + flip[1])
+        # a cubic piece on [u0, u1] is the Bezier with end points q and inner points
+        # q(u0) + q'(u0) h / 3, q(u1) - q'(u1) h / 3: exact, and far fewer numbers than a polyline
+        bp = spline.breakpoints
+        q, d1 = spline(bp), spline(bp, 1)
+        h = np.diff(bp)[:, None]
+        ctrl = np.stack([q[:-1] + d1[:-1] * h / 3, q[1:] - d1[1:] * h / 3, q[1:]], axis=1).reshape(-1, 2)
+        head = np.round(q[0] * flip[0] + flip[1], 3)
+        xy = " ".join(f"{x:.3f} {y:.3f}" for x, y in np.round(ctrl * flip[0] + flip[1], 3).tolist())
+        return f"M{head[0]:.3f} {head[1]:.3f}C{xy}"
+
     def write(self, job, options: dict[str, Any]) -> bytes:
         step = float(options["step"])
         if not step > 0 or options["pen_width"] < 0:
@@ -51,7 +66,7 @@ class SvgPost(PostProcessor):
         width = options["pen_width"] or m.pen.width
         thin = max(0.2, width / 3)
 
-        strokes = [_path_d(self._stroke_points(s.spline, step) * flip[0] + flip[1]) for s in job.strokes]
+        strokes = [self._stroke_d(s.spline, step, flip) for s in job.strokes]
         travels = [_path_d(np.array([t.start, t.end]) * flip[0] + flip[1]) for t in job.travels] if options["show_travels"] else []
 
         vb = f"{-PAD:g} {-PAD:g} {W + 2 * PAD:g} {H + 2 * PAD:g}"

@@ -372,10 +372,19 @@ def test_svg_preview(job):
     assert len(down.findall(f"{SVGNS}path")) == len(job.strokes)
     assert len(up.findall(f"{SVGNS}path")) == len(job.travels)
     for path, st in zip(down.findall(f"{SVGNS}path"), job.strokes):
-        p = _points(path.get("d"))
-        assert len(p) > 100  # sampled densely, not the control polygon
-        on_machine = np.column_stack([p[:, 0], 300.0 - p[:, 1]])  # undo the y flip
-        assert cKDTree(st.spline(np.linspace(0, 1, 200_001))).query(on_machine)[0].max() < 3e-3
+        d = path.get("d")
+        assert d.startswith("M") and d.count("C") == 1  # one cubic Bezier per piece of the spline
+        p = _points(d)
+        assert len(p) == 1 + 3 * (len(st.spline.breakpoints) - 1)
+        # Bezier i at t is the spline at u = bp_i + t (bp_i+1 - bp_i): the same curve,
+        # traced at the same pace (exact up to the 3-decimal rounding)
+        t = np.linspace(0.0, 1.0, 33)[:, None, None]
+        b0, b1, b2, b3 = p[:-1:3][None], p[1::3][None], p[2::3][None], p[3::3][None]
+        curve = (1 - t) ** 3 * b0 + 3 * (1 - t) ** 2 * t * b1 + 3 * (1 - t) * t ** 2 * b2 + t ** 3 * b3
+        bp = st.spline.breakpoints
+        u = bp[None, :-1] + t[:, :, 0] * np.diff(bp)[None, :]
+        on_machine = np.stack([curve[..., 0], 300.0 - curve[..., 1]], axis=-1)  # undo the y flip
+        assert np.abs(on_machine - st.spline(u.ravel()).reshape(on_machine.shape)).max() < 3e-3
         assert (p[:, 0] >= vx).all() and (p[:, 1] >= vy).all() and (p[:, 0] <= vx + vw).all() and (p[:, 1] <= vy + vh).all()
     # Upright: the hook at machine y ~ 200..250 is near the top of the picture.
     assert _points(down.findall(f"{SVGNS}path")[1].get("d"))[:, 1].max() < 110
