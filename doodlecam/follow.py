@@ -21,7 +21,7 @@ import numpy as np
 from .model import Spline, StrokeSamples
 
 SUB = 16  # points per period where the executed parabola is checked (8 read ~3 % low)
-CANDIDATES = 16  # parameters tried per point before the Newton steps
+CANDIDATES = 8  # parameters tried per point before the Newton steps
 
 
 def executed_points(samples: StrokeSamples, sub: int = SUB) -> np.ndarray:
