@@ -30,10 +30,10 @@ def main() -> None:
 
     images = args.images or sorted((ROOT / "samples" / "images").glob("*.png"))
     settings = Settings(machine=load_machine(args.machine))
-    stages = ["trace", "fit", "plan", "sample", "post"]
+    stages = ["trace", "order", "fit", "plan", "sample", "post"]
     print("| picture | strokes | ctrl pts | pen-down mm | travel mm | job s | optimal draw s | "
-          + " | ".join(f"{s} s" for s in stages) + " | total s | worst acc ratio |")
-    print("|" + "---|" * (10 + len(stages)))
+          + " | ".join(f"{s} s" for s in stages) + " | total s | worst acc ratio | between samples mm |")
+    print("|" + "---|" * (11 + len(stages)))
     with tempfile.TemporaryDirectory() as out:
         for img in images:
             best = None
@@ -48,7 +48,7 @@ def main() -> None:
             print(f"| {img.name} | {s['strokes']} | {s['control_points']} | {s['pen_down_mm']:.0f} | {s['travel_mm']:.0f} | "
                   f"{s['job_time_s']:.1f} | {s['optimal_draw_time_s']:.1f} | "
                   + " | ".join(f"{s['timings_s'].get(k, 0):.2f}" for k in stages)
-                  + f" | {total:.2f} | {s['worst_acceleration_ratio']:.9f} |")
+                  + f" | {total:.2f} | {s['worst_acceleration_ratio']:.9f} | {s['max_between_samples_mm']:.3f} |")
 
 
 if __name__ == "__main__":
