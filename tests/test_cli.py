@@ -82,7 +82,8 @@ def test_plc_samples_reproduce_every_fitted_stroke(tmp_path):
         end_steps = pos[-1] * [kx, ky]
         assert np.allclose(end_steps, np.round(stroke.spline.end * [kx, ky]), atol=1e-6)  # 0 steps off at the end
         # between instants: what the file makes the PLC draw, against the spline
-        from_file = StrokeSamples(start=st["start"], velocity=np.array(st["v"]), delta_time=header.delta_time)
+        from_file = StrokeSamples(start=st["start"], velocity=np.array(st["v"]), delta_time=header.delta_time,
+                                  sample_u=smp.sample_u)  # the file's targets, aimed where the sampler aimed
         between = max(between, float(path_deviation(stroke.spline, from_file).max()))
     assert worst <= DRIFT_TOLERANCE_MM
     # the summary's figure is what the PLC file draws (whole steps/s change it by a hair)
