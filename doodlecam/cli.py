@@ -153,8 +153,13 @@ def convert(input, outdir, as_json, **options):
     click.echo(f"  planned job time   {s['job_time_s']:.1f} s  (drawing {s['draw_time_s']:.1f} s, {s['samples']} velocity samples)")
     click.echo(f"  limits             acceleration <= {s['worst_acceleration_ratio']:.6f}, velocity <= "
                f"{s['worst_velocity_ratio']:.6f} of the limit (checked on a 20x finer grid)")
+    enforced = s["path_tolerance_mm"] > 0
     click.echo(f"  pen on the curve   within half a step at every sample instant; up to "
-               f"{s['max_between_samples_mm']:.3f} mm off between instants (the PLC's linear ramps)")
+               f"{s['max_between_samples_mm']:.3f} mm off between instants"
+               + (f" (kept within {s['path_tolerance_mm']:g} mm)" if enforced else ""))
+    if not enforced and s["max_between_samples_mm"] > s["max_fit_error_mm"]:
+        click.echo("                     (the PLC's linear ramps; set [sampling] path_tolerance in the machine profile "
+                   "to keep within it, docs/sampling.md)")
     click.echo("  wrote              " + ", ".join(s["outputs"]))
 
 

@@ -130,3 +130,40 @@ def sampled_rows(spline: Spline, u: np.ndarray, kinematics, vmax, amax, pen_spee
             parts.append((s2, s2 * tau, np.full((len(h), 1), float(pen_speed) ** 2)))
     tot, beta, gamma = (np.concatenate([p[i] for p in parts], axis=1) for i in range(3))
     return Rows(tot, beta, gamma, np.full(len(u), np.inf))
+
+
+def jerk_rows(spline: Spline, u: np.ndarray, b_hat: np.ndarray, jerk_max: float, taus=(0.0, 0.5, 1.0)) -> Rows:
+    """Rows bounding the pen's jerk across the path, |3 v kappa a_t + v^3 dkappa/ds| <= jerk_max
+    (mm/s^3), at ``taus`` inside every interval.
+
+    With v = |q'| sqrt(b) and a_t = |q'| a + (q'.q''/|q'|) b it is sqrt(b) (c1 a + c2 b),
+    c1 = 3 kappa |q'|^2, c2 = 3 kappa q'.q'' + |q'|^3 dkappa/ds. sqrt(b) is taken from
+    ``b_hat`` (nodes), a profile the new one stays below, so the linear rows
+    |c1 a + c2 b| <= jerk_max / sqrt(b_hat) are conservative. This jerk is what the
+    PLC's constant-acceleration periods cannot follow (docs/sampling.md).
+    """
+    h = np.diff(u)
+    parts = []
+    for tau in taus:
+        uu = u[:-1] + tau * h
+        d1, d2, d3 = spline(uu, 1), spline(uu, 2), spline(uu, 3)
+        sp = np.maximum(np.linalg.norm(d1, axis=1), 1e-12)
+        c12 = d1[:, 0] * d2[:, 1] - d1[:, 1] * d2[:, 0]
+        c13 = d1[:, 0] * d3[:, 1] - d1[:, 1] * d3[:, 0]
+        dot12 = (d1 * d2).sum(axis=1)
+        kappa = c12 / sp ** 3
+        kappa_s = (c13 * sp ** 2 - 3 * c12 * dot12) / sp ** 6  # d kappa / d arc length
+        c1 = 3 * kappa * sp ** 2
+        c2 = 3 * kappa * dot12 + sp ** 3 * kappa_s
+        bh = b_hat[:-1] * (1 - tau) + b_hat[1:] * tau
+        g = jerk_max / np.sqrt(np.maximum(bh, 1e-300))
+        tot, beta = c2[:, None], (c2 * tau + c1 / (2 * h))[:, None]
+        parts.append((np.concatenate([tot, -tot], 1), np.concatenate([beta, -beta], 1), np.column_stack([g, g])))
+    tot, beta, gamma = (np.concatenate([p[i] for p in parts], axis=1) for i in range(3))
+    return Rows(tot, beta, gamma, np.full(len(u), np.inf))
+
+
+def stack(a: Rows, b: Rows) -> Rows:
+    """Both sets of rows on the same grid."""
+    return Rows(np.concatenate([a.tot, b.tot], 1), np.concatenate([a.beta, b.beta], 1),
+                np.concatenate([a.gamma, b.gamma], 1), np.minimum(a.ub, b.ub))

@@ -49,6 +49,7 @@ class Machine:
     travel_speed: float | None = None  # mm/s per axis for pen-up moves
     travel_law: str = "trapezoid"  # pen-up move profile, see doodlecam.travel
     delta_time: float = 0.04  # s, velocity sample period
+    path_tolerance: float = 0.0  # mm the pen may stray between samples (0: not enforced; docs/sampling.md)
     degree: int = 3
     tolerance: float = 0.1  # mm, spline fit tolerance
     kinematics: str = "cartesian"
@@ -88,14 +89,14 @@ _SCHEMA: dict[str, dict[str, tuple[type, bool]]] = {
     "axes.y": {"steps_per_mm": (float, True), "max_velocity": (float, True), "max_acceleration": (float, True)},
     "pen": {"width": (float, False), "up_delay": (float, False), "down_delay": (float, False), "max_speed": (float, False)},
     "travel": {"speed": (float, False), "law": (str, False)},
-    "sampling": {"delta_time": (float, False)},
+    "sampling": {"delta_time": (float, False), "path_tolerance": (float, False)},
     "fit": {"degree": (int, False), "tolerance": (float, False)},
     # layout and order: see doodlecam/layout.py and docs/tracing.md (values are checked there)
     "layout": {k: (object, False) for k in ("margin", "rotate", "width", "height", "scale", "fit", "min_length")},
     "order": {k: (object, False) for k in ("reverse", "merge", "budget")},
 }
 _FREE_TABLES = ("kinematics", "trace", "post", "transport")  # plugin-defined contents
-_NON_NEGATIVE = {"work_area.margin", "pen.up_delay", "pen.down_delay"}
+_NON_NEGATIVE = {"work_area.margin", "pen.up_delay", "pen.down_delay", "sampling.path_tolerance"}
 
 
 def _machine_dirs() -> list[Path]:
@@ -253,6 +254,7 @@ def parse_machine(data: dict[str, Any], path: str = "<profile>") -> Machine:
         travel_speed=vals["travel"].get("speed"),
         travel_law=_travel_law(path, vals["travel"].get("law")),
         delta_time=vals["sampling"].get("delta_time", 0.04),
+        path_tolerance=vals["sampling"].get("path_tolerance", 0.0),
         degree=degree,
         tolerance=fit.get("tolerance", 0.1),
         source=path,

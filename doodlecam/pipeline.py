@@ -89,7 +89,7 @@ def plan_job(drawing: Drawing, machine: Machine, solver: str = "reach", plugin_d
     ``order`` overrides the profile's [order] options (doodlecam.layout.ORDER_DEFAULTS).
     """
     from .fit import fit_pieces
-    from .follow import path_deviation
+    from .follow import jerk_limit, path_deviation
     from .layout import order_options
     from .order import order_strokes
     from .plan import Limits, check_profile, check_solver, plan_stroke
@@ -116,26 +116,43 @@ def plan_job(drawing: Drawing, machine: Machine, solver: str = "reach", plugin_d
             strokes.append(Stroke(spline=spline, source_index=i, fit_error=err))
     timings["fit"] = time.perf_counter() - t0
 
-    t0 = time.perf_counter()
-    worst_acc = worst_vel = 0.0
-    planned = []
-    for n, s in enumerate(strokes, 1):
+    # Between sample instants the PLC's ramps stray from the curve where its turning
+    # changes fast (docs/sampling.md): with a path tolerance the planner bounds the
+    # pen's jerk across the path and the sampler pulls the pen onto the curve there too.
+    path_tol = machine.path_tolerance
+    jerk = jerk_limit(path_tol, machine.delta_time) if path_tol > 0 else None
+    steps = (machine.x.steps_per_mm, machine.y.steps_per_mm)
+
+    def plan_one(n: int, s: Stroke, jerk_max):
         try:
-            prof = plan_stroke(s.spline, limits, solver=solver, smoothing=smoothing)
+            prof = plan_stroke(s.spline, limits, solver=solver, smoothing=smoothing, jerk_max=jerk_max)
         except PlanError as e:
             raise PlanError(f"stroke {n} of {len(strokes)}: {e}") from None
-        acc, vel = check_profile(s.spline, prof, limits)
-        worst_acc, worst_vel = max(worst_acc, acc), max(worst_vel, vel)
-        planned.append(replace(s, profile=prof))
+        return replace(s, profile=prof), check_profile(s.spline, prof, limits)
+
+    def sample_one(s: Stroke):
+        smp = sample_stroke(s, machine.delta_time, limits, steps, between=jerk is not None)
+        return smp, float(path_deviation(s.spline, smp).max(initial=0.0))
+
+    t0 = time.perf_counter()
+    planned, ratios = map(list, zip(*(plan_one(n, s, jerk) for n, s in enumerate(strokes, 1)))) if strokes else ([], [])
     timings["plan"] = time.perf_counter() - t0
 
     t0 = time.perf_counter()
-    steps = (machine.x.steps_per_mm, machine.y.steps_per_mm)
-    samples = tuple(sample_stroke(s, machine.delta_time, limits, steps) for s in planned)
-    # how far the ramps stray from the curve between instants (at them: < half a step)
-    between = max((float(path_deviation(s.spline, smp).max()) for s, smp in zip(planned, samples) if len(smp.velocity)),
-                  default=0.0)
+    samples, devs = map(list, zip(*(sample_one(s) for s in planned))) if planned else ([], [])
+    replanned = 0
+    for i in range(len(planned)):
+        for halving in range(1, 3 if jerk is not None else 1):  # a stroke still off: halve its jerk bound
+            if devs[i] <= path_tol:
+                break
+            planned[i], ratios[i] = plan_one(i + 1, strokes[i], jerk / 2 ** halving)
+            samples[i], devs[i] = sample_one(planned[i])
+            replanned += 1
+    samples = tuple(samples)
     timings["sample"] = time.perf_counter() - t0
+    worst_acc = max((r[0] for r in ratios), default=0.0)
+    worst_vel = max((r[1] for r in ratios), default=0.0)
+    between = max(devs, default=0.0)
 
     points = [np.asarray(machine.home, float)]
     for s in planned:
@@ -150,6 +167,8 @@ def plan_job(drawing: Drawing, machine: Machine, solver: str = "reach", plugin_d
         "worst_velocity_ratio": worst_vel,
         "max_fit_error_mm": max((s.fit_error for s in planned), default=0.0),
         "max_between_samples_mm": between,
+        "path_tolerance_mm": path_tol,
+        "strokes_replanned": replanned,
         "control_points": sum(len(s.spline.control) for s in planned),
         "timings": timings,
     }
@@ -207,6 +226,7 @@ class Result:
             "control_points": j.meta["control_points"],
             "max_fit_error_mm": round(j.meta["max_fit_error_mm"], 4),
             "max_between_samples_mm": round(j.meta.get("max_between_samples_mm", 0.0), 4),
+            "path_tolerance_mm": j.meta.get("path_tolerance_mm", 0.0),
             "worst_acceleration_ratio": round(j.meta["worst_acceleration_ratio"], 9),
             "worst_velocity_ratio": round(j.meta["worst_velocity_ratio"], 9),
             "travel_law": j.meta.get("travel_law", ""),

@@ -160,8 +160,13 @@ def check_solver(solver: str) -> None:
 def plan_stroke(spline: Spline, limits: Limits, solver: str = "reach", spacing: float = 0.5,
                 n_points: int | None = None, adaptive: bool = True, smoothing: float = 0.0,
                 v_start: float = 0.0, v_end: float = 0.0, mode: str = "bernstein",
-                max_rounds: int = 6) -> Profile:
-    """Time-optimal profile along ``spline``; v_start / v_end are pen speeds (mm/s)."""
+                max_rounds: int = 6, jerk_max: float | None = None) -> Profile:
+    """Time-optimal profile along ``spline``; v_start / v_end are pen speeds (mm/s).
+
+    ``jerk_max`` (mm/s^3): also bound the pen's jerk across the path
+    (constraints.jerk_rows), which slows it where the curve's turning changes
+    fast; two more solves on the final grid, each below the last.
+    """
     check_solver(solver)
     u = make_grid(spline, spacing, n_points=n_points)
     speed_ends = np.linalg.norm(spline(np.array([0.0, 1.0]), 1), axis=1)
@@ -189,6 +194,13 @@ def plan_stroke(spline: Spline, limits: Limits, solver: str = "reach", spacing: 
         if not split.any() or len(u) + split.sum() > 200_000 or round_ == max_rounds - 1:
             break  # (u and b stay in step: split only when another solve follows)
         u = _split(u, split)
+    if jerk_max:
+        base_rows = rows
+        for _ in range(2):
+            # b <= the last b keeps sqrt(b) below the sqrt(b_hat) the rows were made with
+            jr = constraints.jerk_rows(spline, u, b, jerk_max)
+            rows = constraints.stack(base_rows, constraints.Rows(jr.tot, jr.beta, jr.gamma, b * (1 + 1e-12)))
+            b = _solve(rows, u, base, b0, bN)
     if solver.startswith("qp"):
         backend = solver.partition(":")[2] or "clarabel"
         b = convex.solve_smooth(rows, u, smoothing if smoothing > 0 else 1.0, b, b0, bN, backend)

@@ -21,6 +21,12 @@ little ahead or behind the plan, never off the path):
 
 If the limits leave no such targets in ceil(T / dT) periods, periods are
 added (the stroke runs slightly slower than planned) until they do.
+
+``between=True`` also penalises the pen's offset from the curve (normal to it)
+at 1/3 and 2/3 of every period, with the shifts kept within a trust region so
+the linearisation holds. That damps the one motion the instants cannot see:
+targets alternating +-e keep every x_j in place but swing the pen e dT / 4 off
+the curve between them (docs/sampling.md).
 """
 
 from __future__ import annotations
@@ -37,6 +43,12 @@ VELOCITY_WEIGHT = 1e-3
 # Largest distance per axis (in machine steps) from a sample instant's position to the curve;
 # half a step is the target, 0.4 leaves room for whole-steps/s rounding in the post.
 TRACKING_STEPS = 0.4
+# between=True: the pen's offset from the curve (normal to it) at these fractions
+# of every period is penalised with this weight (per mm^2, against 1 per mm^2 of
+# shift at the instants); shifts per solve stay within ~TRUST_MM of arc.
+BETWEEN_WEIGHT = 10.0
+BETWEEN_FRACTIONS = (1 / 3, 2 / 3)
+TRUST_MM = 0.2
 
 
 class _Coo:
@@ -146,9 +158,15 @@ def _pattern(m: int, dt: float, M: tuple | None):
     return csc, n_eq, tagged, signs, inst, axes
 
 
-def _qp(p, tang, v_plan, end, dt, tol, limits, L):
+def _qp(p, tang, v_plan, end, dt, tol, limits, L, between=None, trust=None):
     """One linearised QP. p: (m, 3) curve points relative to the start and
-    their u, tang: (m, 2) tangents per mm of shift, end: (2,). Returns (v, x, d) or None."""
+    their u, tang: (m, 2) tangents per mm of shift, end: (2,). Returns (v, x, d) or None.
+
+    ``between`` = (ref, nrm), each (m, F, 2): curve points (relative to the start)
+    and unit normals at BETWEEN_FRACTIONS of every period; the pen's offsets from
+    them along the normals become unknowns e, penalised with BETWEEN_WEIGHT.
+    ``trust``: (m,) bounds on |d|, so the linearisation holds.
+    """
     import scipy.sparse as sp
 
     m = len(p)
@@ -172,20 +190,72 @@ def _qp(p, tang, v_plan, end, dt, tol, limits, L):
         for _sign in (1.0, -1.0):
             for i in range(len(limits.amax)):
                 rhs += [np.full(m, limits.amax[i] * dt * (1 - 1e-6)), np.full(n, limits.vmax[i] * (1 - 1e-6))]
-    z = _clarabel(P, q, A, np.concatenate(rhs), n_eq)
+    rhs = np.concatenate(rhs)
+    if between is not None:
+        A, rhs, n_eq, P, q = _with_between(A, rhs, n_eq, P, q, m, dt, between, trust)
+    z = _clarabel(P, q, A, rhs, n_eq)
     if z is None:
         return None
     v = np.column_stack([z[:n], z[n:nv]])
     x = np.column_stack([z[nv : nv + m], z[nv + m : nv + 2 * m]])
-    return v, x, z[nv + nx :]
+    return v, x, z[nv + nx : nv + nx + m]
+
+
+def _with_between(A, rhs, n_eq, P, q, m, dt, between, trust):
+    """The QP of ``_qp`` plus the between-instant offsets: equality rows
+    e = n . (x_j + dT (al v_j + be v_j+1) - ref) (x_0 = v_0 = v_m = 0) after the
+    other equalities, and |d| <= trust after the inequalities."""
+    import scipy.sparse as sp
+
+    ref, nrm = between
+    n, F = m - 1, ref.shape[1]
+    nv, nx = 2 * n, 2 * m
+    N = A.shape[1]
+    V = lambda a, j: a * n + j  # noqa: E731  (columns as in _pattern)
+    X = lambda a, j: nv + a * m + j  # noqa: E731
+    j, jn = np.arange(m), np.arange(n)
+    extra = _Coo(N + m * F)
+    for f, frac in enumerate(BETWEEN_FRACTIONS):
+        al, be = frac - frac * frac / 2, frac * frac / 2  # the ramp's position at frac of a period
+        extra.add(j, N + j * F + f, 1.0)
+        for a in range(2):
+            extra.add(j[1:], X(a, j[1:] - 1), -nrm[1:, f, a])
+            extra.add(j[1:], V(a, j[1:] - 1), -dt * al * nrm[1:, f, a])
+            extra.add(jn, V(a, jn), -dt * be * nrm[:-1, f, a])
+        extra.close(m)
+    e_rhs = np.concatenate([-(nrm[:, f] * ref[:, f]).sum(axis=1) for f in range(F)])
+    box = _Coo(N + m * F)
+    for sign in (1.0, -1.0):
+        box.add(j, nv + nx + j, sign)
+        box.close(m)
+    zeros = sp.csc_matrix((A.shape[0], m * F))
+    Ab = sp.hstack([A, zeros], format="csr")
+    full = sp.vstack([Ab[:n_eq], extra.csc(), Ab[n_eq:], box.csc()], format="csc")
+    rhs = np.concatenate([rhs[:n_eq], e_rhs, rhs[n_eq:], trust, trust])
+    P = np.concatenate([P, np.full(m * F, BETWEEN_WEIGHT)])
+    q = np.concatenate([q, np.zeros(m * F)])
+    return full, rhs, n_eq + m * F, P, q
+
+
+def _between_refs(spline, u, start):
+    """Curve points (relative to ``start``) and unit normals at BETWEEN_FRACTIONS
+    of every period, by parameter between the instants' u (u_0 = 0): (m, F, 2) each."""
+    m = len(u)
+    u0 = np.concatenate([[0.0], u[:-1]])
+    uf = (u0[:, None] + np.asarray(BETWEEN_FRACTIONS)[None, :] * (u - u0)[:, None]).ravel()
+    d1 = spline(uf, 1)
+    nrm = np.column_stack([-d1[:, 1], d1[:, 0]]) / np.maximum(np.linalg.norm(d1, axis=1), 1e-300)[:, None]
+    return (spline(uf) - start).reshape(m, -1, 2), nrm.reshape(m, -1, 2)
 
 
 def sample_stroke(stroke: Stroke, dt: float, limits, steps_per_mm=(80.0, 80.0), tracking_steps: float = TRACKING_STEPS,
-                  max_extra: float = 1.0) -> StrokeSamples:
+                  max_extra: float = 1.0, between: bool = False) -> StrokeSamples:
     """Velocity targets (mm/s) for one planned stroke at t = dT, 2 dT, ...
 
     The stroke starts and ends on whole machine steps (``steps_per_mm``), so a
     post that writes whole steps lands exactly on every stroke's end.
+    ``between``: also pull the pen onto the curve between the instants (see the
+    module doc; several times slower).
     """
     prof, spline = stroke.profile, stroke.spline
     k = np.asarray(steps_per_mm, float)
@@ -203,11 +273,16 @@ def sample_stroke(stroke: Stroke, dt: float, limits, steps_per_mm=(80.0, 80.0), 
         v_plan = spline(u, 1) * (c * ud)[:, None]
         v_plan[-1] = 0.0
         ok = False
-        for _ in range(3):  # linearise, solve, re-linearise at the shifted points
+        for _ in range(5 if between else 3):  # linearise, solve, re-linearise at the shifted points
             p = spline(u) - start
-            tang = spline(u, 1) / L  # d is in mm of arc (roughly): q(u + d/L) ~ q + q' d / L
+            d1 = spline(u, 1)
+            tang = d1 / L  # d is in mm of arc (roughly): q(u + d/L) ~ q + q' d / L
+            mid = trust = None
+            if between:
+                mid = _between_refs(spline, u, start)
+                trust = TRUST_MM * L / np.maximum(np.linalg.norm(d1, axis=1), 1e-12)  # ~TRUST_MM of arc
             # the box is 3/4 of the tolerance: the rest absorbs the linearisation error
-            res = _qp(np.column_stack([p, u]), tang, v_plan, end, dt, 0.75 * tol, limits, L)
+            res = _qp(np.column_stack([p, u]), tang, v_plan, end, dt, 0.75 * tol, limits, L, mid, trust)
             if res is None:
                 break
             v, x, d = res

@@ -48,3 +48,21 @@ def assert_one_line(err, path):
     """A user error: one line that names the file."""
     msg = str(err.value)
     assert "\n" not in msg and path.name in msg
+
+
+def plc_strokes(path):
+    """(header, strokes) of a PLC packet file, walked like the PLC does it: a MOVE
+    starts a stroke at its position (mm), the DRAWs after it are its velocity
+    targets (mm/s). Strokes without DRAWs (the final move home) are left out."""
+    from doodlecam.plcfile import read_plc
+
+    header, cmds = read_plc(path.read_bytes())
+    kx, ky = header.steps_per_mm_x, header.steps_per_mm_y
+    strokes, cur = [], None
+    for c in cmds:
+        if c.type == 1:
+            cur = {"start": np.array([c.x / kx, c.y / ky]), "v": []}
+            strokes.append(cur)
+        else:
+            cur["v"].append((c.x / kx, c.y / ky))
+    return header, [s for s in strokes if s["v"]]

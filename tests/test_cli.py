@@ -16,6 +16,8 @@ from doodlecam.follow import path_deviation
 from doodlecam.model import StrokeSamples
 from doodlecam.sample import reference_positions
 
+from conftest import plc_strokes
+
 ROOT = Path(__file__).resolve().parent.parent
 CAMERA = ROOT / "samples" / "images" / "camera.png"
 # Integrating the PLC file's whole-steps/s velocity samples must stay within
@@ -60,17 +62,8 @@ def test_convert_writes_all_outputs_and_summary_matches_files(camera_job):
 def test_plc_samples_reproduce_every_fitted_stroke(tmp_path):
     machine = load_machine("doodlebot")
     res = convert(CAMERA, tmp_path, Settings(machine=machine, posts=("plc",)))
-    header, cmds = read_plc((tmp_path / "camera.plc").read_bytes())
+    header, strokes = plc_strokes(tmp_path / "camera.plc")
     kx, ky = header.steps_per_mm_x, header.steps_per_mm_y
-    # walk the command list like the PLC: MOVE sets the position, DRAW ramps the velocity
-    strokes, cur = [], None
-    for c in cmds:
-        if c.type == 1:
-            cur = {"start": np.array([c.x / kx, c.y / ky]), "v": []}
-            strokes.append(cur)
-        else:
-            cur["v"].append((c.x / kx, c.y / ky))
-    strokes = [s for s in strokes if s["v"]]
     assert len(strokes) == len(res.job.strokes)
     worst = between = 0.0
     for st, stroke, smp in zip(strokes, res.job.strokes, res.job.samples):

@@ -1,15 +1,17 @@
 """The executed path between sample instants (doodlecam.follow)."""
 
+from pathlib import Path
+
 import numpy as np
 from scipy.spatial import cKDTree
 
 from doodlecam.fit import fit_pieces
 from doodlecam.follow import executed_points, path_deviation
 from doodlecam.model import Spline, StrokeSamples, Stroke
-from doodlecam.plan import plan_stroke
+from doodlecam.plan import check_profile, plan_stroke
 from doodlecam.sample import sample_stroke
 
-from conftest import report_curve
+from conftest import plc_strokes, report_curve
 
 
 def brute_force(spline, samples, sub=64):
@@ -52,3 +54,45 @@ def test_matches_brute_force_on_planned_strokes(limits):
         got, ref = path_deviation(spline, smp).max(), brute_force(spline, smp)
         assert ref > 0.005  # the ramps do leave the curve between instants
         assert abs(got - ref) <= 0.02 * ref
+
+
+def test_jerk_bound_holds_and_only_slows_the_pen(limits):
+    spline = report_curve()
+    free = plan_stroke(spline, limits)
+    jmax = 2_000.0
+    prof = plan_stroke(spline, limits, jerk_max=jmax)
+    acc, vel = check_profile(spline, prof, limits)
+    assert acc <= 1 + 1e-9 and vel <= 1 + 1e-9
+    assert prof.duration > free.duration * 1.01  # it binds on this curve
+    # the pen's jerk vector within an interval is sqrt(b) (q''' b + 3 q'' a) (b linear,
+    # a constant): its component across the path stays within the bound at the rows' points
+    u, b, a = prof.u, prof.b, prof.a
+    worst = 0.0
+    for tau in (0.0, 0.5, 1.0):
+        uu = u[:-1] + tau * np.diff(u)
+        bb = b[:-1] * (1 - tau) + b[1:] * tau
+        d1, d2, d3 = spline(uu, 1), spline(uu, 2), spline(uu, 3)
+        normal = np.column_stack([-d1[:, 1], d1[:, 0]]) / np.linalg.norm(d1, axis=1)[:, None]
+        jerk = np.sqrt(bb)[:, None] * (d3 * bb[:, None] + 3 * d2 * a[:, None])
+        worst = max(worst, np.abs((jerk * normal).sum(axis=1)).max())
+    assert 0.5 * jmax < worst <= jmax * (1 + 1e-6)
+
+
+def test_path_tolerance_keeps_the_plc_on_the_curve_between_samples(tmp_path):
+    from dataclasses import replace
+
+    from doodlecam.machine import load_machine
+    from doodlecam.pipeline import Settings, convert
+
+    horse = Path(__file__).resolve().parent.parent / "samples" / "images" / "horse.png"
+    machine = replace(load_machine("doodlebot"), path_tolerance=0.1)
+    res = convert(horse, tmp_path, Settings(machine=machine, posts=("plc",)))
+    header, runs = plc_strokes(tmp_path / "horse.plc")
+    assert len(runs) == len(res.job.strokes)
+    for run, stroke, smp in zip(runs, res.job.strokes, res.job.samples):
+        executed = StrokeSamples(start=run["start"], velocity=np.array(run["v"]), delta_time=header.delta_time,
+                                 sample_u=smp.sample_u)
+        assert path_deviation(stroke.spline, executed).max() <= 0.1 + 1e-3  # whole steps/s: a hair
+    assert res.job.meta["max_between_samples_mm"] <= 0.1
+    default = convert(horse, tmp_path / "d", Settings(machine=load_machine("doodlebot"), posts=("plc",)))
+    assert default.job.meta["max_between_samples_mm"] > 0.1  # without it the ramps do stray

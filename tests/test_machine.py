@@ -60,3 +60,9 @@ def test_unknown_machine_name(tmp_path):
     bad.write_text("[machine\nname=1")
     with pytest.raises(MachineError, match="not valid TOML"):
         load_machine(bad)
+
+
+def test_path_tolerance_is_optional_and_not_negative():
+    assert load_machine("doodlebot").path_tolerance == 0.0  # not enforced unless asked for
+    assert "path_tolerance" in broken(lambda d: d["sampling"].__setitem__("path_tolerance", -0.1))
+    assert "path_tolerance" in broken(lambda d: d["sampling"].__setitem__("path_tolerance", "tight"))
