@@ -79,18 +79,32 @@ def _axis_limit(values: np.ndarray, unit: np.ndarray) -> np.ndarray:
     return r.min(axis=1)
 
 
-def _segment_time(points: np.ndarray, feeds: np.ndarray, s: GrblSettings) -> np.ndarray:
-    """Times (s) of the blocks points[k] -> points[k+1] (one run between synchronisations).
+def _segment_time(points: np.ndarray, feeds: np.ndarray, s: GrblSettings, rest: np.ndarray | None = None) -> np.ndarray:
+    """Times (s) of the blocks points[k] -> points[k+1].
 
     ``feeds[k]`` is the block's requested speed (mm/s; inf for rapids).
+    ``rest[k]``: block k starts from rest (a synchronisation before it); by
+    default only the first. Runs between synchronisations are independent, so
+    many are timed in one call: a rest start is an entry speed of 0, which both
+    passes carry exactly (one call per run cost more than the model itself).
+    Zero-length blocks (GRBL drops them) get time 0.
     """
     d = np.diff(points, axis=0)
     L = np.linalg.norm(d, axis=1)
+    if rest is None:
+        rest = np.zeros(len(L), bool)
+        rest[:1] = True
     keep = L > 0  # GRBL drops zero-length blocks
-    d, L, feeds = d[keep], L[keep], feeds[keep]
+    # a dropped block's rest start passes to the next kept block
+    run = np.cumsum(rest)
+    first_kept = np.zeros(len(L), bool)
+    kept_runs = run[keep]
+    first_kept[np.flatnonzero(keep)[np.r_[True, kept_runs[1:] != kept_runs[:-1]]] if keep.any() else []] = True
+    out = np.zeros(len(L))
+    d, L, feeds, starts = d[keep], L[keep], feeds[keep], first_kept[keep]
     n = len(L)
     if n == 0:
-        return np.zeros(0)
+        return out
     u = d / L[:, None]
     rate, acc = np.asarray(s.max_rate, float), np.asarray(s.acceleration, float)
     a = _axis_limit(acc, u)
@@ -109,6 +123,7 @@ def _segment_time(points: np.ndarray, feeds: np.ndarray, s: GrblSettings) -> np.
     me = np.empty(n)  # max entry speed²
     me[0] = 0.0
     me[1:] = np.minimum(vj2, np.minimum(n2[1:], n2[:-1]))
+    me[starts] = 0.0
 
     # Backward pass over every window at once: block i's exit may be at most the
     # entry of block i+1 from which blocks up to i+W-1 can still stop.
@@ -123,11 +138,13 @@ def _segment_time(points: np.ndarray, feeds: np.ndarray, s: GrblSettings) -> np.
         cur = np.minimum(me_p[j], cur + two_aL[j])
     limit = cur  # exit² bound of block i (= entry² bound of block i+1)
 
-    # Forward pass: exit_i² = min(limit_i, exit_{i-1}² + 2 a_i L_i), from rest. A min-plus scan.
+    # Forward pass: exit_i² = min(limit_i, exit_{i-1}² + 2 a_i L_i), from rest. A min-plus scan;
+    # a rest start has limit 0 on the block before it, so the scan restarts there.
     C = np.cumsum(2.0 * a * L)
     exit2 = C + np.minimum(0.0, np.minimum.accumulate(limit - C))
     exit2 = np.maximum(exit2, 0.0)
     entry2 = np.concatenate([[0.0], exit2[:-1]])
+    entry2[starts] = 0.0
 
     vi, vf, vn = np.sqrt(entry2), np.sqrt(exit2), nominal
     d1 = (n2 - entry2) / (2 * a)
@@ -137,7 +154,8 @@ def _segment_time(points: np.ndarray, feeds: np.ndarray, s: GrblSettings) -> np.
         trap = (vn - vi) / a + (vn - vf) / a + np.where(cruise > 0, cruise / vn, 0.0)
         vp = np.sqrt(np.maximum((2 * a * L + entry2 + exit2) / 2, np.maximum(entry2, exit2)))
         tri = (vp - vi) / a + (vp - vf) / a
-    return np.where(cruise >= 0, trap, tri)
+    out[keep] = np.where(cruise >= 0, trap, tri)
+    return out
 
 
 def estimate_program(program, settings: GrblSettings = GrblSettings(), start=(0.0, 0.0, 0.0)) -> Estimate:
@@ -151,15 +169,11 @@ def estimate_program(program, settings: GrblSettings = GrblSettings(), start=(0.
     pos = np.zeros(3)
     pos[:len(start)] = np.asarray(start, float)
     est = Estimate()
-    pts, feeds, times = [pos.copy()], [], []
+    # all runs in one call: block k goes from pts[k] to pts[k+1]; a synchronisation
+    # (dwell, M command) makes the next block start from rest
+    pts, feeds, rest = [pos.copy()], [], []
     feed = None
-
-    def flush():
-        if len(pts) > 1:
-            times.append(_segment_time(np.array(pts), np.array(feeds), settings))
-        del pts[:-1]
-        feeds.clear()
-
+    sync = True
     for item in program:
         kind = item[0]
         if kind in ("G0", "G1"):
@@ -178,15 +192,17 @@ def estimate_program(program, settings: GrblSettings = GrblSettings(), start=(0.
                 v = np.inf
             pts.append(target)
             feeds.append(v)
+            rest.append(sync)
+            sync = False
         elif kind == "G4":
-            flush()
+            sync = True
             est.dwell += float(item[1])
         elif kind == "M":
-            flush()
+            sync = True
         else:
             raise ValueError(f"unknown program item {item!r}")
-    flush()
-    bt = np.concatenate(times) if times else np.zeros(0)
+    bt = _segment_time(np.array(pts), np.array(feeds), settings, np.array(rest, bool)) if feeds else np.zeros(0)
+    bt = bt[np.linalg.norm(np.diff(np.array(pts), axis=0), axis=1) > 0] if feeds else bt
     est.block_times, est.blocks, est.motion = bt, len(bt), float(bt.sum())
     return est
 

@@ -175,25 +175,39 @@ class GcodePost(PostProcessor):
                  for i, s in enumerate(job.strokes)]
         home = job.travels[-1].end if job.travels else np.asarray(m.home, float)
 
+        from doodlecam.grbltime import parse_gcode
+
         body: list[str] = []
+        # The same moves for the GRBL estimate, built here rather than parsed back
+        # from the text (the coordinates are already rounded as printed).
+        estimate = d.name == "grbl" and options.get("estimate", False)
+        program: list[tuple] = []
+
+        def line(text: str) -> None:  # a user- or dialect-defined line: parse it for the estimate
+            body.append(text)
+            if estimate:
+                program.extend(parse_gcode(text))
 
         def pen(cmd: str, delay: float) -> None:
-            body.append(cmd)
+            line(cmd)
             if delay > 0:
-                body.append(f"G4 P{int(round(delay * 1000.0))}" if d.dwell_ms else f"G4 P{_num(delay)}")
+                line(f"G4 P{int(round(delay * 1000.0))}" if d.dwell_ms else f"G4 P{_num(delay)}")
 
         pen(options["pen_up"], m.pen.up_delay)
         for p, feed in paths:
             body.append(f"G0 X{_num(p[0, 0])} Y{_num(p[0, 1])}")
+            program.append(("G0", p[0, 0], p[0, 1], None, None))
             pen(options["pen_down"], m.pen.down_delay)
             last_f = ""
             for (x, y), f in zip(p[1:].tolist(), feed.tolist()):
                 fs = _num(max(f, 0.1), 1)  # never print F0
                 body.append(f"G1 X{_num(x)} Y{_num(y)}" + (f" F{fs}" if fs != last_f else ""))
+                program.append(("G1", x, y, None, float(fs) if fs != last_f else None))
                 last_f = fs
             pen(options["pen_up"], m.pen.up_delay)
         body.append(f"G0 X{_num(home[0])} Y{_num(home[1])}")
-        body.append(options["program_end"])
+        program.append(("G0", float(np.round(home[0], 3)), float(np.round(home[1], 3)), None, None))
+        line(options["program_end"])
 
         pts = [p for p, _ in paths] + [np.asarray([home])]
         lo, hi = np.concatenate(pts).min(0), np.concatenate(pts).max(0)
@@ -206,8 +220,8 @@ class GcodePost(PostProcessor):
         ]
         if d.name != "grbl" or options["pen"] != "servo":
             head.append(f"; dialect {d.name} ({d.firmware}), pen by {options['pen']}")
-        if d.name == "grbl" and options.get("estimate", False):
-            est = self._grbl_estimate(m, "\n".join(body))
+        if estimate:
+            est = self._grbl_estimate(m, program)
             if est is not None:
                 head.append(f"; GRBL 1.1 estimate {est:.1f} s (planner model: junctions, 16-block look-ahead)")
         preamble = list(d.preamble)
@@ -217,7 +231,7 @@ class GcodePost(PostProcessor):
         return ("\n".join(lines) + "\n").encode("ascii")
 
     @staticmethod
-    def _grbl_estimate(machine, body: str) -> float:
-        from doodlecam.grbltime import GrblSettings, estimate_gcode
+    def _grbl_estimate(machine, program: list[tuple]) -> float:
+        from doodlecam.grbltime import GrblSettings, estimate_program
 
-        return estimate_gcode(body, GrblSettings.from_machine(machine), start=tuple(machine.home)).total
+        return estimate_program(program, GrblSettings.from_machine(machine), start=tuple(machine.home)).total

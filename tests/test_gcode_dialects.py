@@ -177,3 +177,29 @@ def test_grbl_reversal_stops_and_parse():
     assert there_and_back == pytest.approx(2.2, rel=1e-9)
     assert estimate_gcode("G21 G90\nG0 X100\nG4 P1.5\nM2\n", GrblSettings((100.0,) * 3, (1000.0,) * 3)).total \
         == pytest.approx(1.1 + 1.5, rel=1e-9)
+
+
+def test_runs_timed_together_equal_runs_timed_one_by_one():
+    # estimate_program times every run between synchronisations in one call; a run
+    # timed alone (from rest to rest) must give the same block times
+    from doodlecam.grbltime import _segment_time
+
+    rng = np.random.default_rng(7)
+    s = GrblSettings((150.0, 150.0, 20.0), (2000.0, 2000.0, 500.0))
+    for _ in range(50):
+        runs, prog = [], [("G1", None, None, None, 1200.0)]
+        pos = np.zeros(3)
+        for _ in range(rng.integers(1, 6)):
+            pts, feeds = [pos.copy()], []
+            for _ in range(rng.integers(1, 12)):
+                xy = np.round(rng.uniform(0, 40, 2), 1) if rng.random() < 0.85 else pts[-1][:2]  # some zero-length
+                f = float(rng.choice([600.0, 3000.0, 9000.0]))
+                prog.append(("G1", float(xy[0]), float(xy[1]), None, f))
+                pts.append(np.array([xy[0], xy[1], 0.0]))
+                feeds.append(f / 60.0)
+            prog.append(("G4", 0.1))
+            runs.append(_segment_time(np.array(pts), np.array(feeds), s))
+            pos = pts[-1]
+        alone = np.concatenate(runs)
+        together = estimate_program(prog, s)
+        assert np.allclose(together.block_times, alone[alone > 0], rtol=1e-12, atol=1e-12)
