@@ -95,6 +95,7 @@ class BatchOptions:
     post_options: dict[str, dict[str, Any]] = field(default_factory=dict)
     solver: str | None = None
     smoothing: float | None = None
+    path_tolerance: float | None = None
     plugin_dirs: tuple[str, ...] = ()
     layout: dict[str, Any] = field(default_factory=dict)
     order: dict[str, Any] = field(default_factory=dict)
@@ -106,7 +107,8 @@ class BatchOptions:
         return Settings(machine=load_machine(self.machine), tracer=self.tracer,
                         tracer_options=dict(self.tracer_options), posts=tuple(self.posts),
                         post_options={k: dict(v) for k, v in self.post_options.items()},
-                        solver=self.solver, smoothing=self.smoothing, plugin_dirs=tuple(self.plugin_dirs),
+                        solver=self.solver, smoothing=self.smoothing, path_tolerance=self.path_tolerance,
+                        plugin_dirs=tuple(self.plugin_dirs),
                         layout=dict(self.layout), order=dict(self.order))
 
     def fingerprint(self) -> str:

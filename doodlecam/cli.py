@@ -82,6 +82,9 @@ def job_options(f):
         click.option("--solver", help="Planner: reach (exact, fast; default), lp[:clarabel|highs|osqp] (cross-check), "
                      "qp[:clarabel|highs|osqp] (smoothed). Default: the profile's [machine] solver."),
         click.option("--smoothing", type=float, help="Weight of the smoothing QP against time (solver qp). Default: the profile's."),
+        click.option("--path-tolerance", type=float, metavar="MM",
+                     help="Keep the pen within MM of the curve between velocity samples too (slower drawing; "
+                     "0 = off). Default: the profile's [sampling] path_tolerance."),
         click.option("--width", type=float, metavar="MM", help="Target drawing width in mm (aspect kept). Default: fill the work area."),
         click.option("--height", type=float, metavar="MM", help="Target drawing height in mm (aspect kept)."),
         click.option("--scale", type=float, metavar="MM", help="Fixed scale: mm per source unit (px, or mm: 1 = an SVG/DXF at true size)."),
@@ -99,8 +102,8 @@ def job_options(f):
     return f
 
 
-def job_kwargs(machine, tracer, tracer_opt, posts, post_opt, solver, smoothing, width, height, scale, margin, rotate, fit,
-               keep_direction, plugin_dirs) -> dict:
+def job_kwargs(machine, tracer, tracer_opt, posts, post_opt, solver, smoothing, path_tolerance, width, height, scale,
+               margin, rotate, fit, keep_direction, plugin_dirs) -> dict:
     """The shared options, parsed: keyword arguments for pipeline.Settings
     (with ``machine`` still the profile's name or path)."""
     post_opts: dict[str, dict[str, str]] = {}
@@ -110,13 +113,16 @@ def job_kwargs(machine, tracer, tracer_opt, posts, post_opt, solver, smoothing, 
             raise click.BadParameter(f"'{key}' must be POST.KEY=VALUE, e.g. gcode.pen_up=M5", param_hint="--post-opt")
         post_opts.setdefault(name, {})[opt] = val
     posts = tuple(posts) or ("plc", "gcode", "svg")
+    if path_tolerance is not None and not path_tolerance >= 0:
+        raise click.BadParameter(f"must be 0 (off) or a distance in mm, got {path_tolerance:g}", param_hint="--path-tolerance")
     unused = set(post_opts) - set(posts)
     if unused:
         raise click.BadParameter(f"options given for '{sorted(unused)[0]}', which is not among the posts {', '.join(posts)}",
                                  param_hint="--post-opt")
     return dict(
         machine=machine, tracer=tracer, tracer_options=_pairs(tracer_opt, "--tracer-opt"), posts=posts,
-        post_options=post_opts, solver=solver, smoothing=smoothing, plugin_dirs=tuple(plugin_dirs),
+        post_options=post_opts, solver=solver, smoothing=smoothing, path_tolerance=path_tolerance,
+        plugin_dirs=tuple(plugin_dirs),
         layout={k: v for k, v in dict(width=width, height=height, scale=scale, margin=margin, rotate=rotate, fit=fit).items()
                 if v is not None},
         order={"reverse": False} if keep_direction else {},

@@ -32,6 +32,7 @@ class Settings:
     post_options: dict[str, dict[str, Any]] = field(default_factory=dict)
     solver: str | None = None
     smoothing: float | None = None
+    path_tolerance: float | None = None  # overrides the profile's [sampling] path_tolerance (mm; 0 = off)
     plugin_dirs: tuple[str, ...] = ()
     layout: dict[str, Any] = field(default_factory=dict)  # overrides the profile's [layout] (doodlecam.layout)
     order: dict[str, Any] = field(default_factory=dict)  # overrides the profile's [order]
@@ -245,7 +246,10 @@ def convert(path: str | Path, outdir: str | Path, settings: Settings) -> Result:
     drawing = trace(path, settings)
     timings["trace"] = time.perf_counter() - t0
     drawing_mm = fit_to_work_area(drawing, settings.machine, settings.layout)
-    job = plan_job(drawing_mm, settings.machine, settings.solver or settings.machine.solver, settings.plugin_dirs,
+    machine = settings.machine
+    if settings.path_tolerance is not None:
+        machine = replace(machine, path_tolerance=float(settings.path_tolerance))
+    job = plan_job(drawing_mm, machine, settings.solver or settings.machine.solver, settings.plugin_dirs,
                    smoothing=settings.smoothing,
                    order=settings.order)
     timings.update(job.meta["timings"])

@@ -222,3 +222,14 @@ def test_failing_post_leaves_no_partial_output(tmp_path):
     r = run("convert", CAMERA, "-o", out, "--plugin-dir", plug, "--post", "svg", "--post", "boom")
     assert_user_error(r, "boom", "kaput")
     assert not out.exists() or not list(out.iterdir())
+
+
+def test_path_tolerance_option(tmp_path):
+    horse = ROOT / "samples" / "images" / "horse.png"
+    r = run("convert", horse, "-o", tmp_path, "--post", "plc", "--path-tolerance", "0.1", "--json")
+    assert r.returncode == 0, r.stderr
+    s = json.loads(r.stdout)
+    assert s["path_tolerance_mm"] == 0.1 and 0 < s["max_between_samples_mm"] <= 0.1
+    r = run("convert", horse, "-o", tmp_path / "bad", "--path-tolerance", "-1")
+    assert r.returncode == 2 and "--path-tolerance" in r.stderr and "Traceback" not in r.stderr
+    assert not (tmp_path / "bad").exists()
