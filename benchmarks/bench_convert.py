@@ -2,6 +2,7 @@
 
     .venv/bin/python benchmarks/bench_convert.py            # all samples
     .venv/bin/python benchmarks/bench_convert.py --repeat 3 # best of 3
+    .venv/bin/python benchmarks/bench_convert.py --path-tolerance 0.1   # docs/sampling.md
 
 Prints a Markdown table (the README's benchmark table comes from here).
 Times are wall-clock on whatever machine runs it; compare ratios, not seconds.
@@ -21,6 +22,8 @@ ROOT = Path(__file__).resolve().parent.parent
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--repeat", type=int, default=1)
+    ap.add_argument("--path-tolerance", type=float, default=None, metavar="MM",
+                    help="keep the pen within MM of the curve between samples too (docs/sampling.md)")
     ap.add_argument("--machine", default="doodlebot")
     ap.add_argument("images", nargs="*", type=Path)
     args = ap.parse_args()
@@ -29,7 +32,7 @@ def main() -> None:
     from doodlecam.pipeline import Settings, convert
 
     images = args.images or sorted((ROOT / "samples" / "images").glob("*.png"))
-    settings = Settings(machine=load_machine(args.machine))
+    settings = Settings(machine=load_machine(args.machine), path_tolerance=args.path_tolerance)
     stages = ["trace", "order", "fit", "plan", "sample", "post"]
     print("| picture | strokes | ctrl pts | pen-down mm | travel mm | job s | optimal draw s | "
           + " | ".join(f"{s} s" for s in stages) + " | total s | worst acc ratio | between samples mm |")
