@@ -60,13 +60,35 @@ def _aim_points(spline: Spline, samples: StrokeSamples, n: int = 4096) -> np.nda
     return np.maximum.accumulate(cand[np.arange(len(x)), d.argmin(axis=1)])
 
 
+def distance_to_stretch(spline: Spline, x: np.ndarray, lo: np.ndarray, hi: np.ndarray,
+                        candidates: int = CANDIDATES, iterations: int = 4) -> np.ndarray:
+    """Distance (mm) from each point x (n, 2) to the spline's stretch u in [lo, hi]
+    (per point): the nearest of ``candidates`` evenly spread parameters, then
+    Newton steps on (q(u) - x) . q'(u) = 0 kept within one spacing of it."""
+    w = np.linspace(0.0, 1.0, candidates)
+    cand = lo[:, None] + (hi - lo)[:, None] * w[None, :]
+    dist = np.linalg.norm(spline(cand.ravel()).reshape(len(x), candidates, 2) - x[:, None, :], axis=2)
+    best = dist.argmin(axis=1)
+    u = cand[np.arange(len(x)), best]
+    d0 = dist[np.arange(len(x)), best]
+    step_u = (hi - lo) / (candidates - 1)
+    a, b = np.maximum(u - step_u, 0.0), np.minimum(u + step_u, 1.0)
+    for _ in range(iterations):
+        q, d1, d2 = spline(u), spline(u, 1), spline(u, 2)
+        r = q - x
+        g = (d1 * r).sum(axis=1)
+        h = (d1 * d1).sum(axis=1) + (d2 * r).sum(axis=1)
+        u = np.clip(u - np.where(h > 1e-12, g / np.maximum(h, 1e-12), 0.0), a, b)
+    return np.minimum(np.linalg.norm(spline(u) - x, axis=1), d0)
+
+
 def path_deviation(spline: Spline, samples: StrokeSamples, sub: int = SUB) -> np.ndarray:
     """Per period, the largest distance (mm) of the executed parabola from the spline.
 
     Each executed point is projected onto the stretch of the spline the
-    sampler aimed at in that period (widened by half on each side): the
-    nearest of a few candidates, then Newton steps. So the distance is to the
-    curve being drawn then, not to another part of it that passes nearby.
+    sampler aimed at in that period, widened by half on each side
+    (``distance_to_stretch``). So the distance is to the curve being drawn
+    then, not to another part of it that passes nearby.
     """
     pts = executed_points(samples, sub)
     m = len(pts)
@@ -74,26 +96,11 @@ def path_deviation(spline: Spline, samples: StrokeSamples, sub: int = SUB) -> np
     if su is None:
         su = _aim_points(spline, samples)
     x = pts.reshape(-1, 2)
-    # candidates: CANDIDATES parameters spread over the period's u-step widened by half
-    # of it on each side; the nearest one seeds a few clipped Newton steps
+    # the period's u-step widened by half of it on each side
     span = np.maximum(np.diff(su), 1e-9)
     lo = np.repeat(np.maximum(su[:-1] - span / 2, 0.0), sub + 1)
     hi = np.repeat(np.minimum(su[1:] + span / 2, 1.0), sub + 1)
-    w = np.linspace(0.0, 1.0, CANDIDATES)
-    cand = lo[:, None] + (hi - lo)[:, None] * w[None, :]
-    dist = np.linalg.norm(spline(cand.ravel()).reshape(len(x), CANDIDATES, 2) - x[:, None, :], axis=2)
-    best = dist.argmin(axis=1)
-    u = cand[np.arange(len(x)), best]
-    d0 = dist[np.arange(len(x)), best]
-    step_u = (hi - lo) / (CANDIDATES - 1)
-    a, b = np.maximum(u - step_u, 0.0), np.minimum(u + step_u, 1.0)
-    for _ in range(4):
-        q, d1, d2 = spline(u), spline(u, 1), spline(u, 2)
-        r = q - x
-        g = (d1 * r).sum(axis=1)
-        h = (d1 * d1).sum(axis=1) + (d2 * r).sum(axis=1)
-        u = np.clip(u - np.where(h > 1e-12, g / np.maximum(h, 1e-12), 0.0), a, b)
-    dist = np.minimum(np.linalg.norm(spline(u) - x, axis=1), d0).reshape(m, sub + 1)
+    dist = distance_to_stretch(spline, x, lo, hi).reshape(m, sub + 1)
     # the peak usually falls between the points: a parabola through the largest
     # and its neighbours in time recovers it (a kink where the curve turns tightly still reads a little low)
     k = np.clip(dist.argmax(axis=1), 1, sub - 1)

@@ -32,6 +32,7 @@ import numpy as np
 
 from .atomic import replace_all
 from .errors import InputError, OutputError
+from .follow import distance_to_stretch, executed_points
 from .model import Job
 
 FORMATS = (".png", ".svg", ".pdf")
@@ -79,7 +80,7 @@ def _executed(samples):
     j = np.repeat(np.arange(m), PER_PERIOD)
     tt = np.tile(tau, m)
     acc = (v[1:] - v[:-1]) / dt  # constant over each period
-    x = xs[j] + v[j] * tt[:, None] + 0.5 * acc[j] * tt[:, None] ** 2
+    x = executed_points(samples, PER_PERIOD)[:, :-1].reshape(-1, 2)  # each period's start and inner points
     vel = v[j] + acc[j] * tt[:, None]
     t = j * dt + tt
     # close with the final instant (at rest, on the end point)
@@ -93,23 +94,11 @@ def _executed(samples):
 def _distance_to_curve(spline, x: np.ndarray, u0: np.ndarray, candidates: int = 33, iterations: int = 4) -> np.ndarray:
     """Distance (mm) from points x to the spline near u0 (where the plan puts
     the pen at the same time). The nearest point lies within 2 |x - q(u0)| of
-    q(u0), so search that stretch of the curve on a few candidates, then
-    polish with Newton's method on (q(u) - x) . q'(u) = 0."""
+    q(u0), so search that stretch of the curve (doodlecam.follow)."""
     delta = np.linalg.norm(spline(u0) - x, axis=1)
     speed = np.maximum(np.linalg.norm(spline(u0, 1), axis=1), 1e-12)
     w = np.minimum(2.0 * delta / speed * 1.5 + 1e-9, 1.0)  # half-width in u, with slack for the speed changing
-    grid = np.clip(u0[:, None] + w[:, None] * np.linspace(-1.0, 1.0, candidates), 0.0, 1.0)
-    pts = spline(grid.ravel()).reshape(len(x), candidates, 2)
-    best = np.linalg.norm(pts - x[:, None, :], axis=2).argmin(axis=1)
-    u = grid[np.arange(len(x)), best]
-    lo, hi = np.clip(u - w / candidates * 2, 0, 1), np.clip(u + w / candidates * 2, 0, 1)
-    for _ in range(iterations):
-        r = spline(u) - x
-        d1, d2 = spline(u, 1), spline(u, 2)
-        df = (d1 * d1).sum(axis=1) + (r * d2).sum(axis=1)
-        step = np.where(df > 0, (r * d1).sum(axis=1) / np.where(df > 0, df, 1.0), 0.0)
-        u = np.clip(u - step, lo, hi)  # stay in the bracket the search found
-    return np.minimum(np.linalg.norm(spline(u) - x, axis=1), np.linalg.norm(pts[np.arange(len(x)), best] - x, axis=1))
+    return distance_to_stretch(spline, x, np.clip(u0 - w, 0.0, 1.0), np.clip(u0 + w, 0.0, 1.0), candidates, iterations)
 
 
 def stroke_figure(job: Job, index: int, kinematics):
