@@ -104,12 +104,8 @@ class BatchOptions:
         from .machine import load_machine
         from .pipeline import Settings
 
-        return Settings(machine=load_machine(self.machine), tracer=self.tracer,
-                        tracer_options=dict(self.tracer_options), posts=tuple(self.posts),
-                        post_options={k: dict(v) for k, v in self.post_options.items()},
-                        solver=self.solver, smoothing=self.smoothing, path_tolerance=self.path_tolerance,
-                        plugin_dirs=tuple(self.plugin_dirs),
-                        layout=dict(self.layout), order=dict(self.order))
+        # the same fields as Settings, copied (asdict copies the dicts), the profile loaded
+        return Settings(**{**dataclasses.asdict(self), "machine": load_machine(self.machine)})
 
     def fingerprint(self) -> str:
         """Hash of everything that changes the outputs: options, the machine profile as
