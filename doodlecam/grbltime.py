@@ -95,16 +95,15 @@ def _segment_time(points: np.ndarray, feeds: np.ndarray, s: GrblSettings, rest: 
         rest = np.zeros(len(L), bool)
         rest[:1] = True
     keep = L > 0  # GRBL drops zero-length blocks
-    # a dropped block's rest start passes to the next kept block
-    run = np.cumsum(rest)
-    first_kept = np.zeros(len(L), bool)
-    kept_runs = run[keep]
-    first_kept[np.flatnonzero(keep)[np.r_[True, kept_runs[1:] != kept_runs[:-1]]] if keep.any() else []] = True
     out = np.zeros(len(L))
-    d, L, feeds, starts = d[keep], L[keep], feeds[keep], first_kept[keep]
+    d, L, feeds = d[keep], L[keep], feeds[keep]
     n = len(L)
     if n == 0:
         return out
+    # a kept block starts from rest when it is the first of its run (a dropped
+    # block's rest start passes on to the next kept one)
+    run = np.cumsum(rest)[keep]
+    starts = np.r_[True, run[1:] != run[:-1]]
     u = d / L[:, None]
     rate, acc = np.asarray(s.max_rate, float), np.asarray(s.acceleration, float)
     a = _axis_limit(acc, u)
@@ -202,7 +201,7 @@ def estimate_program(program, settings: GrblSettings = GrblSettings(), start=(0.
         else:
             raise ValueError(f"unknown program item {item!r}")
     bt = _segment_time(np.array(pts), np.array(feeds), settings, np.array(rest, bool)) if feeds else np.zeros(0)
-    bt = bt[np.linalg.norm(np.diff(np.array(pts), axis=0), axis=1) > 0] if feeds else bt
+    bt = bt[bt > 0]  # the blocks GRBL keeps (zero-length ones take no time)
     est.block_times, est.blocks, est.motion = bt, len(bt), float(bt.sum())
     return est
 
