@@ -147,8 +147,7 @@ def _search(P0, P1, seq, flip, nbr, allow_reverse, max_moves, max_span,
                             # 2-opt: reverse nodes lo..hi, new edges exit(lo-1)-exit(hi), entry(lo)-entry(hi+1)
                             lo, hi = (pa + 1, pb) if pa < pb else (pb + 1, pa)
                             if lo <= hi:
-                                g = (_e(ext, ent, lo - 1, lo, n, free) + _e(ext, ent, hi, hi + 1, n, free)
-                                     - _xx(ext, lo - 1, hi, n, free) - _nn(ent, lo, hi + 1, n, free))
+                                g = _rev_gain(ext, ent, lo, hi, n, free)
                                 if g > best:
                                     best, kind, x1, x2 = g, 1, lo, hi
                             for L in range(1, 4):
@@ -170,8 +169,7 @@ def _search(P0, P1, seq, flip, nbr, allow_reverse, max_moves, max_span,
                     elif allow_reverse:  # entry - entry
                         lo, hi = (pa, pb - 1) if pa < pb else (pb, pa - 1)
                         if lo <= hi:
-                            g = (_e(ext, ent, lo - 1, lo, n, free) + _e(ext, ent, hi, hi + 1, n, free)
-                                 - _xx(ext, lo - 1, hi, n, free) - _nn(ent, lo, hi + 1, n, free))
+                            g = _rev_gain(ext, ent, lo, hi, n, free)
                             if g > best:
                                 best, kind, x1, x2 = g, 1, lo, hi
                         for L in range(1, 4):
@@ -261,6 +259,14 @@ def _nn(ent, p, q, n, free):  # pragma: no cover - compiled
     if free and (p == 0 or p == n + 1 or q == 0 or q == n + 1):
         return 0.0
     return _dist(ent[p, 0], ent[p, 1], ent[q, 0], ent[q, 1])
+
+
+@numba.njit(cache=True, nogil=True, inline="always")
+def _rev_gain(ext, ent, lo, hi, n, free):  # pragma: no cover - compiled
+    """Travel saved by reversing nodes lo..hi (2-opt): edges (lo-1, lo) and (hi, hi+1)
+    become exit(lo-1) -> exit(hi) and entry(lo) -> entry(hi+1)."""
+    return (_e(ext, ent, lo - 1, lo, n, free) + _e(ext, ent, hi, hi + 1, n, free)
+            - _xx(ext, lo - 1, hi, n, free) - _nn(ent, lo, hi + 1, n, free))
 
 
 @numba.njit(cache=True, nogil=True)
