@@ -25,6 +25,8 @@ def main() -> None:
     ap.add_argument("--path-tolerance", type=float, default=None, metavar="MM",
                     help="keep the pen within MM of the curve between samples too (docs/sampling.md)")
     ap.add_argument("--machine", default="doodlebot")
+    ap.add_argument("--tracer-opt", action="append", default=[], metavar="KEY=VALUE",
+                    help="a tracer option, as on convert (repeatable)")
     ap.add_argument("images", nargs="*", type=Path)
     args = ap.parse_args()
     warnings.simplefilter("ignore")
@@ -32,7 +34,9 @@ def main() -> None:
     from doodlecam.pipeline import Settings, convert
 
     images = args.images or sorted((ROOT / "samples" / "images").glob("*.png"))
-    settings = Settings(machine=load_machine(args.machine), path_tolerance=args.path_tolerance)
+    tracer_options = dict(o.split("=", 1) for o in args.tracer_opt)
+    settings = Settings(machine=load_machine(args.machine), path_tolerance=args.path_tolerance,
+                        tracer_options=tracer_options)
     stages = ["trace", "order", "fit", "plan", "sample", "post"]
     print("| picture | strokes | ctrl pts | pen-down mm | travel mm | job s | optimal draw s | "
           + " | ".join(f"{s} s" for s in stages) + " | total s | worst acc ratio | between samples mm |")

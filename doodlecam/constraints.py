@@ -132,18 +132,11 @@ def sampled_rows(spline: Spline, u: np.ndarray, kinematics, vmax, amax, pen_spee
     return Rows(tot, beta, gamma, np.full(len(u), np.inf))
 
 
-def jerk_rows(spline: Spline, u: np.ndarray, b_hat: np.ndarray, jerk_max: float, taus=(0.0, 0.5, 1.0)) -> Rows:
-    """Rows bounding the pen's jerk across the path, |3 v kappa a_t + v^3 dkappa/ds| <= jerk_max
-    (mm/s^3), at ``taus`` inside every interval.
-
-    With v = |q'| sqrt(b) and a_t = |q'| a + (q'.q''/|q'|) b it is sqrt(b) (c1 a + c2 b),
-    c1 = 3 kappa |q'|^2, c2 = 3 kappa q'.q'' + |q'|^3 dkappa/ds. sqrt(b) is taken from
-    ``b_hat`` (nodes), a profile the new one stays below, so the linear rows
-    |c1 a + c2 b| <= jerk_max / sqrt(b_hat) are conservative. This jerk is what the
-    PLC's constant-acceleration periods cannot follow (docs/sampling.md).
-    """
+def jerk_coefficients(spline: Spline, u: np.ndarray, taus=(0.0, 0.5, 1.0)):
+    """Per tau in ``taus``: (tau, u there, c1, c2) on every interval of the grid u,
+    the pen's jerk across the path being sqrt(b) (c1 a + c2 b) (see jerk_rows)."""
     h = np.diff(u)
-    parts = []
+    out = []
     for tau in taus:
         uu = u[:-1] + tau * h
         d1, d2, d3 = spline(uu, 1), spline(uu, 2), spline(uu, 3)
@@ -153,10 +146,27 @@ def jerk_rows(spline: Spline, u: np.ndarray, b_hat: np.ndarray, jerk_max: float,
         dot12 = (d1 * d2).sum(axis=1)
         kappa = c12 / sp ** 3
         kappa_s = (c13 * sp ** 2 - 3 * c12 * dot12) / sp ** 6  # d kappa / d arc length
-        c1 = 3 * kappa * sp ** 2
-        c2 = 3 * kappa * dot12 + sp ** 3 * kappa_s
+        out.append((tau, uu, 3 * kappa * sp ** 2, 3 * kappa * dot12 + sp ** 3 * kappa_s))
+    return out
+
+
+def jerk_rows(coefficients, u: np.ndarray, b_hat: np.ndarray, jerk_max) -> Rows:
+    """Rows bounding the pen's jerk across the path, |3 v kappa a_t + v^3 dkappa/ds| <= jerk_max
+    (mm/s^3; a number, or a function of the curve parameter u), at the points of
+    ``coefficients`` (jerk_coefficients on the grid u) inside every interval.
+
+    With v = |q'| sqrt(b) and a_t = |q'| a + (q'.q''/|q'|) b it is sqrt(b) (c1 a + c2 b),
+    c1 = 3 kappa |q'|^2, c2 = 3 kappa q'.q'' + |q'|^3 dkappa/ds. sqrt(b) is taken from
+    ``b_hat`` (nodes), a profile the new one stays below, so the linear rows
+    |c1 a + c2 b| <= jerk_max / sqrt(b_hat) are conservative. This jerk is what the
+    PLC's constant-acceleration periods cannot follow (docs/sampling.md).
+    """
+    h = np.diff(u)
+    parts = []
+    for tau, uu, c1, c2 in coefficients:
         bh = b_hat[:-1] * (1 - tau) + b_hat[1:] * tau
-        g = jerk_max / np.sqrt(np.maximum(bh, 1e-300))
+        jm = jerk_max(uu) if callable(jerk_max) else jerk_max
+        g = jm / np.sqrt(np.maximum(bh, 1e-300))
         tot, beta = c2[:, None], (c2 * tau + c1 / (2 * h))[:, None]
         parts.append((np.concatenate([tot, -tot], 1), np.concatenate([beta, -beta], 1), np.column_stack([g, g])))
     tot, beta, gamma = (np.concatenate([p[i] for p in parts], axis=1) for i in range(3))

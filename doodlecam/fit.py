@@ -18,6 +18,8 @@ from __future__ import annotations
 import numba
 import numpy as np
 
+from .kernels import basis_at as _basis_at
+from .kernels import knot as _knot
 from .model import Spline
 
 
@@ -38,41 +40,6 @@ def densify(p: np.ndarray, spacing: float) -> np.ndarray:
 
 
 # ---------------------------------------------------------------- compiled kernels
-
-@numba.njit(cache=True, nogil=True, inline="always")
-def _knot(j, p, nseg):  # pragma: no cover - compiled
-    """Knot j of the clamped uniform knot vector: p + 1 zeros, even steps, p + 1 ones."""
-    return min(max(j - p, 0), nseg) / nseg
-
-
-@numba.njit(cache=True, nogil=True, inline="always")
-def _basis_at(x, p, nseg, N, left, right):  # pragma: no cover - compiled
-    """The p + 1 basis functions that do not vanish at x, into N; returns the
-    index of the first (= the knot span). Cox-de Boor as in the NURBS book's
-    A2.2, or the closed form of a cubic where the knots are evenly spaced."""
-    s = min(max(int(x * nseg), 0), nseg - 1)  # knot span [s, s + 1] / nseg
-    if p == 3 and p <= s < nseg - p:
-        t = x * nseg - s
-        t2 = t * t
-        t3 = t2 * t
-        N[0] = (1.0 - t) ** 3 / 6.0
-        N[1] = (3.0 * t3 - 6.0 * t2 + 4.0) / 6.0
-        N[2] = (-3.0 * t3 + 3.0 * t2 + 3.0 * t + 1.0) / 6.0
-        N[3] = t3 / 6.0
-        return s
-    k = s + p
-    N[0] = 1.0
-    for j in range(1, p + 1):
-        left[j] = x - _knot(k + 1 - j, p, nseg)
-        right[j] = _knot(k + j, p, nseg) - x
-        saved = 0.0
-        for r in range(j):
-            t = N[r] / (right[r + 1] + left[j - r])
-            N[r] = saved + right[r + 1] * t
-            saved = left[j - r] * t
-        N[j] = saved
-    return s
-
 
 @numba.njit(cache=True, nogil=True)
 def _lsq(P, u, n, p, lam, ctrl):  # pragma: no cover - compiled

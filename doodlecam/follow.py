@@ -20,6 +20,8 @@ the bound (doodlecam.pipeline).
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 import numpy as np
 
 from .model import Spline, StrokeSamples
@@ -29,6 +31,7 @@ from .model import Spline, StrokeSamples
 # within 0.1 mm at dT = 40 ms with at most 3 strokes re-planned; 24 over-slows
 # (camera 0.078 mm, +87 % drawing time), 96 re-plans a third of the strokes.
 JERK_PER_TOL = 48.0
+REACH = 2  # periods either side of one that strays whose jerk bound is halved with it
 SUB = 16  # points per period where the executed parabola is checked (8 read ~3 % low)
 CANDIDATES = 8  # parameters tried per point before the Newton steps
 
@@ -109,6 +112,37 @@ def path_deviation(spline: Spline, samples: StrokeSamples, sub: int = SUB) -> np
     curv = 2 * f0 - fm - fp
     peak = f0 + np.where(curv > 1e-15, (fp - fm) ** 2 / (8 * np.maximum(curv, 1e-15)), 0.0)
     return np.maximum(dist.max(axis=1), np.minimum(peak, f0 + np.abs(fp - fm)))
+
+
+@dataclass(frozen=True)
+class JerkBound:
+    """The planner's jerk bound along one stroke (mm/s^3 at curve parameter u):
+    ``base``, halved once on each stretch in ``halved`` (pairs of u) it lies in."""
+
+    base: float
+    halved: tuple[tuple[float, float], ...] = ()
+
+    def __call__(self, u: np.ndarray) -> np.ndarray:
+        scale = np.ones_like(u, dtype=float)
+        for lo, hi in self.halved:
+            scale[(u >= lo) & (u <= hi)] *= 0.5
+        return self.base * scale
+
+    def tightened(self, samples: StrokeSamples, deviation: np.ndarray, tolerance: float,
+                  reach: int = REACH) -> "JerkBound":
+        """Halved again where the executed path strayed beyond ``tolerance``:
+        each such period widened by ``reach`` periods on both sides (the swing
+        builds up over the periods before it)."""
+        su = samples.sample_u
+        bad = np.flatnonzero(deviation > tolerance)
+        spans = [(float(su[max(k - reach, 0)]), float(su[min(k + 1 + reach, len(su) - 1)])) for k in bad]
+        merged: list[tuple[float, float]] = []
+        for lo, hi in spans:  # bad is sorted, so are the spans
+            if merged and lo <= merged[-1][1]:
+                merged[-1] = (merged[-1][0], max(hi, merged[-1][1]))
+            else:
+                merged.append((lo, hi))
+        return JerkBound(self.base, self.halved + tuple(merged))
 
 
 def jerk_limit(tolerance: float, dt: float) -> float:

@@ -49,7 +49,7 @@ class Machine:
     travel_speed: float | None = None  # mm/s per axis for pen-up moves
     travel_law: str = "trapezoid"  # pen-up move profile, see doodlecam.travel
     delta_time: float = 0.04  # s, velocity sample period
-    path_tolerance: float = 0.0  # mm the pen may stray between samples (0: not enforced; docs/sampling.md)
+    path_tolerance: float = 0.1  # mm the pen may stray between samples (0: not enforced; docs/sampling.md)
     degree: int = 3
     tolerance: float = 0.1  # mm, spline fit tolerance
     kinematics: str = "cartesian"
@@ -254,7 +254,8 @@ def parse_machine(data: dict[str, Any], path: str = "<profile>") -> Machine:
         travel_speed=vals["travel"].get("speed"),
         travel_law=_travel_law(path, vals["travel"].get("law")),
         delta_time=vals["sampling"].get("delta_time", 0.04),
-        path_tolerance=vals["sampling"].get("path_tolerance", 0.0),
+        # the pen stays as close to the curve between samples as the fit is to the picture
+        path_tolerance=vals["sampling"].get("path_tolerance", fit.get("tolerance", 0.1)),
         degree=degree,
         tolerance=fit.get("tolerance", 0.1),
         source=path,

@@ -94,21 +94,28 @@ class Spline:
         return np.unique(self.knots)
 
     @cached_property
-    def _bsplines(self):
-        from scipy.interpolate import BSpline
-
-        b0 = BSpline(self.knots, self.control, self.degree, extrapolate=False)
-        derivs = [b0]
+    def _derivatives(self) -> list[np.ndarray]:
+        """Control points of q, q', ..., q^(degree): each a clamped uniform spline
+        over the same knot spans, one degree lower than the last."""
+        t, c, k = self.knots, np.ascontiguousarray(self.control), self.degree
+        out = [c]
         for _ in range(self.degree):
-            derivs.append(derivs[-1].derivative())
-        return derivs
+            c = k * np.diff(c, axis=0) / (t[k + 1 : -1] - t[1 : -k - 1])[:, None]
+            t, k = t[1:-1], k - 1
+            out.append(c)
+        return out
 
     def __call__(self, u, der: int = 0) -> np.ndarray:
         """q^(der)(u) for u in [0, 1]; shape (len(u), 2). Units mm / u^der."""
-        u = np.clip(np.asarray(u, dtype=float), 0.0, 1.0)
+        from .kernels import bspline_eval
+
+        u = np.asarray(u, dtype=float)
         if der > self.degree:
             return np.zeros(u.shape + (2,))
-        return self._bsplines[der](u)
+        out = np.empty((u.size, 2))
+        nseg = len(self.control) - self.degree
+        bspline_eval(self._derivatives[der], self.degree - der, nseg, u.reshape(-1), out)  # clipped to [0, 1] there
+        return out.reshape(u.shape + (2,))
 
     @cached_property
     def length(self) -> float:

@@ -83,6 +83,9 @@ def kinematics_for(machine: Machine, plugin_dirs=()):
     return cls(machine, machine.kinematics_params)
 
 
+REPLANS = 4  # at most this many re-plans of a stroke still off the curve between samples
+
+
 def plan_job(drawing: Drawing, machine: Machine, solver: str = "reach", plugin_dirs=(), order: dict | None = None,
              smoothing: float | None = None) -> Job:
     """Order, fit, plan and sample a drawing already in machine millimetres.
@@ -90,7 +93,7 @@ def plan_job(drawing: Drawing, machine: Machine, solver: str = "reach", plugin_d
     ``order`` overrides the profile's [order] options (doodlecam.layout.ORDER_DEFAULTS).
     """
     from .fit import fit_pieces
-    from .follow import jerk_limit, path_deviation
+    from .follow import JerkBound, jerk_limit, path_deviation
     from .layout import order_options
     from .order import order_strokes
     from .plan import Limits, check_profile, check_solver, plan_stroke
@@ -121,7 +124,7 @@ def plan_job(drawing: Drawing, machine: Machine, solver: str = "reach", plugin_d
     # changes fast (docs/sampling.md): with a path tolerance the planner bounds the
     # pen's jerk across the path and the sampler pulls the pen onto the curve there too.
     path_tol = machine.path_tolerance
-    jerk = jerk_limit(path_tol, machine.delta_time) if path_tol > 0 else None
+    jerk = JerkBound(jerk_limit(path_tol, machine.delta_time)) if path_tol > 0 else None
     steps = (machine.x.steps_per_mm, machine.y.steps_per_mm)
 
     def plan_one(n: int, s: Stroke, jerk_max):
@@ -132,8 +135,8 @@ def plan_job(drawing: Drawing, machine: Machine, solver: str = "reach", plugin_d
         return replace(s, profile=prof), check_profile(s.spline, prof, limits)
 
     def sample_one(s: Stroke):
-        smp = sample_stroke(s, machine.delta_time, limits, steps, between=jerk is not None)
-        return smp, float(path_deviation(s.spline, smp).max(initial=0.0))
+        smp = sample_stroke(s, machine.delta_time, limits, steps, follow=jerk is not None)
+        return smp, path_deviation(s.spline, smp)
 
     t0 = time.perf_counter()
     planned, ratios = map(list, zip(*(plan_one(n, s, jerk) for n, s in enumerate(strokes, 1)))) if strokes else ([], [])
@@ -143,17 +146,19 @@ def plan_job(drawing: Drawing, machine: Machine, solver: str = "reach", plugin_d
     samples, devs = map(list, zip(*(sample_one(s) for s in planned))) if planned else ([], [])
     replanned = 0
     for i in range(len(planned)):
-        for halving in range(1, 3 if jerk is not None else 1):  # a stroke still off: halve its jerk bound
-            if devs[i] <= path_tol:
+        bound = jerk
+        for _ in range(REPLANS if jerk is not None else 0):  # still off: halve the bound where it strays
+            if devs[i].max(initial=0.0) <= path_tol:
                 break
-            planned[i], ratios[i] = plan_one(i + 1, strokes[i], jerk / 2 ** halving)
+            bound = bound.tightened(samples[i], devs[i], path_tol)
+            planned[i], ratios[i] = plan_one(i + 1, strokes[i], bound)
             samples[i], devs[i] = sample_one(planned[i])
             replanned += 1
     samples = tuple(samples)
     timings["sample"] = time.perf_counter() - t0
     worst_acc = max((r[0] for r in ratios), default=0.0)
     worst_vel = max((r[1] for r in ratios), default=0.0)
-    between = max(devs, default=0.0)
+    between = max((float(d.max(initial=0.0)) for d in devs), default=0.0)
 
     points = [np.asarray(machine.home, float)]
     for s in planned:

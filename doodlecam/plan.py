@@ -160,10 +160,11 @@ def check_solver(solver: str) -> None:
 def plan_stroke(spline: Spline, limits: Limits, solver: str = "reach", spacing: float = 0.5,
                 n_points: int | None = None, adaptive: bool = True, smoothing: float = 0.0,
                 v_start: float = 0.0, v_end: float = 0.0, mode: str = "bernstein",
-                max_rounds: int = 6, jerk_max: float | None = None) -> Profile:
+                max_rounds: int = 6, jerk_max=None) -> Profile:
     """Time-optimal profile along ``spline``; v_start / v_end are pen speeds (mm/s).
 
-    ``jerk_max`` (mm/s^3): also bound the pen's jerk across the path
+    ``jerk_max`` (mm/s^3, a number or a function of u such as
+    follow.JerkBound): also bound the pen's jerk across the path
     (constraints.jerk_rows), which slows it where the curve's turning changes
     fast; two more solves on the final grid, each below the last.
     """
@@ -196,9 +197,10 @@ def plan_stroke(spline: Spline, limits: Limits, solver: str = "reach", spacing: 
         u = _split(u, split)
     if jerk_max:
         base_rows = rows
+        coefficients = constraints.jerk_coefficients(spline, u)
         for _ in range(2):
             # b <= the last b keeps sqrt(b) below the sqrt(b_hat) the rows were made with
-            jr = constraints.jerk_rows(spline, u, b, jerk_max)
+            jr = constraints.jerk_rows(coefficients, u, b, jerk_max)
             rows = constraints.stack(base_rows, constraints.Rows(jr.tot, jr.beta, jr.gamma, b * (1 + 1e-12)))
             b = _solve(rows, u, base, b0, bN)
     if solver.startswith("qp"):

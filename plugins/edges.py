@@ -43,8 +43,8 @@ class EdgesTracer(Tracer):
         Option("high", float, 0.9, "hysteresis high threshold, as a quantile (0-1) of gradient strength"),
         Option("equalize", bool, False, "adaptive histogram equalisation (CLAHE) first, for dull or backlit photos"),
         Option("smooth", float, 0.0, "median-filter radius in px applied first; removes texture/speckle, keeps edges"),
-        Option("simplify", float, 0.5, "line simplification tolerance in px (Ramer-Douglas-Peucker)"),
-        Option("staircase", float, 0.0, "Gaussian smoothing along each chain, in px (e.g. 1), before simplifying: "
+        Option("simplify", float, 0.25, "line simplification tolerance in px (Ramer-Douglas-Peucker)"),
+        Option("staircase", float, 0.8, "Gaussian smoothing along each chain, in px, before simplifying: "
                "removes the pixel staircase, so fewer control points and a faster, smoother job (0 = off)"),
         Option("join", float, 2.0, "join strokes whose free ends are at most this far apart, in px (0 = never)"),
         Option("min_length", float, 4.0, "drop strokes shorter than this, in px"),

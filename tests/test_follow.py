@@ -85,7 +85,8 @@ def test_path_tolerance_keeps_the_plc_on_the_curve_between_samples(tmp_path):
     from doodlecam.pipeline import Settings, convert
 
     horse = Path(__file__).resolve().parent.parent / "samples" / "images" / "horse.png"
-    machine = replace(load_machine("doodlebot"), path_tolerance=0.1)
+    machine = load_machine("doodlebot")
+    assert machine.path_tolerance == 0.1  # the default profile keeps it
     res = convert(horse, tmp_path, Settings(machine=machine, posts=("plc",)))
     header, runs = plc_strokes(tmp_path / "horse.plc")
     assert len(runs) == len(res.job.strokes)
@@ -94,5 +95,20 @@ def test_path_tolerance_keeps_the_plc_on_the_curve_between_samples(tmp_path):
                                  sample_u=smp.sample_u)
         assert path_deviation(stroke.spline, executed).max() <= 0.1 + 1e-3  # whole steps/s: a hair
     assert res.job.meta["max_between_samples_mm"] <= 0.1
-    default = convert(horse, tmp_path / "d", Settings(machine=load_machine("doodlebot"), posts=("plc",)))
-    assert default.job.meta["max_between_samples_mm"] > 0.1  # without it the ramps do stray
+    off = convert(horse, tmp_path / "d", Settings(machine=replace(machine, path_tolerance=0.0), posts=("plc",)))
+    assert off.job.meta["max_between_samples_mm"] > 0.1  # without it the ramps do stray
+
+
+def test_jerk_bound_is_halved_only_where_the_pen_strayed():
+    from doodlecam.follow import JerkBound
+
+    su = np.linspace(0.0, 1.0, 21)  # 20 periods
+    smp = StrokeSamples(start=np.zeros(2), velocity=np.zeros((20, 2)), delta_time=0.04, sample_u=su)
+    dev = np.zeros(20)
+    dev[[5, 6, 15]] = 0.2
+    bound = JerkBound(1000.0).tightened(smp, dev, 0.1, reach=1)
+    assert bound.halved == ((su[4], su[8]), (su[14], su[17]))  # neighbours merged, one period either side
+    u = np.array([0.0, su[4], 0.3, su[8] + 1e-9, 0.75, 1.0])
+    assert np.array_equal(bound(u), [1000.0, 500.0, 500.0, 1000.0, 500.0, 1000.0])
+    again = bound.tightened(smp, dev, 0.1, reach=1)
+    assert again(np.array([0.3]))[0] == 250.0  # a second round halves it again there

@@ -62,7 +62,13 @@ def test_unknown_machine_name(tmp_path):
         load_machine(bad)
 
 
-def test_path_tolerance_is_optional_and_not_negative():
-    assert load_machine("doodlebot").path_tolerance == 0.0  # not enforced unless asked for
+def test_path_tolerance_defaults_to_the_fit_tolerance_and_is_not_negative():
+    assert load_machine("doodlebot").path_tolerance == 0.1
+    data = copy.deepcopy(PROFILE)
+    data["sampling"].pop("path_tolerance", None)
+    data.setdefault("fit", {})["tolerance"] = 0.05
+    assert parse_machine(data, "p.toml").path_tolerance == 0.05  # absent: as close as the fit
+    data["sampling"]["path_tolerance"] = 0.0
+    assert parse_machine(data, "p.toml").path_tolerance == 0.0  # 0: not enforced
     assert "path_tolerance" in broken(lambda d: d["sampling"].__setitem__("path_tolerance", -0.1))
     assert "path_tolerance" in broken(lambda d: d["sampling"].__setitem__("path_tolerance", "tight"))
