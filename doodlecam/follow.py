@@ -27,10 +27,11 @@ import numpy as np
 from .model import Spline, StrokeSamples
 
 # Jerk across the path (mm/s^3) allowed per mm of path tolerance and per dT^-3 (a
-# period's swing is ~ j dT^3 / 24 and swings add up). 48 kept every sample picture
-# within 0.1 mm at dT = 40 ms with at most 3 strokes re-planned; 24 over-slows
-# (camera 0.078 mm, +87 % drawing time), 96 re-plans a third of the strokes.
-JERK_PER_TOL = 48.0
+# period's swing is ~ j dT^3 / 24 and swings add up); where a stroke still strays
+# the bound is lowered there and the stroke re-planned. On camera.png (0.1 mm, 40 ms):
+# 24 re-plans none but draws 94 s; 32 re-plans 3 strokes, 83 s; 48 re-plans 30,
+# 73 s, and costs 40 % more planning time (benchmarks/bench_convert.py).
+JERK_PER_TOL = 32.0
 REACH = 2  # periods either side of one that strays whose jerk bound is halved with it
 SUB = 16  # points per period where the executed parabola is checked (8 read ~3 % low)
 CANDIDATES = 8  # parameters tried per point before the Newton steps
@@ -67,22 +68,16 @@ def distance_to_stretch(spline: Spline, x: np.ndarray, lo: np.ndarray, hi: np.nd
                         candidates: int = CANDIDATES, iterations: int = 4) -> np.ndarray:
     """Distance (mm) from each point x (n, 2) to the spline's stretch u in [lo, hi]
     (per point): the nearest of ``candidates`` evenly spread parameters, then
-    Newton steps on (q(u) - x) . q'(u) = 0 kept within one spacing of it."""
-    w = np.linspace(0.0, 1.0, candidates)
-    cand = lo[:, None] + (hi - lo)[:, None] * w[None, :]
-    dist = np.linalg.norm(spline(cand.ravel()).reshape(len(x), candidates, 2) - x[:, None, :], axis=2)
-    best = dist.argmin(axis=1)
-    u = cand[np.arange(len(x)), best]
-    d0 = dist[np.arange(len(x)), best]
-    step_u = (hi - lo) / (candidates - 1)
-    a, b = np.maximum(u - step_u, 0.0), np.minimum(u + step_u, 1.0)
-    for _ in range(iterations):
-        q, d1, d2 = spline(u), spline(u, 1), spline(u, 2)
-        r = q - x
-        g = (d1 * r).sum(axis=1)
-        h = (d1 * d1).sum(axis=1) + (d2 * r).sum(axis=1)
-        u = np.clip(u - np.where(h > 1e-12, g / np.maximum(h, 1e-12), 0.0), a, b)
-    return np.minimum(np.linalg.norm(spline(u) - x, axis=1), d0)
+    Newton steps on (q(u) - x) . q'(u) = 0 kept within one spacing of it
+    (compiled: kernels.distance_to_stretch)."""
+    from . import kernels
+
+    c = spline.derivative_controls
+    out = np.empty(len(x))
+    kernels.distance_to_stretch(c[0], c[1], c[min(2, spline.degree)], spline.degree, len(spline.control) - spline.degree,
+                                np.ascontiguousarray(x, dtype=float), np.ascontiguousarray(lo, dtype=float),
+                                np.ascontiguousarray(hi, dtype=float), candidates, iterations, out)
+    return out
 
 
 def path_deviation(spline: Spline, samples: StrokeSamples, sub: int = SUB) -> np.ndarray:
@@ -117,32 +112,35 @@ def path_deviation(spline: Spline, samples: StrokeSamples, sub: int = SUB) -> np
 @dataclass(frozen=True)
 class JerkBound:
     """The planner's jerk bound along one stroke (mm/s^3 at curve parameter u):
-    ``base``, halved once on each stretch in ``halved`` (pairs of u) it lies in."""
+    ``base``, times the factor of every stretch in ``scaled`` ((u_lo, u_hi,
+    factor) each) that u lies in."""
 
     base: float
-    halved: tuple[tuple[float, float], ...] = ()
+    scaled: tuple[tuple[float, float, float], ...] = ()
 
     def __call__(self, u: np.ndarray) -> np.ndarray:
         scale = np.ones_like(u, dtype=float)
-        for lo, hi in self.halved:
-            scale[(u >= lo) & (u <= hi)] *= 0.5
+        for lo, hi, f in self.scaled:
+            scale[(u >= lo) & (u <= hi)] *= f
         return self.base * scale
 
     def tightened(self, samples: StrokeSamples, deviation: np.ndarray, tolerance: float,
                   reach: int = REACH) -> "JerkBound":
-        """Halved again where the executed path strayed beyond ``tolerance``:
-        each such period widened by ``reach`` periods on both sides (the swing
-        builds up over the periods before it)."""
+        """Lowered where the executed path strayed beyond ``tolerance``, in
+        proportion (a period's swing grows with the jerk), with a margin: each
+        such period widened by ``reach`` periods on both sides (the swing builds
+        up over the periods before it)."""
         su = samples.sample_u
         bad = np.flatnonzero(deviation > tolerance)
-        spans = [(float(su[max(k - reach, 0)]), float(su[min(k + 1 + reach, len(su) - 1)])) for k in bad]
-        merged: list[tuple[float, float]] = []
-        for lo, hi in spans:  # bad is sorted, so are the spans
+        merged: list[list[float]] = []
+        for k in bad:  # sorted, so are the stretches
+            lo, hi = float(su[max(k - reach, 0)]), float(su[min(k + 1 + reach, len(su) - 1)])
+            f = float(np.clip(0.8 * tolerance / deviation[k], 0.25, 0.7))
             if merged and lo <= merged[-1][1]:
-                merged[-1] = (merged[-1][0], max(hi, merged[-1][1]))
+                merged[-1][1], merged[-1][2] = max(hi, merged[-1][1]), min(f, merged[-1][2])
             else:
-                merged.append((lo, hi))
-        return JerkBound(self.base, self.halved + tuple(merged))
+                merged.append([lo, hi, f])
+        return JerkBound(self.base, self.scaled + tuple(tuple(s) for s in merged))
 
 
 def jerk_limit(tolerance: float, dt: float) -> float:

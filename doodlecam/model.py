@@ -94,7 +94,7 @@ class Spline:
         return np.unique(self.knots)
 
     @cached_property
-    def _derivatives(self) -> list[np.ndarray]:
+    def derivative_controls(self) -> list[np.ndarray]:
         """Control points of q, q', ..., q^(degree): each a clamped uniform spline
         over the same knot spans, one degree lower than the last."""
         t, c, k = self.knots, np.ascontiguousarray(self.control), self.degree
@@ -114,7 +114,7 @@ class Spline:
             return np.zeros(u.shape + (2,))
         out = np.empty((u.size, 2))
         nseg = len(self.control) - self.degree
-        bspline_eval(self._derivatives[der], self.degree - der, nseg, u.reshape(-1), out)  # clipped to [0, 1] there
+        bspline_eval(self.derivative_controls[der], self.degree - der, nseg, u.reshape(-1), out)  # clipped to [0, 1] there
         return out.reshape(u.shape + (2,))
 
     @cached_property

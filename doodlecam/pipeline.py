@@ -127,9 +127,9 @@ def plan_job(drawing: Drawing, machine: Machine, solver: str = "reach", plugin_d
     jerk = JerkBound(jerk_limit(path_tol, machine.delta_time)) if path_tol > 0 else None
     steps = (machine.x.steps_per_mm, machine.y.steps_per_mm)
 
-    def plan_one(n: int, s: Stroke, jerk_max):
+    def plan_one(n: int, s: Stroke, jerk_max, grid=None):
         try:
-            prof = plan_stroke(s.spline, limits, solver=solver, smoothing=smoothing, jerk_max=jerk_max)
+            prof = plan_stroke(s.spline, limits, solver=solver, smoothing=smoothing, jerk_max=jerk_max, grid=grid)
         except PlanError as e:
             raise PlanError(f"stroke {n} of {len(strokes)}: {e}") from None
         return replace(s, profile=prof), check_profile(s.spline, prof, limits)
@@ -147,11 +147,11 @@ def plan_job(drawing: Drawing, machine: Machine, solver: str = "reach", plugin_d
     replanned = 0
     for i in range(len(planned)):
         bound = jerk
-        for _ in range(REPLANS if jerk is not None else 0):  # still off: halve the bound where it strays
+        for _ in range(REPLANS if jerk is not None else 0):  # still off: lower the bound where it strays
             if devs[i].max(initial=0.0) <= path_tol:
                 break
             bound = bound.tightened(samples[i], devs[i], path_tol)
-            planned[i], ratios[i] = plan_one(i + 1, strokes[i], bound)
+            planned[i], ratios[i] = plan_one(i + 1, strokes[i], bound, planned[i].profile.u)
             samples[i], devs[i] = sample_one(planned[i])
             replanned += 1
     samples = tuple(samples)

@@ -160,16 +160,21 @@ def check_solver(solver: str) -> None:
 def plan_stroke(spline: Spline, limits: Limits, solver: str = "reach", spacing: float = 0.5,
                 n_points: int | None = None, adaptive: bool = True, smoothing: float = 0.0,
                 v_start: float = 0.0, v_end: float = 0.0, mode: str = "bernstein",
-                max_rounds: int = 6, jerk_max=None) -> Profile:
+                max_rounds: int = 6, jerk_max=None, grid: np.ndarray | None = None) -> Profile:
     """Time-optimal profile along ``spline``; v_start / v_end are pen speeds (mm/s).
 
     ``jerk_max`` (mm/s^3, a number or a function of u such as
     follow.JerkBound): also bound the pen's jerk across the path
     (constraints.jerk_rows), which slows it where the curve's turning changes
     fast; two more solves on the final grid, each below the last.
+    ``grid``: plan on these u instead of making (and refining) a grid, e.g. the
+    grid of an earlier plan of the same stroke.
     """
     check_solver(solver)
-    u = make_grid(spline, spacing, n_points=n_points)
+    if grid is not None:
+        u, adaptive = np.asarray(grid, float), False
+    else:
+        u = make_grid(spline, spacing, n_points=n_points)
     speed_ends = np.linalg.norm(spline(np.array([0.0, 1.0]), 1), axis=1)
     b0 = (v_start / max(speed_ends[0], 1e-300)) ** 2
     bN = (v_end / max(speed_ends[1], 1e-300)) ** 2

@@ -48,8 +48,11 @@ def test_reported_deviation_bounds_the_true_one(walk, degree, tol):
     poly = np.cumsum(np.random.default_rng(seed).normal(size=(k, 2)) * scale, axis=0)
     spline, err = fit_polyline(poly, degree, tol)
     true = hausdorff(spline, poly)
-    assert true <= err + 1e-7  # certified
-    assert true <= deviation(spline, poly, tol) + 1e-7 and deviation(spline, poly, tol) <= err + 1e-12
+    # the brute force measures to chords of 200 001 curve samples: on a fit with a thousand
+    # control points (walk 9, 9, 14: 1192) they sag from the curve by ~1e-6 mm
+    slack = 1e-4 * tol
+    assert true <= err + slack  # certified
+    assert true <= deviation(spline, poly, tol) + slack and deviation(spline, poly, tol) <= err + 1e-12
     if err <= tol:
         assert err < true + 0.5 * tol  # and not loose: the search's counts depend on it
 

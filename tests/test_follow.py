@@ -99,16 +99,17 @@ def test_path_tolerance_keeps_the_plc_on_the_curve_between_samples(tmp_path):
     assert off.job.meta["max_between_samples_mm"] > 0.1  # without it the ramps do stray
 
 
-def test_jerk_bound_is_halved_only_where_the_pen_strayed():
+def test_jerk_bound_is_lowered_only_where_the_pen_strayed():
     from doodlecam.follow import JerkBound
 
     su = np.linspace(0.0, 1.0, 21)  # 20 periods
     smp = StrokeSamples(start=np.zeros(2), velocity=np.zeros((20, 2)), delta_time=0.04, sample_u=su)
     dev = np.zeros(20)
-    dev[[5, 6, 15]] = 0.2
+    dev[[5, 6, 15]] = [0.2, 0.4, 0.12]
     bound = JerkBound(1000.0).tightened(smp, dev, 0.1, reach=1)
-    assert bound.halved == ((su[4], su[8]), (su[14], su[17]))  # neighbours merged, one period either side
+    # neighbours merged, one period either side; lowered in proportion to the excess (0.8 tol / dev, within 0.25..0.7)
+    assert bound.scaled == ((su[4], su[8], 0.25), (su[14], su[17], 0.8 * 0.1 / 0.12))
     u = np.array([0.0, su[4], 0.3, su[8] + 1e-9, 0.75, 1.0])
-    assert np.array_equal(bound(u), [1000.0, 500.0, 500.0, 1000.0, 500.0, 1000.0])
+    assert np.allclose(bound(u), [1000.0, 250.0, 250.0, 1000.0, 1000 * 0.8 / 1.2, 1000.0])
     again = bound.tightened(smp, dev, 0.1, reach=1)
-    assert again(np.array([0.3]))[0] == 250.0  # a second round halves it again there
+    assert again(np.array([0.3]))[0] == 1000.0 * 0.25 * 0.25  # a second round lowers it again there
