@@ -29,9 +29,9 @@ from .model import Spline, StrokeSamples
 # Jerk across the path (mm/s^3) allowed per mm of path tolerance and per dT^-3 (a
 # period's swing is ~ j dT^3 / 24 and swings add up); where a stroke still strays
 # the bound is lowered there and the stroke re-planned. On camera.png (0.1 mm, 40 ms):
-# 24 re-plans none but draws 94 s; 32 re-plans 3 strokes, 83 s; 48 re-plans 30,
-# 73 s, and costs 40 % more planning time (benchmarks/bench_convert.py).
-JERK_PER_TOL = 32.0
+# 16 re-plans none and draws 86 s; 24 re-plans 4 strokes, 75 s; 32 re-plans 26, 70 s,
+# at 10 % more planning time (benchmarks/bench_convert.py).
+JERK_PER_TOL = 24.0
 REACH = 2  # periods either side of one that strays whose jerk bound is halved with it
 SUB = 16  # points per period where the executed parabola is checked (8 read ~3 % low)
 CANDIDATES = 8  # parameters tried per point before the Newton steps

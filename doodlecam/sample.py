@@ -33,7 +33,9 @@ the pen e dT / 4 off the curve between them, is damped (docs/sampling.md).
 
 from __future__ import annotations
 
+import collections
 import functools
+import threading
 
 import numpy as np
 
@@ -95,8 +97,10 @@ def _clarabel(P, q, A, b, n_eq):
 def _objective(m: int):
     """CSC pattern (upper triangle) of the objective for m instants: diagonal,
     plus each target's (vx_j, vy_j) coupling for the penalty across the curve.
-    Returns indices, indptr, and where in the data the diagonal of vx, the
+    Returns the matrix (zeros) and where in its data the diagonal of vx, the
     diagonal of vy and the couplings go."""
+    import scipy.sparse as sp
+
     n = m - 1
     N = 2 * n + 3 * m
     # column c < n (vx_c): row c; column n + j (vy_j): rows j, n + j; the rest: diagonal
@@ -106,10 +110,28 @@ def _objective(m: int):
     indices = np.arange(N, dtype=np.int64).repeat(counts)
     jn = np.arange(n)
     indices[indptr[n + jn]] = jn
-    return indices, indptr, indptr[jn], indptr[n + jn] + 1, indptr[n + jn]
+    P = sp.csc_matrix((np.zeros(len(indices)), indices, indptr), shape=(N, N))
+    return P, indptr[jn], indptr[n + jn] + 1, indptr[n + jn]
 
 
 _TAG = 1e9
+_WORK = threading.local()  # per thread: working copies of the cached matrices, filled in place
+
+
+def _working(key, template):
+    """This thread's copy of a cached (immutable) matrix: Clarabel copies its data
+    at set-up, so one copy per pattern can be refilled for every solve instead of
+    building a scipy matrix each time (a quarter of a millisecond)."""
+    cache = getattr(_WORK, "cache", None)
+    if cache is None:
+        cache = _WORK.cache = collections.OrderedDict()
+    if key in cache:
+        cache.move_to_end(key)
+    else:
+        cache[key] = template.copy()
+        if len(cache) > 256:
+            cache.popitem(last=False)
+    return cache[key]
 
 
 @functools.lru_cache(maxsize=256)
@@ -191,20 +213,20 @@ def _qp(p, tang, v_plan, end, dt, tol, limits, L, nrm=None, trust=None):
     components along them are penalised with NORMAL_WEIGHT.
     ``trust``: (m,) bounds on |d|, so the linearisation holds.
     """
-    import scipy.sparse as sp
-
     m = len(p)
     n = m - 1
     nv, nx = 2 * n, 2 * m
     M = None if limits.M is None else tuple(np.asarray(limits.M, float).ravel())
-    base, n_eq, tagged, signs, inst, axes = _pattern(m, float(dt), M, trust is not None)
-    data = base.data.copy()
-    data[tagged] = -signs * tang[inst, axes]
-    A = sp.csc_matrix((data, base.indices, base.indptr), shape=base.shape)
+    key = (m, float(dt), M, trust is not None)
+    base, n_eq, tagged, signs, inst, axes = _pattern(*key)
+    A = _working(key, base)
+    A.data[tagged] = -signs * tang[inst, axes]
     lam = VELOCITY_WEIGHT * dt * dt
     diag = np.concatenate([np.full(nv, lam), np.zeros(nx), np.ones(m)]) + 1e-12
-    indices, indptr, dx, dy, cross = _objective(m)
-    pdata = diag[indices]  # every column's first entry is its diagonal but vy's
+    P, dx, dy, cross = _objective(m)
+    P = _working(m, P)
+    pdata = P.data
+    pdata[:] = diag[P.indices]  # every column's first entry is its diagonal but vy's
     pdata[cross] = 0.0
     if nrm is not None:
         w = NORMAL_WEIGHT * (dt / 4) ** 2  # the swing e dT / 4 per unit of velocity across
@@ -212,7 +234,6 @@ def _qp(p, tang, v_plan, end, dt, tol, limits, L, nrm=None, trust=None):
         pdata[dx] += w * nx_ * nx_
         pdata[dy] += w * ny_ * ny_
         pdata[cross] = w * nx_ * ny_
-    P = sp.csc_matrix((pdata, indices, indptr), shape=(len(diag), len(diag)))
     q = np.concatenate([-lam * v_plan[:n, 0], -lam * v_plan[:n, 1], np.zeros(nx + m)])
     rhs = [np.zeros(2 * m), end]
     for sign in (1.0, -1.0):
@@ -265,9 +286,9 @@ def sample_stroke(stroke: Stroke, dt: float, limits, steps_per_mm=(80.0, 80.0), 
             tang = d1 / L  # d is in mm of arc (roughly): q(u + d/L) ~ q + q' d / L
             nrm = trust = None
             if follow:
-                sp = np.maximum(np.linalg.norm(d1, axis=1), 1e-12)
-                nrm = np.column_stack([-d1[:, 1], d1[:, 0]]) / sp[:, None]
-                trust = TRUST_MM * L / sp  # ~TRUST_MM of arc
+                speed = np.maximum(np.linalg.norm(d1, axis=1), 1e-12)
+                nrm = np.column_stack([-d1[:, 1], d1[:, 0]]) / speed[:, None]
+                trust = TRUST_MM * L / speed  # ~TRUST_MM of arc
             # the box is 3/4 of the tolerance: the rest absorbs the linearisation error
             res = _qp(np.column_stack([p, u]), tang, v_plan, end, dt, 0.75 * tol, limits, L, nrm, trust)
             if res is None:
