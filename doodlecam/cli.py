@@ -83,8 +83,9 @@ def job_options(f):
                      "qp[:clarabel|highs|osqp] (smoothed). Default: the profile's [machine] solver."),
         click.option("--smoothing", type=float, help="Weight of the smoothing QP against time (solver qp). Default: the profile's."),
         click.option("--path-tolerance", type=float, metavar="MM",
-                     help="Keep the pen within MM of the curve between velocity samples too (slower drawing; "
-                     "0 = off). Default: the profile's [sampling] path_tolerance."),
+                     help="Keep the pen within MM of the curve between velocity samples too (0 = off: faster "
+                     "drawing, the pen may stray ~0.7 mm). Default: the profile's [sampling] path_tolerance, "
+                     "else its fit tolerance."),
         click.option("--width", type=float, metavar="MM", help="Target drawing width in mm (aspect kept). Default: fill the work area."),
         click.option("--height", type=float, metavar="MM", help="Target drawing height in mm (aspect kept)."),
         click.option("--scale", type=float, metavar="MM", help="Fixed scale: mm per source unit (px, or mm: 1 = an SVG/DXF at true size)."),
