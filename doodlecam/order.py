@@ -227,6 +227,25 @@ def _order(starts, ends, closed, ring_pts, ring_off, home, allow_reverse, budget
     return tour, {"greedy_travel": greedy_cost, "rounds": rounds, "moves": moves, "kicks": kicks}
 
 
+_COMPILED = False
+
+
+def _compile_once() -> None:
+    """Compile (or load from numba's cache) every ordering kernel once per
+    process, before any budget clock starts: with an empty cache (the first run
+    after an install) compiling takes seconds, and a budget that counted it
+    gave that run a different, worse order than every later run."""
+    global _COMPILED
+    if _COMPILED:
+        return
+    _COMPILED = True
+    rng = np.random.default_rng(0)
+    polys = [rng.random((3, 2)) * 100 for _ in range(10)]
+    ring = rng.random((4, 2)) * 100
+    polys += [np.vstack([ring, ring[:1]]), np.vstack([ring[::-1], ring[-1:]]) + 50]  # closed: any start
+    order_strokes(polys, (0.0, 0.0), budget=60.0)
+
+
 def order_strokes(polylines: Sequence[np.ndarray], home=(0.0, 0.0), allow_reverse: bool = True,
                   merge: float = 0.0, budget: float = 1.0, neighbours: int = 16) -> Ordering:
     """Order, orient and rotate strokes to keep pen-up travel short.
@@ -235,9 +254,11 @@ def order_strokes(polylines: Sequence[np.ndarray], home=(0.0, 0.0), allow_revers
     ``budget``: seconds after which the improvement stops (0 = greedy only),
     counted from the call and checked between compiled steps, so very large
     sets may overrun it a little; small sets settle in milliseconds and stop
-    there.
+    there. The clock starts after numba has compiled or loaded the kernels, so
+    the same strokes get the same order on the first run after an install too.
     ``home``: where the pen starts and ends; ``None`` for a free start and end.
     """
+    _compile_once()
     t_start = time.perf_counter()
     polys = [np.asarray(p, float) for p in polylines]
     kept = [i for i, p in enumerate(polys) if len(p)]
@@ -286,6 +307,7 @@ def order_polylines(polylines, home=(0.0, 0.0), allow_reverse: bool = True, budg
     starts = np.array([p[0] for p in polys], float).reshape(-1, 2)
     ends = np.array([p[-1] for p in polys], float).reshape(-1, 2)
     home_pt = np.full(2, np.nan) if home is None else np.asarray(home, float).reshape(2)
+    _compile_once()
     tour, _ = _order(starts, ends, np.zeros(n, bool), np.zeros((0, 2)), np.zeros(n + 1, np.int64), home_pt,
                      allow_reverse, budget, 8, time.perf_counter())
     return tour["seq"].tolist(), tour["flip"].tolist()

@@ -151,3 +151,23 @@ def test_empty_polylines_keep_their_source_indices():
     o = order_strokes([np.zeros((0, 2)), a, np.zeros((0, 2)), b], (0.0, 0.0))
     assert o.source == (3, 1)
     assert np.array_equal(o.polylines[0], b) and np.array_equal(o.polylines[1], a[::-1])  # back home from (5, 5)
+
+
+def test_a_cold_numba_cache_does_not_change_the_order(tmp_path):
+    """The first run after an install compiles the ordering kernels (seconds);
+    the budget starts after that, so it orders exactly as every later run."""
+    import subprocess
+    import sys
+
+    code = (
+        "import numpy as np, time\n"
+        "from doodlecam.order import order_strokes\n"
+        "rng = np.random.default_rng(5)\n"
+        "polys = [np.cumsum(rng.normal(size=(4, 2)), axis=0) + rng.random(2) * 200 for _ in range(60)]\n"
+        "t = time.perf_counter()\n"
+        "first = order_strokes(polys, (0.0, 0.0), budget=0.2).source\n"
+        "print(time.perf_counter() - t > 0.2, first == order_strokes(polys, (0.0, 0.0), budget=30.0).source)\n"
+    )
+    env = {**__import__("os").environ, "NUMBA_CACHE_DIR": str(tmp_path)}  # empty: everything compiles
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, env=env, check=True).stdout.split()
+    assert out == ["True", "True"]  # the first call took longer than its budget, and still ordered the same
