@@ -3,6 +3,7 @@
 from pathlib import Path
 
 import numpy as np
+import pytest
 from scipy.spatial import cKDTree
 
 from doodlecam.fit import fit_pieces
@@ -113,3 +114,19 @@ def test_jerk_bound_is_lowered_only_where_the_pen_strayed():
     assert np.allclose(bound(u), [1000.0, 250.0, 250.0, 1000.0, 1000 * 0.8 / 1.2, 1000.0])
     again = bound.tightened(smp, dev, 0.1, reach=1)
     assert again(np.array([0.3]))[0] == 1000.0 * 0.25 * 0.25  # a second round lowers it again there
+
+
+@pytest.mark.parametrize("name", ["coins.png", "text.png"])
+def test_default_profile_keeps_every_stroke_within_the_fit_tolerance_between_samples(name):
+    """By default the pen stays as close to the curve between samples as the fit
+    is to the picture; these pictures need strokes re-planned to get there."""
+    from doodlecam.layout import fit_to_work_area
+    from doodlecam.machine import load_machine
+    from doodlecam.pipeline import Settings, plan_job, trace
+
+    m = load_machine("doodlebot")
+    d = fit_to_work_area(trace(Path(__file__).resolve().parent.parent / "samples" / "images" / name, Settings(machine=m)), m)
+    job = plan_job(d, m)
+    assert job.meta["strokes_replanned"] > 0  # the re-plans are exercised
+    for stroke, smp in zip(job.strokes, job.samples):
+        assert path_deviation(stroke.spline, smp).max() <= m.path_tolerance == m.tolerance == 0.1
