@@ -129,7 +129,7 @@ def _working(key, template):
         cache.move_to_end(key)
     else:
         cache[key] = template.copy()
-        if len(cache) > 256:
+        if len(cache) > 64:
             cache.popitem(last=False)
     return cache[key]
 
