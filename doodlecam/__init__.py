@@ -6,4 +6,6 @@ This package import stays light on purpose: heavy libraries are imported by
 the stage that needs them, so ``doodlecam --help`` answers fast.
 """
 
-__version__ = "0.1.0"
+# Bumped whenever outputs change for the same input and options: batch manifests
+# hash it, so a re-run redoes what an older version wrote.
+__version__ = "0.2.0"

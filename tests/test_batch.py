@@ -121,6 +121,16 @@ def test_filters_and_options_hash(tmp_path):
         assert changed.fingerprint() != base
 
 
+def test_a_new_version_redoes_what_an_older_one_wrote(monkeypatch):
+    """Defaults change between versions (a tracer option, the path tolerance), so
+    outputs written by another version are never taken as up to date."""
+    import doodlecam.batch as batch
+
+    base = batch.BatchOptions().fingerprint()
+    monkeypatch.setattr(batch, "__version__", "0.1.0")
+    assert batch.BatchOptions().fingerprint() != base
+
+
 SLOW_POST = '''
 import time
 from doodlecam.api import PostProcessor
