@@ -215,6 +215,8 @@ def plan_stroke(spline: Spline, limits: Limits, solver: str = "reach", spacing: 
             b_hat = np.minimum(b_free, grow * b) * (1 + 1e-12)
             jr = constraints.jerk_rows(coefficients, u, b_hat, jerk_max)
             rows = constraints.stack(base_rows, constraints.Rows(jr.tot, jr.beta, jr.gamma, b_hat))
+            if grow == JERK_GROW[0] and jr.ratios(b_free).max(initial=0.0) <= 1.0:
+                break  # the plan already keeps the bound (a straight stroke, say): it is the answer
             b = _solve(rows, u, base, b0, bN)
     if solver.startswith("qp"):
         backend = solver.partition(":")[2] or "clarabel"
