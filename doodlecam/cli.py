@@ -160,6 +160,10 @@ def convert(input, outdir, as_json, **options):
     click.echo(f"  planned job time   {s['job_time_s']:.1f} s  (drawing {s['draw_time_s']:.1f} s, {s['samples']} velocity samples)")
     click.echo(f"  limits             acceleration <= {s['worst_acceleration_ratio']:.6f}, velocity <= "
                f"{s['worst_velocity_ratio']:.6f} of the limit (checked on a 20x finer grid)")
+    if s.get("worst_ramp_ratio") is not None:  # nonlinear kinematics: the cranks along the sampled ramps
+        click.echo(f"                     actuators along the sampled ramps <= {s['worst_ramp_ratio']:.6f} of their limits"
+                   + (f" ({s['strokes_slowed_for_ramps']} stroke{'s' if s['strokes_slowed_for_ramps'] > 1 else ''} "
+                      "planned slower for it)" if s["strokes_slowed_for_ramps"] else ""))
     enforced = s["path_tolerance_mm"] > 0
     click.echo(f"  pen on the curve   within half a step at every sample instant; up to "
                f"{s['max_between_samples_mm']:.3f} mm off between instants"

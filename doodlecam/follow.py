@@ -109,6 +109,25 @@ def path_deviation(spline: Spline, samples: StrokeSamples, sub: int = SUB) -> np
     return np.maximum(dist.max(axis=1), np.minimum(peak, f0 + np.abs(fp - fm)))
 
 
+def ramp_ratios(samples: StrokeSamples, kinematics, vmax, amax, sub: int = 8) -> tuple[float, float]:
+    """Worst (acceleration, velocity) / limit of the actuators along the executed
+    ramps, at ``sub`` + 1 times in every period. For nonlinear kinematics (the
+    five-bar arm) the samples are pen motion, whose constant-acceleration periods
+    the cranks follow with varying acceleration; a linear map keeps the limits
+    the sampler's rows impose."""
+    dt = samples.delta_time
+    x = samples.integrate()
+    v = np.vstack([np.zeros((1, 2)), samples.velocity])
+    tau = np.linspace(0.0, dt, sub + 1)[None, :, None]
+    acc = ((v[1:] - v[:-1]) / dt)[:, None, :]
+    pos = x[:-1, None, :] + v[:-1, None, :] * tau + acc * tau ** 2 / 2
+    vel = v[:-1, None, :] + acc * tau
+    shape = pos.shape
+    _, t1, t2 = kinematics.derivatives(pos.reshape(-1, 2), vel.reshape(-1, 2),
+                                       np.broadcast_to(acc, shape).reshape(-1, 2))
+    return float((np.abs(t2) / amax).max(initial=0.0)), float((np.abs(t1) / vmax).max(initial=0.0))
+
+
 @dataclass(frozen=True)
 class JerkBound:
     """The planner's jerk bound along one stroke (mm/s^3 at curve parameter u):

@@ -84,6 +84,7 @@ def kinematics_for(machine: Machine, plugin_dirs=()):
 
 
 REPLANS = 4  # at most this many re-plans of a stroke still off the curve between samples
+RAMP_REPLANS = 3  # ... and of one whose ramps pass a (nonlinear) actuator's limit
 
 
 def plan_job(drawing: Drawing, machine: Machine, solver: str = "reach", plugin_dirs=(), order: dict | None = None,
@@ -93,7 +94,7 @@ def plan_job(drawing: Drawing, machine: Machine, solver: str = "reach", plugin_d
     ``order`` overrides the profile's [order] options (doodlecam.layout.ORDER_DEFAULTS).
     """
     from .fit import fit_pieces
-    from .follow import JerkBound, jerk_limit, path_deviation
+    from .follow import JerkBound, jerk_limit, path_deviation, ramp_ratios
     from .layout import order_options
     from .order import order_strokes
     from .plan import Limits, check_profile, check_solver, plan_stroke
@@ -127,15 +128,39 @@ def plan_job(drawing: Drawing, machine: Machine, solver: str = "reach", plugin_d
     jerk = JerkBound(jerk_limit(path_tol, machine.delta_time)) if path_tol > 0 else None
     steps = (machine.x.steps_per_mm, machine.y.steps_per_mm)
 
+    # Nonlinear kinematics: the samples are pen motion, and the cranks follow its
+    # constant-acceleration periods with varying acceleration that can pass their
+    # limit by a few per cent. Such a stroke is planned again within lower limits.
+    nonlinear = limits.M is None
+    scale = [1.0] * len(strokes)  # per stroke: the share of the actuator limits planned with
+    ramps = [0.0] * len(strokes)  # per stroke: worst actuator ratio along the sampled ramps (nonlinear)
+
     def plan_one(n: int, s: Stroke, jerk_max, grid=None):
+        lim = limits if scale[n - 1] == 1.0 else replace(limits, vmax=limits.vmax * np.sqrt(scale[n - 1]),
+                                                         amax=limits.amax * scale[n - 1])
         try:
-            prof = plan_stroke(s.spline, limits, solver=solver, smoothing=smoothing, jerk_max=jerk_max, grid=grid)
+            prof = plan_stroke(s.spline, lim, solver=solver, smoothing=smoothing, jerk_max=jerk_max, grid=grid)
         except PlanError as e:
             raise PlanError(f"stroke {n} of {len(strokes)}: {e}") from None
         return replace(s, profile=prof), check_profile(s.spline, prof, limits)
 
-    def sample_one(s: Stroke):
+    def sample_one(s: Stroke, n: int, jerk_max):
         smp = sample_stroke(s, machine.delta_time, limits, steps, follow=jerk is not None)
+        for _ in range(RAMP_REPLANS if nonlinear else 0):
+            ra, rv = ramp_ratios(smp, kin, limits.vmax, limits.amax)
+            r = max(ra, rv * rv)  # a slower plan: accelerations scale with the square of speeds
+            if r <= 1.0:
+                break
+            scale[n - 1] *= 0.98 / r
+            s, ratios[n - 1] = plan_one(n, strokes[n - 1], jerk_max, s.profile.u)
+            planned[n - 1] = s
+            smp = sample_stroke(s, machine.delta_time, limits, steps, follow=jerk is not None)
+        else:
+            if nonlinear and max(ramp_ratios(smp, kin, limits.vmax, limits.amax)) > 1.0:
+                raise PlanError(f"stroke {n} of {len(strokes)}: velocity samples every {machine.delta_time * 1000:g} ms "
+                                "cannot keep the actuators within their limits; use a shorter [sampling] delta_time")
+        if nonlinear:
+            ramps[n - 1] = max(ramp_ratios(smp, kin, limits.vmax, limits.amax))
         return smp, path_deviation(s.spline, smp)
 
     t0 = time.perf_counter()
@@ -143,7 +168,7 @@ def plan_job(drawing: Drawing, machine: Machine, solver: str = "reach", plugin_d
     timings["plan"] = time.perf_counter() - t0
 
     t0 = time.perf_counter()
-    samples, devs = map(list, zip(*(sample_one(s) for s in planned))) if planned else ([], [])
+    samples, devs = map(list, zip(*(sample_one(s, n, jerk) for n, s in enumerate(list(planned), 1)))) if planned else ([], [])
     replanned = 0
     for i in range(len(planned)):
         bound = jerk
@@ -152,7 +177,7 @@ def plan_job(drawing: Drawing, machine: Machine, solver: str = "reach", plugin_d
                 break
             bound = bound.tightened(samples[i], devs[i], path_tol)
             planned[i], ratios[i] = plan_one(i + 1, strokes[i], bound, planned[i].profile.u)
-            samples[i], devs[i] = sample_one(planned[i])
+            samples[i], devs[i] = sample_one(planned[i], i + 1, bound)
             replanned += 1
     samples = tuple(samples)
     timings["sample"] = time.perf_counter() - t0
@@ -175,6 +200,8 @@ def plan_job(drawing: Drawing, machine: Machine, solver: str = "reach", plugin_d
         "max_between_samples_mm": between,
         "path_tolerance_mm": path_tol,
         "strokes_replanned": replanned,
+        "strokes_slowed_for_ramps": sum(1 for c in scale if c < 1.0),
+        "worst_ramp_ratio": max(ramps, default=0.0) if nonlinear else None,
         "control_points": sum(len(s.spline.control) for s in planned),
         "timings": timings,
     }
@@ -233,6 +260,10 @@ class Result:
             "max_fit_error_mm": round(j.meta["max_fit_error_mm"], 4),
             "max_between_samples_mm": round(j.meta.get("max_between_samples_mm", 0.0), 4),
             "path_tolerance_mm": j.meta.get("path_tolerance_mm", 0.0),
+            "strokes_replanned": j.meta.get("strokes_replanned", 0),
+            "strokes_slowed_for_ramps": j.meta.get("strokes_slowed_for_ramps", 0),
+            "worst_ramp_ratio": (None if j.meta.get("worst_ramp_ratio") is None
+                                 else round(j.meta["worst_ramp_ratio"], 6)),
             "worst_acceleration_ratio": round(j.meta["worst_acceleration_ratio"], 9),
             "worst_velocity_ratio": round(j.meta["worst_velocity_ratio"], 9),
             "travel_law": j.meta.get("travel_law", ""),

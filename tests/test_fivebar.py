@@ -217,3 +217,34 @@ def test_scalar_limits_apply_to_both_cranks():
     kin = FiveBar(MACHINE, dict(PARAMS, max_velocity=2.0, max_acceleration=30))
     v, a = kin.actuator_limits()
     assert list(v) == [2.0, 2.0] and list(a) == [30.0, 30.0]
+
+
+def test_the_cranks_follow_the_sampled_ramps_within_their_limits(tmp_path):
+    """The PLC file's samples are pen motion; the cranks follow each constant-
+    acceleration period with varying acceleration. Measured independently, by
+    finite differences of the crank angles along the executed ramps (from the file)."""
+    from pathlib import Path
+
+    from doodlecam.model import StrokeSamples
+    from doodlecam.follow import executed_points, path_deviation
+    from doodlecam.pipeline import Settings, convert
+    from conftest import plc_strokes
+
+    machine = load_machine("fivebar")
+    horse = Path(__file__).resolve().parent.parent / "samples" / "images" / "horse.png"
+    res = convert(horse, tmp_path, Settings(machine=machine, posts=("plc",)))
+    assert res.summary()["strokes_slowed_for_ramps"] >= 1  # the check had work to do on this picture
+    kin = kinematics_for(machine)
+    vmax, amax = kin.actuator_limits()
+    header, runs = plc_strokes(tmp_path / "horse.plc")
+    sub = 32
+    for run, stroke, smp in zip(runs, res.job.strokes, res.job.samples):
+        executed = StrokeSamples(start=run["start"], velocity=np.array(run["v"]), delta_time=header.delta_time,
+                                 sample_u=smp.sample_u)
+        pts = executed_points(executed, sub)
+        theta = kin.inverse(np.vstack([pts[:, :-1].reshape(-1, 2), pts[-1, -1:]]))
+        h = header.delta_time / sub
+        w = np.diff(theta, axis=0) / h
+        assert (np.abs(w) / vmax).max() <= 1.0 + 1e-3
+        assert (np.abs(np.diff(w, axis=0) / h) / amax).max() <= 1.0 + 1e-2  # whole steps/s in the file: a hair
+        assert path_deviation(stroke.spline, executed).max() <= 0.1 + 1e-3
