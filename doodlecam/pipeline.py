@@ -145,22 +145,23 @@ def plan_job(drawing: Drawing, machine: Machine, solver: str = "reach", plugin_d
         return replace(s, profile=prof), check_profile(s.spline, prof, limits)
 
     def sample_one(s: Stroke, n: int, jerk_max):
+        """Samples and the per-period path deviation of stroke n (planned as s);
+        for nonlinear kinematics re-plans it (into planned[n - 1]) until the
+        actuators keep their limits along the sampled ramps."""
         smp = sample_stroke(s, machine.delta_time, limits, steps, follow=jerk is not None)
-        for _ in range(RAMP_REPLANS if nonlinear else 0):
+        for attempt in range(RAMP_REPLANS + 1 if nonlinear else 0):
             ra, rv = ramp_ratios(smp, kin, limits.vmax, limits.amax)
+            ramps[n - 1] = max(ra, rv)
             r = max(ra, rv * rv)  # a slower plan: accelerations scale with the square of speeds
             if r <= 1.0:
                 break
+            if attempt == RAMP_REPLANS:
+                raise PlanError(f"stroke {n} of {len(strokes)}: velocity samples every {machine.delta_time * 1000:g} ms "
+                                "cannot keep the actuators within their limits; use a shorter [sampling] delta_time")
             scale[n - 1] *= 0.98 / r
             s, ratios[n - 1] = plan_one(n, strokes[n - 1], jerk_max, s.profile.u)
             planned[n - 1] = s
             smp = sample_stroke(s, machine.delta_time, limits, steps, follow=jerk is not None)
-        else:
-            if nonlinear and max(ramp_ratios(smp, kin, limits.vmax, limits.amax)) > 1.0:
-                raise PlanError(f"stroke {n} of {len(strokes)}: velocity samples every {machine.delta_time * 1000:g} ms "
-                                "cannot keep the actuators within their limits; use a shorter [sampling] delta_time")
-        if nonlinear:
-            ramps[n - 1] = max(ramp_ratios(smp, kin, limits.vmax, limits.amax))
         return smp, path_deviation(s.spline, smp)
 
     t0 = time.perf_counter()
