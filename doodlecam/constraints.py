@@ -136,18 +136,16 @@ def jerk_coefficients(spline: Spline, u: np.ndarray, taus=(0.0, 0.5, 1.0)):
     """Per tau in ``taus``: (tau, u there, c1, c2) on every interval of the grid u,
     the pen's jerk across the path being sqrt(b) (c1 a + c2 b) (see jerk_rows)."""
     h = np.diff(u)
-    out = []
-    for tau in taus:
-        uu = u[:-1] + tau * h
-        d1, d2, d3 = spline(uu, 1), spline(uu, 2), spline(uu, 3)
-        sp = np.maximum(np.linalg.norm(d1, axis=1), 1e-12)
-        c12 = d1[:, 0] * d2[:, 1] - d1[:, 1] * d2[:, 0]
-        c13 = d1[:, 0] * d3[:, 1] - d1[:, 1] * d3[:, 0]
-        dot12 = (d1 * d2).sum(axis=1)
-        kappa = c12 / sp ** 3
-        kappa_s = (c13 * sp ** 2 - 3 * c12 * dot12) / sp ** 6  # d kappa / d arc length
-        out.append((tau, uu, 3 * kappa * sp ** 2, 3 * kappa * dot12 + sp ** 3 * kappa_s))
-    return out
+    uu = (u[:-1, None] + np.asarray(taus)[None, :] * h[:, None]).T  # (len(taus), K): all at once
+    d1, d2, d3 = spline(uu, 1), spline(uu, 2), spline(uu, 3)
+    sp = np.maximum(np.linalg.norm(d1, axis=-1), 1e-12)
+    c12 = d1[..., 0] * d2[..., 1] - d1[..., 1] * d2[..., 0]
+    c13 = d1[..., 0] * d3[..., 1] - d1[..., 1] * d3[..., 0]
+    dot12 = (d1 * d2).sum(axis=-1)
+    kappa = c12 / sp ** 3
+    kappa_s = (c13 * sp ** 2 - 3 * c12 * dot12) / sp ** 6  # d kappa / d arc length
+    c1, c2 = 3 * kappa * sp ** 2, 3 * kappa * dot12 + sp ** 3 * kappa_s
+    return [(tau, uu[i], c1[i], c2[i]) for i, tau in enumerate(taus)]
 
 
 def jerk_rows(coefficients, u: np.ndarray, b_hat: np.ndarray, jerk_max) -> Rows:
