@@ -51,9 +51,11 @@ def test_clamped_ends_and_length():
     assert abs(s.length - 2 * np.pi * 30) < 0.05
 
 
-def exact_deviation(spline, poly):
-    """Two-way distance by brute force: dense curve vs exact point-to-segment."""
-    curve = spline(np.linspace(0, 1, 20001))
+def exact_deviation(spline, poly, n=200_001):
+    """Two-way distance by brute force: dense curve vs exact point-to-segment, and
+    polyline points to the curve's nearest fine chords (nearest samples alone read
+    up to 2e-4 mm high on a fit with a thousand control points)."""
+    curve = spline(np.linspace(0, 1, n))
     a, b = poly[:-1], poly[1:]
     ab = b - a
     L2 = np.maximum((ab**2).sum(1), 1e-300)
@@ -67,8 +69,12 @@ def exact_deviation(spline, poly):
     dense = np.concatenate([a + np.linspace(0, 1, 40)[:, None, None] * ab]).reshape(-1, 2)
     from scipy.spatial import cKDTree
 
-    d2 = cKDTree(curve).query(dense)[0].max()
-    return max(d1, d2)
+    d2, k = cKDTree(curve).query(dense)
+    for j in (np.clip(k - 1, 0, n - 2), np.clip(k, 0, n - 2)):
+        e = curve[j + 1] - curve[j]
+        t = np.clip(((dense - curve[j]) * e).sum(1) / np.maximum((e * e).sum(1), 1e-300), 0.0, 1.0)
+        d2 = np.minimum(d2, np.hypot(*(curve[j] + t[:, None] * e - dense).T))
+    return max(d1, d2.max())
 
 
 polylines = arrays(np.float64, st.tuples(st.integers(2, 12), st.just(2)),
