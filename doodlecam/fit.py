@@ -252,9 +252,12 @@ def _attempt(P, u, cum, n, p, tol, lam, Q, a, b, arc):  # pragma: no cover - com
 # ---------------------------------------------------------------- fitting
 
 def _check_points(p: np.ndarray, tolerance: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """The polyline sampled every tolerance / 3 (the data) with the midpoints
-    between (checked, not fitted): points, chord-length parameters, path length."""
-    dense = densify(p, tolerance / 3)
+    """The polyline sampled every tolerance / 3, and at least 32 times (the data),
+    with the midpoints between (checked, not fitted): points, chord-length
+    parameters, path length. (A stroke only a few tolerances long had so few
+    samples that the bound's run between them dwarfed the true deviation.)"""
+    length = float(np.hypot(*np.diff(p, axis=0).T).sum())
+    dense = densify(p, min(tolerance / 3, length / 32))
     pts = np.empty((2 * len(dense) - 1, 2))
     pts[0::2] = dense
     pts[1::2] = (dense[:-1] + dense[1:]) / 2
