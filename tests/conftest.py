@@ -1,8 +1,18 @@
+import os
+
 import numpy as np
 import pytest
+from hypothesis import settings
 from PIL import Image
 
 from doodlecam.machine import parse_machine
+
+# Property-based tests draw the same examples on every run, so a red CI is
+# reproducible and never luck; HYPOTHESIS_PROFILE=explore searches with fresh
+# random examples (do that when changing geometry or planning code).
+settings.register_profile("default", derandomize=True)
+settings.register_profile("explore", derandomize=False, max_examples=200)
+settings.load_profile(os.environ.get("HYPOTHESIS_PROFILE", "default"))
 
 PROFILE = {
     "machine": {"name": "testbot", "kinematics": "cartesian"},
