@@ -52,6 +52,7 @@ from typing import Any, Callable, Iterable
 from . import __version__
 from .atomic import write_bytes
 from .errors import DoodleError, InputError, OutputError
+from .options import ConvertOptions
 
 MANIFEST_NAME = ".doodlecam-manifest.json"
 LOCK_NAME = ".doodlecam-lock"
@@ -80,25 +81,15 @@ class BatchInterrupted(DoodleError):
 # ---------------------------------------------------------------- options
 
 
-@dataclass(frozen=True)
-class BatchOptions:
-    """Everything ``convert`` takes, as plain picklable values.
+@dataclass(frozen=True, kw_only=True)
+class BatchOptions(ConvertOptions):
+    """Everything ``convert`` takes, as plain picklable values: the machine by name.
 
     ``settings()`` builds the pipeline's ``Settings`` (importing the pipeline),
     which only workers do.
     """
 
     machine: str = "doodlebot"
-    tracer: str | None = None
-    tracer_options: dict[str, Any] = field(default_factory=dict)
-    posts: tuple[str, ...] = ("plc", "gcode", "svg")
-    post_options: dict[str, dict[str, Any]] = field(default_factory=dict)
-    solver: str | None = None
-    smoothing: float | None = None
-    path_tolerance: float | None = None
-    plugin_dirs: tuple[str, ...] = ()
-    layout: dict[str, Any] = field(default_factory=dict)
-    order: dict[str, Any] = field(default_factory=dict)
 
     def settings(self):
         from .machine import load_machine

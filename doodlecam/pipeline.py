@@ -9,7 +9,7 @@ so a failure never leaves a half-written job behind.
 from __future__ import annotations
 
 import time
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any
 
@@ -20,22 +20,15 @@ from .atomic import replace_all
 from .errors import DoodleError, InputError, OutputError, PlanError, PluginError
 from .machine import Machine
 from .model import Drawing, Job, Stroke
+from .options import ConvertOptions
 
 
 
-@dataclass
-class Settings:
+@dataclass(frozen=True, kw_only=True)
+class Settings(ConvertOptions):
+    """The options of one conversion with the machine profile loaded."""
+
     machine: Machine
-    tracer: str | None = None
-    tracer_options: dict[str, Any] = field(default_factory=dict)
-    posts: tuple[str, ...] = ("plc", "gcode", "svg")
-    post_options: dict[str, dict[str, Any]] = field(default_factory=dict)
-    solver: str | None = None
-    smoothing: float | None = None
-    path_tolerance: float | None = None  # overrides the profile's [sampling] path_tolerance (mm; 0 = off)
-    plugin_dirs: tuple[str, ...] = ()
-    layout: dict[str, Any] = field(default_factory=dict)  # overrides the profile's [layout] (doodlecam.layout)
-    order: dict[str, Any] = field(default_factory=dict)  # overrides the profile's [order]
 
 
 def _guarded(what: str, fn, *args):
