@@ -221,8 +221,9 @@ def test_default_tracer_per_file_type(tmp_path):
     for name, tracer in (("a.png", "edges"), ("a.JPG", "edges"), ("a.svg", "vector"), ("a.dxf", "vector"),
                          ("a.stl", "vector")):
         assert pick_tracer(tmp_path / name, s).name == tracer
-    s.tracer = "hatch"
-    assert pick_tracer(tmp_path / "a.png", s).name == "hatch"
+    from dataclasses import replace
+
+    assert pick_tracer(tmp_path / "a.png", replace(s, tracer="hatch")).name == "hatch"
 
 
 def test_plugin_contract():
