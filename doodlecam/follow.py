@@ -13,9 +13,10 @@ against the spline (a Newton projection from where the sampler aimed), so the
 distance is known between samples, not only at them. The pipeline reports the
 worst value per job ("pen on the curve" in the summary). With ``[sampling]
 path_tolerance`` set, the planner also bounds the pen's jerk across the path
-(``jerk_limit``), the sampler pulls the pen onto the curve between instants,
-and a stroke still measured beyond the tolerance is planned again with half
-the bound (doodlecam.pipeline).
+(``jerk_limit``), the sampler keeps the pen moving along the curve at the
+instants, and where a stroke is still measured beyond the tolerance its bound
+is lowered there (``JerkBound.tightened``) and it is planned again
+(doodlecam.pipeline).
 """
 
 from __future__ import annotations
@@ -32,7 +33,7 @@ from .model import Spline, StrokeSamples
 # 16 re-plans none and draws 86 s; 24 re-plans 4 strokes, 75 s; 32 re-plans 26, 70 s,
 # at 10 % more planning time (benchmarks/bench_convert.py).
 JERK_PER_TOL = 24.0
-REACH = 2  # periods either side of one that strays whose jerk bound is halved with it
+REACH = 2  # periods either side of one that strays whose jerk bound is lowered with it
 SUB = 16  # points per period where the executed parabola is checked (8 read ~3 % low)
 CANDIDATES = 8  # parameters tried per point before the Newton steps
 
@@ -116,15 +117,12 @@ def ramp_ratios(samples: StrokeSamples, kinematics, vmax, amax, sub: int = 8) ->
     the cranks follow with varying acceleration; a linear map keeps the limits
     the sampler's rows impose."""
     dt = samples.delta_time
-    x = samples.integrate()
+    pos = executed_points(samples, sub)
     v = np.vstack([np.zeros((1, 2)), samples.velocity])
-    tau = np.linspace(0.0, dt, sub + 1)[None, :, None]
     acc = ((v[1:] - v[:-1]) / dt)[:, None, :]
-    pos = x[:-1, None, :] + v[:-1, None, :] * tau + acc * tau ** 2 / 2
-    vel = v[:-1, None, :] + acc * tau
-    shape = pos.shape
+    vel = v[:-1, None, :] + acc * np.linspace(0.0, dt, sub + 1)[None, :, None]
     _, t1, t2 = kinematics.derivatives(pos.reshape(-1, 2), vel.reshape(-1, 2),
-                                       np.broadcast_to(acc, shape).reshape(-1, 2))
+                                       np.broadcast_to(acc, pos.shape).reshape(-1, 2))
     return float((np.abs(t2) / amax).max(initial=0.0)), float((np.abs(t1) / vmax).max(initial=0.0))
 
 

@@ -264,6 +264,18 @@ def basis_at(x, p, nseg, N, left, right):  # pragma: no cover - compiled
     return s
 
 
+@numba.njit(cache=True, nogil=True, inline="always")
+def _point(c, k, nseg, u, N, left, right):  # pragma: no cover - compiled
+    """The spline (control points c, degree k, nseg spans) at u in [0, 1]: (x, y)."""
+    f = basis_at(u, k, nseg, N, left, right)
+    sx = 0.0
+    sy = 0.0
+    for r in range(k + 1):
+        sx += N[r] * c[f + r, 0]
+        sy += N[r] * c[f + r, 1]
+    return sx, sy
+
+
 @numba.njit(cache=True, nogil=True)
 def bspline_eval(c, k, nseg, x, out):  # pragma: no cover - compiled
     """out[j] = the clamped uniform B-spline of degree k with nseg knot spans and
@@ -275,25 +287,7 @@ def bspline_eval(c, k, nseg, x, out):  # pragma: no cover - compiled
     left = np.empty(k + 1)
     right = np.empty(k + 1)
     for j in range(x.shape[0]):
-        f = basis_at(min(max(x[j], 0.0), 1.0), k, nseg, N, left, right)
-        sx = 0.0
-        sy = 0.0
-        for r in range(k + 1):
-            sx += N[r] * c[f + r, 0]
-            sy += N[r] * c[f + r, 1]
-        out[j, 0] = sx
-        out[j, 1] = sy
-
-
-@numba.njit(cache=True, nogil=True, inline="always")
-def _point(c, k, nseg, u, N, left, right):  # pragma: no cover - compiled
-    f = basis_at(u, k, nseg, N, left, right)
-    sx = 0.0
-    sy = 0.0
-    for r in range(k + 1):
-        sx += N[r] * c[f + r, 0]
-        sy += N[r] * c[f + r, 1]
-    return sx, sy
+        out[j, 0], out[j, 1] = _point(c, k, nseg, min(max(x[j], 0.0), 1.0), N, left, right)
 
 
 @numba.njit(cache=True, nogil=True)

@@ -225,6 +225,7 @@ def parse_machine(data: dict[str, Any], path: str = "<profile>") -> Machine:
     )
     fit = vals["fit"]
     degree = fit.get("degree", 3)
+    tolerance = fit.get("tolerance", 0.1)
     if degree > 5:
         raise MachineError(f"{path}: [fit] degree {degree} is too high; use 2 to 5 (3 is the report's URBS)")
     if degree < 2:
@@ -255,9 +256,9 @@ def parse_machine(data: dict[str, Any], path: str = "<profile>") -> Machine:
         travel_law=_travel_law(path, vals["travel"].get("law")),
         delta_time=vals["sampling"].get("delta_time", 0.04),
         # the pen stays as close to the curve between samples as the fit is to the picture
-        path_tolerance=vals["sampling"].get("path_tolerance", fit.get("tolerance", 0.1)),
+        path_tolerance=vals["sampling"].get("path_tolerance", tolerance),
         degree=degree,
-        tolerance=fit.get("tolerance", 0.1),
+        tolerance=tolerance,
         source=path,
         plugin_options=plugin_options,
         layout=layout_options(vals["layout"], f"{path}: [layout]", MachineError),

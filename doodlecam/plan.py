@@ -245,12 +245,13 @@ def _trapezoid(spline: Spline, limits: Limits, b0: float, bN: float) -> Profile:
     q'' = 0 every limit is a bound on |a| or on b alone, so the fastest profile
     accelerates at the largest allowed a, cruises at the largest allowed b and
     brakes (hatching has thousands of these; the general solver costs ~1.5 ms each)."""
-    d = limits.M @ spline.derivative_controls[1][0]  # actuator units per u
+    q1 = spline.derivative_controls[1][0]  # q', mm per u, the same everywhere
+    d = limits.M @ q1  # actuator units per u
     with np.errstate(divide="ignore"):
         a = float(np.min(limits.amax / np.abs(d)))
         cap = float(np.min(limits.vmax ** 2 / d ** 2))
     if limits.pen_speed:
-        cap = min(cap, float(limits.pen_speed) ** 2 / float(spline.derivative_controls[1][0] @ spline.derivative_controls[1][0]))
+        cap = min(cap, float(limits.pen_speed) ** 2 / float(q1 @ q1))
     if max(b0, bN) > cap * (1 + 1e-9):
         raise PlanError("the start/end speeds cannot be met within the limits; lower them")
     if b0 > (bN + 2 * a) * (1 + 1e-9):
@@ -262,9 +263,8 @@ def _trapezoid(spline: Spline, limits: Limits, b0: float, bN: float) -> Profile:
         u = np.array([0.0, u1, u2, 1.0])
     else:  # no time to cruise: accelerate until braking must start
         u = np.unique(np.clip([0.0, (bN - b0 + 2 * a) / (4 * a), 1.0], 0.0, 1.0))
-    b = np.minimum(np.minimum(b0 + 2 * a * u, bN + 2 * a * (1 - u)), cap)
-    b[0], b[-1] = b0, bN
-    b = b * (1 - 1e-12) if b.max() > 0 else b  # a hair inside, as the general solver's certify leaves it
+    # a hair inside the limits, as the general solver's certify leaves it; the ends as asked
+    b = np.minimum(np.minimum(b0 + 2 * a * u, bN + 2 * a * (1 - u)), cap) * (1 - 1e-12)
     b[0], b[-1] = b0, bN
     return Profile(u=u, b=b, a=np.diff(b) / (2 * np.diff(u)), t=profile_times(u, b), solver="reach")
 
