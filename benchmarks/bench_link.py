@@ -33,9 +33,9 @@ def udp_rows(n_strokes: int, repeats: int):
 
     from test_udp import synth_job
 
-    from doodlecam import plcproto as P
-    from doodlecam.plcfile import read_plc_array
-    from doodlecam.udpsend import UdpSender
+    from doodlecam.link.plc import protocol as P
+    from doodlecam.link.plc.packetfile import read_plc_array
+    from doodlecam.link.plc.sender import UdpSender
 
     data = synth_job(n_strokes=n_strokes, samples=98, seed=1)
     header, arr = read_plc_array(data)
@@ -73,8 +73,10 @@ def udp_rows(n_strokes: int, repeats: int):
 def grbl_rows(n_strokes: int):
     from test_grbl import synth_gcode
 
-    from doodlecam.grbl import GrblLink, Streamer, prepare
-    from doodlecam.grblsim import GrblConfig, GrblEmulator
+    from doodlecam.link.grbl.port import GrblLink
+    from doodlecam.link.grbl.streamer import Streamer
+    from doodlecam.link.grbl.protocol import prepare
+    from doodlecam.link.grbl.emulator import GrblConfig, GrblEmulator
 
     text = synth_gcode(n_strokes=n_strokes, seg=60, seed=1)
     lines = prepare(text)

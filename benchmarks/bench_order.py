@@ -74,7 +74,7 @@ def fresh_worker(npz: str) -> None:
     t = time.perf_counter()
     one(1)
     t_trivial = time.perf_counter() - t
-    from doodlecam.order import order_strokes
+    from doodlecam.geometry.order import order_strokes
 
     z = np.load(npz)
     polys = [z[k] for k in sorted(z.files, key=lambda s: int(s.split("_")[1]))]
@@ -125,7 +125,7 @@ def main() -> None:
     if args.fresh_worker:
         fresh_worker(args.fresh_worker)
         return
-    from doodlecam.order import order_strokes, travel_length
+    from doodlecam.geometry.order import order_strokes, travel_length
 
     use_vpype = not args.no_vpype and args.vpype_python.exists()
     if not args.no_vpype and not use_vpype:

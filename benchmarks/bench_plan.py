@@ -26,14 +26,14 @@ from pathlib import Path
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
-from doodlecam.model import Spline  # noqa: E402
-from doodlecam.plan import Limits, check_profile, interval_ratios, make_grid, plan_stroke, profile_times  # noqa: E402
+from doodlecam.model import Spline
+from doodlecam.plan.planner import Limits, check_profile, interval_ratios, make_grid, plan_stroke, profile_times
 
 VMAX, AMAX = 150.0, 2000.0
 
 
 def paths() -> dict[str, Spline]:
-    from doodlecam.fit import fit_polyline
+    from doodlecam.geometry.fit import fit_polyline
 
     report = Spline(3, [[20, 20], [60, 90], [110, 30], [150, 110], [90, 150], [40, 120], [100, 60], [160, 40]])
     t = np.linspace(0, 2 * np.pi, 400)
@@ -138,7 +138,7 @@ def picture() -> None:
     """All strokes of every sample picture: plan + sample wall time (best of 3 in a
     warm process), and how far the PLC's ramps stray from the curves between
     sample instants (the doodlebot profile's path tolerance, 0.1 mm, holds it)."""
-    from doodlecam.layout import fit_to_work_area
+    from doodlecam.trace.layout import fit_to_work_area
     from doodlecam.machine import load_machine
     from doodlecam.pipeline import Settings, plan_job, trace
 

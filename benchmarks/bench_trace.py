@@ -3,7 +3,7 @@
     .venv/bin/python benchmarks/bench_trace.py            # all tables
     .venv/bin/python benchmarks/bench_trace.py --quick    # skip the 4000 x 3000 photo and the fits
     .venv/bin/python benchmarks/bench_trace.py --fits     # only the spline sizes (table 4)
-    .venv/bin/python benchmarks/bench_trace.py --fits --against REV   # ... and doodlecam/fit.py at git REV, same run
+    .venv/bin/python benchmarks/bench_trace.py --fits --against REV   # ... and doodlecam/geometry/fit.py at git REV, same run
 
 Tables (Markdown):
 
@@ -50,7 +50,7 @@ def fidelity() -> None:
     from skimage import feature
 
     from doodlecam.plugins.edges import EdgesTracer
-    from doodlecam.raster import load_gray
+    from doodlecam.trace.raster import load_gray
 
     tr = EdgesTracer()
     opt = tr.resolve_options({})
@@ -133,24 +133,32 @@ def big_photo() -> None:
 
 
 def _fit_at(rev: str):
-    """doodlecam.fit as it was at git revision ``rev`` (loaded beside today's, for an A/B in one run)."""
+    """doodlecam.geometry.fit as it was at git revision ``rev`` (loaded beside today's, for an A/B in one run)."""
+    import importlib
     import importlib.util
 
-    src = subprocess.run(["git", "-C", str(ROOT), "show", f"{rev}:doodlecam/fit.py"], capture_output=True, text=True,
-                         check=True).stdout
+    for where in ("doodlecam/geometry/fit.py", "doodlecam/fit.py"):  # the fitter's home before and after the layout change
+        run = subprocess.run(["git", "-C", str(ROOT), "show", f"{rev}:{where}"], capture_output=True, text=True)
+        if run.returncode == 0:
+            src = run.stdout
+            break
+    else:
+        raise SystemExit(f"no fitter at git revision {rev}")
     path = Path(tempfile.mkdtemp()) / "fit_at_rev.py"
     path.write_text(src)
     spec = importlib.util.spec_from_file_location("doodlecam._fit_at_rev", path)
     mod = importlib.util.module_from_spec(spec)
     mod.__package__ = "doodlecam"
+    # a fitter from before the layout change imports its basis from doodlecam.kernels
+    sys.modules.setdefault("doodlecam.kernels", importlib.import_module("doodlecam.geometry.kernels"))
     spec.loader.exec_module(mod)
     return mod
 
 
 def spline_size(against: str | None = None) -> None:
     from doodlecam import registry
-    from doodlecam.fit import fit_pieces
-    from doodlecam.layout import fit_to_work_area
+    from doodlecam.geometry.fit import fit_pieces
+    from doodlecam.trace.layout import fit_to_work_area
     from doodlecam.machine import load_machine
 
     fitters = [fit_pieces] + ([_fit_at(against).fit_pieces] if against else [])
@@ -177,7 +185,7 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--quick", action="store_true", help="skip the big photo and the spline fits")
     ap.add_argument("--fits", action="store_true", help="only the spline sizes and fit times")
-    ap.add_argument("--against", metavar="REV", help="with --fits: also time doodlecam/fit.py as at git revision REV")
+    ap.add_argument("--against", metavar="REV", help="with --fits: also time doodlecam/geometry/fit.py as at git revision REV")
     args = ap.parse_args()
     warnings.simplefilter("ignore")
     if args.fits:

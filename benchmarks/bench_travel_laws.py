@@ -4,7 +4,7 @@
     .venv/bin/python benchmarks/bench_travel_laws.py --machine my.toml a.png
 
 Converts each picture once (the strokes do not depend on the travel law),
-then times its pen-up moves under each law of doodlecam.travel: the
+then times its pen-up moves under each law of doodlecam.plan.travel: the
 time-optimal trapezoid and the smooth laws with the same peak acceleration.
 Prints a Markdown table: travel time per law and the whole job's time, with
 the extra seconds and per cent smoothness costs. A second table gives single
@@ -30,7 +30,7 @@ def main() -> None:
     warnings.simplefilter("ignore")
     from doodlecam.machine import load_machine
     from doodlecam.pipeline import Settings, convert
-    from doodlecam.travel import TRAVEL_LAWS, axis_move_time, travel_time_by_law
+    from doodlecam.plan.travel import TRAVEL_LAWS, axis_move_time, travel_time_by_law
 
     machine = replace(load_machine(args.machine), travel_law="trapezoid")
     images = args.images or sorted((ROOT / "samples" / "images").glob("*.png"))

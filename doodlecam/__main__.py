@@ -1,5 +1,5 @@
 """``python -m doodlecam`` is the ``doodlecam`` command."""
 
-from .cli import entry
+from doodlecam.cli import entry
 
 entry()

@@ -17,7 +17,7 @@ from typing import Any, ClassVar
 
 import numpy as np
 
-from .errors import PluginError
+from doodlecam.errors import PluginError
 
 API_VERSION = 1
 

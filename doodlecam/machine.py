@@ -13,7 +13,8 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from .errors import MachineError
+from doodlecam.errors import MachineError
+from doodlecam.options import TRAVEL_ALIASES, TRAVEL_LAWS, layout_options, order_options, travel_law_name
 
 try:  # Python 3.11+
     import tomllib
@@ -47,7 +48,7 @@ class Machine:
     home: tuple[float, float] = (0.0, 0.0)
     pen: Pen = Pen()
     travel_speed: float | None = None  # mm/s per axis for pen-up moves
-    travel_law: str = "trapezoid"  # pen-up move profile, see doodlecam.travel
+    travel_law: str = "trapezoid"  # pen-up move profile, see doodlecam.plan.travel
     delta_time: float = 0.04  # s, velocity sample period
     path_tolerance: float = 0.1  # mm the pen may stray between samples (0: not enforced; docs/sampling.md)
     degree: int = 3
@@ -59,8 +60,8 @@ class Machine:
     description: str = ""
     source: str = ""
     plugin_options: dict[str, dict[str, Any]] = field(default_factory=dict)  # "post.gcode" -> {...}
-    layout: dict[str, Any] = field(default_factory=dict)  # [layout], checked by doodlecam.layout
-    order: dict[str, Any] = field(default_factory=dict)  # [order], checked by doodlecam.layout
+    layout: dict[str, Any] = field(default_factory=dict)  # [layout], checked by doodlecam.trace.layout
+    order: dict[str, Any] = field(default_factory=dict)  # [order], checked by doodlecam.trace.layout
 
     @property
     def x(self) -> Axis:
@@ -91,7 +92,7 @@ _SCHEMA: dict[str, dict[str, tuple[type, bool]]] = {
     "travel": {"speed": (float, False), "law": (str, False)},
     "sampling": {"delta_time": (float, False), "path_tolerance": (float, False)},
     "fit": {"degree": (int, False), "tolerance": (float, False)},
-    # layout and order: see doodlecam/layout.py and docs/tracing.md (values are checked there)
+    # layout and order: see doodlecam/trace/layout.py and docs/tracing.md (values are checked there)
     "layout": {k: (object, False) for k in ("margin", "rotate", "width", "height", "scale", "fit", "min_length")},
     "order": {k: (object, False) for k in ("reverse", "merge", "budget")},
 }
@@ -162,8 +163,6 @@ def _table(data: dict, dotted: str) -> Any:
 
 
 def _travel_law(path: str, law: str | None) -> str:
-    from .travel import TRAVEL_ALIASES, TRAVEL_LAWS, travel_law_name
-
     try:
         return travel_law_name(law)
     except ValueError:
@@ -236,8 +235,6 @@ def parse_machine(data: dict[str, Any], path: str = "<profile>") -> Machine:
             if not isinstance(opts, dict):
                 raise MachineError(f"{path}: [{group}.{name}] must be a table of options; fix the profile")
             plugin_options[f"{group}.{name}"] = dict(opts)
-    from .layout import layout_options, order_options
-
     m = vals["machine"]
     return Machine(
         name=m["name"],

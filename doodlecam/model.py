@@ -107,7 +107,7 @@ class Spline:
 
     def __call__(self, u, der: int = 0) -> np.ndarray:
         """q^(der)(u) for u in [0, 1]; shape (len(u), 2). Units mm / u^der."""
-        from .kernels import bspline_eval
+        from doodlecam.geometry.kernels import bspline_eval
 
         u = np.asarray(u, dtype=float)
         if der > self.degree:

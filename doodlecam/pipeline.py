@@ -15,13 +15,18 @@ from typing import Any
 
 import numpy as np
 
-from . import registry
-from .atomic import replace_all
-from .errors import DoodleError, InputError, OutputError, PlanError, PluginError
-from .machine import Machine
-from .model import Drawing, Job, Stroke
-from .options import ConvertOptions
-
+from doodlecam import registry
+from doodlecam.atomic import replace_all
+from doodlecam.errors import (
+    DoodleError,
+    InputError,
+    OutputError,
+    PlanError,
+    PluginError,
+)
+from doodlecam.machine import Machine
+from doodlecam.model import Drawing, Job, Stroke
+from doodlecam.options import ConvertOptions
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -71,11 +76,6 @@ def trace(path: Path, settings: Settings) -> Drawing:
     return drawing
 
 
-def kinematics_for(machine: Machine, plugin_dirs=()):
-    cls = registry.get("machine", machine.kinematics, plugin_dirs)
-    return cls(machine, machine.kinematics_params)
-
-
 REPLANS = 4  # at most this many re-plans of a stroke still off the curve between samples
 RAMP_REPLANS = 3  # ... and of one whose ramps pass a (nonlinear) actuator's limit
 
@@ -84,19 +84,19 @@ def plan_job(drawing: Drawing, machine: Machine, solver: str = "reach", plugin_d
              smoothing: float | None = None) -> Job:
     """Order, fit, plan and sample a drawing already in machine millimetres.
 
-    ``order`` overrides the profile's [order] options (doodlecam.layout.ORDER_DEFAULTS).
+    ``order`` overrides the profile's [order] options (doodlecam.trace.layout.ORDER_DEFAULTS).
     """
-    from .fit import fit_pieces
-    from .follow import JerkBound, jerk_limit, path_deviation, ramp_ratios
-    from .layout import order_options
-    from .order import order_strokes
-    from .plan import Limits, check_profile, check_solver, plan_stroke
-    from .sample import sample_stroke
-    from .travel import machine_law, make_travel, travel_time_by_law
+    from doodlecam.geometry.fit import fit_pieces
+    from doodlecam.geometry.order import order_strokes
+    from doodlecam.plan.follow import JerkBound, jerk_limit, path_deviation, ramp_ratios
+    from doodlecam.plan.planner import Limits, check_profile, check_solver, plan_stroke
+    from doodlecam.plan.sample import sample_stroke
+    from doodlecam.plan.travel import machine_law, make_travel, travel_time_by_law
+    from doodlecam.options import order_options
 
     check_solver(solver)  # before the fitting, not after it
     smoothing = machine.smoothing if smoothing is None else smoothing
-    kin = kinematics_for(machine, plugin_dirs)
+    kin = registry.kinematics_for(machine, plugin_dirs)
     kin.check_reachable(np.concatenate(drawing.polylines))
     limits = Limits.from_machine(machine, kin)
     timings: dict[str, float] = {}
@@ -268,7 +268,7 @@ class Result:
 
 
 def convert(path: str | Path, outdir: str | Path, settings: Settings) -> Result:
-    from .layout import fit_to_work_area
+    from doodlecam.trace.layout import fit_to_work_area
 
     path = Path(path)
     timings = {}

@@ -30,10 +30,10 @@ from pathlib import Path
 
 import numpy as np
 
-from .atomic import replace_all
-from .errors import InputError, OutputError
-from .follow import distance_to_stretch, executed_points
-from .model import Job
+from doodlecam.atomic import replace_all
+from doodlecam.errors import InputError, OutputError
+from doodlecam.model import Job
+from doodlecam.plan.follow import distance_to_stretch, executed_points
 
 FORMATS = (".png", ".svg", ".pdf")
 DENSE = 1500  # points per planned curve
@@ -94,7 +94,7 @@ def _executed(samples):
 def _distance_to_curve(spline, x: np.ndarray, u0: np.ndarray, candidates: int = 33, iterations: int = 4) -> np.ndarray:
     """Distance (mm) from points x to the spline near u0 (where the plan puts
     the pen at the same time). The nearest point lies within 2 |x - q(u0)| of
-    q(u0), so search that stretch of the curve (doodlecam.follow)."""
+    q(u0), so search that stretch of the curve (doodlecam.plan.follow)."""
     delta = np.linalg.norm(spline(u0) - x, axis=1)
     speed = np.maximum(np.linalg.norm(spline(u0, 1), axis=1), 1e-12)
     w = np.minimum(2.0 * delta / speed * 1.5 + 1e-9, 1.0)  # half-width in u, with slack for the speed changing
@@ -282,7 +282,7 @@ def plot_job(job: Job, out: Path, strokes=(), kinematics=None, plugin_dirs=()) -
     """Draw the chosen strokes (1-based; default the longest) of a planned job
     into ``out`` (one file per stroke). Returns [(0-based index, path)]."""
     if kinematics is None:
-        from .pipeline import kinematics_for
+        from doodlecam.registry import kinematics_for
 
         kinematics = kinematics_for(job.machine, plugin_dirs)
     indices = pick_strokes(job, tuple(strokes))

@@ -14,9 +14,12 @@ import os
 import sys
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Callable, Iterable
+from typing import TYPE_CHECKING, Callable, Iterable
 
-from .errors import PluginError
+from doodlecam.errors import PluginError
+
+if TYPE_CHECKING:
+    from doodlecam.machine import Machine
 
 GROUPS = {
     "tracer": "doodlecam.tracers",
@@ -43,7 +46,7 @@ class PluginInfo:
             except Exception as e:  # a broken plugin must not break us
                 self.error = f"{type(e).__name__}: {e}"
                 raise PluginError(f"{self.kind} plugin '{self.name}' ({self.origin}) failed to load: {self.error}") from None
-            from . import api
+            from doodlecam import api
 
             base = {"tracer": api.Tracer, "machine": api.Kinematics,
                     "postprocessor": api.PostProcessor, "transport": api.Transport}[self.kind]
@@ -94,7 +97,7 @@ def _import_file(path: Path):
 
 def _scan_file(path: Path) -> list[PluginInfo]:
     """A drop-in file: every plugin class defined in it (importing it once)."""
-    from . import api
+    from doodlecam import api
 
     try:
         module = _import_file(path)
@@ -154,3 +157,9 @@ def get(kind: str, name: str, plugin_dirs: Iterable[str | os.PathLike] = ()) -> 
     broken = [i for i in infos if i.kind == "?"]
     extra = f"; broken drop-ins: {', '.join(i.origin for i in broken)}" if broken else ""
     raise PluginError(f"unknown {kind} '{name}'; available: {', '.join(names) or 'none'} (see 'doodlecam plugins'){extra}")
+
+
+def kinematics_for(machine: "Machine", plugin_dirs=()):
+    """The machine's kinematics plugin, built for its profile."""
+    cls = get("machine", machine.kinematics, plugin_dirs)
+    return cls(machine, machine.kinematics_params)

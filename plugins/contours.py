@@ -18,7 +18,7 @@ import numpy as np
 from doodlecam.api import Option, Tracer
 from doodlecam.errors import InputError, PluginError
 from doodlecam.model import Drawing
-from doodlecam.raster import IMAGE_EXTENSIONS, load_gray
+from doodlecam.trace.raster import IMAGE_EXTENSIONS, load_gray
 
 
 class ContoursTracer(Tracer):

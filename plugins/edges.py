@@ -24,7 +24,7 @@ import numpy as np
 from doodlecam.api import Option, Tracer
 from doodlecam.errors import InputError, PluginError
 from doodlecam.model import Drawing
-from doodlecam.raster import IMAGE_EXTENSIONS, load_gray
+from doodlecam.trace.raster import IMAGE_EXTENSIONS, load_gray
 
 # A high threshold never drops below the gradient of a step of this size
 # (fraction of black-to-white), so a blank, noisy sheet gives no edges.
@@ -338,7 +338,7 @@ def _finish(chains: list[np.ndarray], tolerance: float, min_length: float, join:
             staircase: float = 0.0) -> list[np.ndarray]:
     """Join chains meeting end to end, smooth, simplify, keep those at least ``min_length`` px long."""
     if join > 0 and len(chains) > 1:
-        from doodlecam.order import merge_ends
+        from doodlecam.geometry.order import merge_ends
 
         chains = merge_ends(chains, join)[0]
     if staircase > 0:

@@ -24,7 +24,7 @@ import numpy as np
 from doodlecam.api import Option, Tracer
 from doodlecam.errors import InputError, PluginError
 from doodlecam.model import Drawing
-from doodlecam.raster import IMAGE_EXTENSIONS, load_gray
+from doodlecam.trace.raster import IMAGE_EXTENSIONS, load_gray
 
 _STEP = 0.5  # px between samples along a scan line (run ends are found to within half of it) ...
 _BIG = 4_000_000  # ... or 1 px on pictures above this many pixels, where half a pixel is invisible

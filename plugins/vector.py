@@ -119,7 +119,7 @@ def _entity_polylines(p, tol_units: float) -> list[np.ndarray]:
 
 def _join(polylines: list[np.ndarray], tol: float) -> list[np.ndarray]:
     """Pieces meeting end to end become one stroke; a stroke ending at its start is closed exactly."""
-    from doodlecam.order import merge_ends
+    from doodlecam.geometry.order import merge_ends
 
     joined, _ = merge_ends(polylines, tol)
     out = []

@@ -46,7 +46,7 @@ class CsvPost(PostProcessor):
     )
 
     def write(self, job, options: dict[str, Any]) -> bytes:
-        from doodlecam.travel import travel_state
+        from doodlecam.plan.travel import travel_state
 
         step, dec = float(options["step"]), int(options["decimals"])
         if not step > 0 or not 0 <= dec <= 12:

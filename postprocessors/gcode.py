@@ -5,7 +5,7 @@ the planned sample instants, split further until every chord stays within
 ``chord_tolerance`` of the spline. Each segment's feed is its chord length
 over the planned time between its ends, so a controller that follows F
 reproduces the time-optimal profile (the firmware's own planner smooths the
-joins; ``doodlecam.grbltime`` estimates how long GRBL 1.1 really takes).
+joins; ``doodlecam.link.grbl.timing`` estimates how long GRBL 1.1 really takes).
 
 Dialects (``dialect``; every line stays within the firmware's line limit):
 
@@ -106,7 +106,7 @@ class GcodePost(PostProcessor):
         Option("chord_tolerance", float, 0.05, "largest distance (mm) between a G1 segment and the spline"),
         Option("min_feed", float, 10.0, "smallest feed (mm/min) written, so no segment has F0"),
         Option("program_end", str, "", "last line of the program; empty = the dialect's (grbl, linuxcnc: M2; marlin: M84)"),
-        Option("estimate", bool, True, "grbl: put GRBL 1.1's own job time (planner model, doodlecam.grbltime) in the header"),
+        Option("estimate", bool, True, "grbl: put GRBL 1.1's own job time (planner model, doodlecam.link.grbl.timing) in the header"),
     )
 
     def _resolve(self, options: dict[str, Any]) -> tuple[Dialect, dict[str, Any]]:
@@ -175,7 +175,7 @@ class GcodePost(PostProcessor):
                  for i, s in enumerate(job.strokes)]
         home = job.travels[-1].end if job.travels else np.asarray(m.home, float)
 
-        from doodlecam.grbltime import parse_gcode
+        from doodlecam.link.grbl.timing import parse_gcode
 
         body: list[str] = []
         # The same moves for the GRBL estimate, built here rather than parsed back
@@ -232,6 +232,6 @@ class GcodePost(PostProcessor):
 
     @staticmethod
     def _grbl_estimate(machine, program: list[tuple]) -> float:
-        from doodlecam.grbltime import GrblSettings, estimate_program
+        from doodlecam.link.grbl.timing import GrblSettings, estimate_program
 
         return estimate_program(program, GrblSettings.from_machine(machine), start=tuple(machine.home)).total

@@ -20,7 +20,7 @@ class PlcPost(PostProcessor):
     options: tuple[Option, ...] = ()  # the format is fixed; the machine profile sets everything
 
     def write(self, job, options: dict[str, Any]) -> bytes:
-        from doodlecam.plcfile import commands_array, write_plc
+        from doodlecam.link.plc.packetfile import commands_array, write_plc
 
         # The array form skips building one Python object per command.
         return write_plc(*commands_array(job))

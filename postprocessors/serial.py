@@ -2,7 +2,7 @@
 
 Character-counting flow control, ``$`` writes in send-and-wait mode, check
 mode as a dry run, status reports for progress; the link lives in
-``doodlecam.grbl``. Register transports under ``doodlecam.transports``.
+``doodlecam.link.grbl.streamer``. Register transports under ``doodlecam.transports``.
 """
 
 from __future__ import annotations
@@ -27,8 +27,8 @@ class SerialTransport(Transport):
              from_line: int | None = None, progress: Callable | None = None,
              log: Callable[[str], None] | None = None) -> dict:
         """Stream the G-code file at ``path`` to the serial port ``target``; return a summary dict."""
-        from doodlecam.grbl import send_gcode
-        from doodlecam.udpsend import state_file_for
+        from doodlecam.link.grbl.streamer import send_gcode
+        from doodlecam.link.session import state_file_for
 
         return send_gcode(target, Path(path), baud=options["baud"], check=check, restart=restart,
                           from_line=from_line, timeout=options["timeout"],

@@ -3,7 +3,7 @@
 A transport plugin is a ``doodlecam.api.Transport`` with ``name``, a one-line
 ``summary``, the job file ``extension`` it sends, ``options``, and a
 ``send`` method; register it under the ``doodlecam.transports`` entry-point
-group. The link itself lives in ``doodlecam.udpsend``.
+group. The link itself lives in ``doodlecam.link.plc.sender``.
 """
 
 from __future__ import annotations
@@ -27,7 +27,8 @@ class UdpTransport(Transport):
              progress: Callable | None = None, log: Callable[[str], None] | None = None) -> dict:
         """Send (or cancel) the job at ``path`` to ``target`` = HOST:PORT; return a summary dict."""
         from doodlecam.errors import InputError
-        from doodlecam.udpsend import UdpSender, parse_target, state_file_for
+        from doodlecam.link.plc.sender import UdpSender, parse_target
+        from doodlecam.link.session import state_file_for
 
         host, port = parse_target(target)
         try:

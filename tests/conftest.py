@@ -33,8 +33,8 @@ def machine():
 
 @pytest.fixture
 def limits(machine):
-    from doodlecam.pipeline import kinematics_for
-    from doodlecam.plan import Limits
+    from doodlecam.registry import kinematics_for
+    from doodlecam.plan.planner import Limits
 
     return Limits.from_machine(machine, kinematics_for(machine))
 
@@ -64,7 +64,7 @@ def plc_strokes(path):
     """(header, strokes) of a PLC packet file, walked like the PLC does it: a MOVE
     starts a stroke at its position (mm), the DRAWs after it are its velocity
     targets (mm/s). Strokes without DRAWs (the final move home) are left out."""
-    from doodlecam.plcfile import read_plc
+    from doodlecam.link.plc.packetfile import read_plc
 
     header, cmds = read_plc(path.read_bytes())
     kx, ky = header.steps_per_mm_x, header.steps_per_mm_y

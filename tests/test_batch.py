@@ -107,7 +107,7 @@ def test_mixed_folder_skip_and_force(tmp_path, capsys):
 
 
 def test_filters_and_options_hash(tmp_path):
-    from doodlecam.batch import BatchOptions
+    from doodlecam.batch.options import BatchOptions
 
     src, out = _mixed(tmp_path), tmp_path / "out"
     assert main(["batch", str(src), str(out), *FAST, "--exclude", "box*", "--post", "svg"]) == 0  # not recursive
@@ -124,7 +124,7 @@ def test_filters_and_options_hash(tmp_path):
 def test_a_new_version_redoes_what_an_older_one_wrote(monkeypatch):
     """Defaults change between versions (a tracer option, the path tolerance), so
     outputs written by another version are never taken as up to date."""
-    import doodlecam.batch as batch
+    import doodlecam.batch.options as batch
 
     base = batch.BatchOptions().fingerprint()
     monkeypatch.setattr(batch, "__version__", "0.1.0")
@@ -191,7 +191,8 @@ def test_dask_gives_identical_outputs(tmp_path):
     pytest.importorskip("distributed")
     from distributed import Client, LocalCluster
 
-    from doodlecam.batch import BatchOptions, run_batch
+    from doodlecam.batch.options import BatchOptions
+    from doodlecam.batch.runner import run_batch
 
     src = _mixed(tmp_path)
     opts = BatchOptions(layout={"width": 30.0})

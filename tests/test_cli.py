@@ -10,11 +10,11 @@ import numpy as np
 import pytest
 
 from doodlecam.machine import load_machine
-from doodlecam.plcfile import read_plc
+from doodlecam.link.plc.packetfile import read_plc
 from doodlecam.pipeline import Settings, convert
-from doodlecam.follow import path_deviation
+from doodlecam.plan.follow import path_deviation
 from doodlecam.model import StrokeSamples
-from doodlecam.sample import reference_positions
+from doodlecam.plan.sample import reference_positions
 
 from conftest import plc_strokes
 

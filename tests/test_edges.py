@@ -11,9 +11,9 @@ from skimage import data, draw, feature
 from skimage.measure import approximate_polygon
 
 from doodlecam.errors import InputError
-from doodlecam.fit import densify
+from doodlecam.geometry.fit import densify
 from doodlecam.plugins.edges import EdgesTracer, link_edges, simplify
-from doodlecam.raster import IMAGE_EXTENSIONS, load_gray
+from doodlecam.trace.raster import IMAGE_EXTENSIONS, load_gray
 
 from conftest import assert_one_line, save
 

@@ -6,7 +6,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from scipy.spatial import cKDTree
 
-from doodlecam.fit import deviation, fit_pieces, fit_polyline
+from doodlecam.geometry.fit import deviation, fit_pieces, fit_polyline
 from doodlecam.model import Spline
 
 

@@ -10,7 +10,7 @@ from hypothesis import strategies as st
 from doodlecam.errors import MachineError, PlanError
 from doodlecam.machine import load_machine
 from doodlecam.model import Spline
-from doodlecam.pipeline import kinematics_for
+from doodlecam.registry import kinematics_for
 from doodlecam.plugins.fivebar import FiveBar
 
 MACHINE = load_machine("fivebar")
@@ -226,7 +226,7 @@ def test_the_cranks_follow_the_sampled_ramps_within_their_limits(tmp_path):
     from pathlib import Path
 
     from doodlecam.model import StrokeSamples
-    from doodlecam.follow import executed_points, path_deviation
+    from doodlecam.plan.follow import executed_points, path_deviation
     from doodlecam.pipeline import Settings, convert
     from conftest import plc_strokes
 

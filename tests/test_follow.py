@@ -1,4 +1,4 @@
-"""The executed path between sample instants (doodlecam.follow)."""
+"""The executed path between sample instants (doodlecam.plan.follow)."""
 
 from pathlib import Path
 
@@ -6,11 +6,11 @@ import numpy as np
 import pytest
 from scipy.spatial import cKDTree
 
-from doodlecam.fit import fit_pieces
-from doodlecam.follow import executed_points, path_deviation
+from doodlecam.geometry.fit import fit_pieces
+from doodlecam.plan.follow import executed_points, path_deviation
 from doodlecam.model import Spline, StrokeSamples, Stroke
-from doodlecam.plan import check_profile, plan_stroke
-from doodlecam.sample import sample_stroke
+from doodlecam.plan.planner import check_profile, plan_stroke
+from doodlecam.plan.sample import sample_stroke
 
 from conftest import plc_strokes, report_curve
 
@@ -101,7 +101,7 @@ def test_path_tolerance_keeps_the_plc_on_the_curve_between_samples(tmp_path):
 
 
 def test_jerk_bound_is_lowered_only_where_the_pen_strayed():
-    from doodlecam.follow import JerkBound
+    from doodlecam.plan.follow import JerkBound
 
     su = np.linspace(0.0, 1.0, 21)  # 20 periods
     smp = StrokeSamples(start=np.zeros(2), velocity=np.zeros((20, 2)), delta_time=0.04, sample_u=su)
@@ -120,7 +120,7 @@ def test_jerk_bound_is_lowered_only_where_the_pen_strayed():
 def test_default_profile_keeps_every_stroke_within_the_fit_tolerance_between_samples(name):
     """By default the pen stays as close to the curve between samples as the fit
     is to the picture; these pictures need strokes re-planned to get there."""
-    from doodlecam.layout import fit_to_work_area
+    from doodlecam.trace.layout import fit_to_work_area
     from doodlecam.machine import load_machine
     from doodlecam.pipeline import Settings, plan_job, trace
 

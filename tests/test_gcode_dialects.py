@@ -10,7 +10,7 @@ import pytest
 from scipy.spatial import cKDTree
 
 from doodlecam.errors import PluginError
-from doodlecam.grbltime import GrblSettings, estimate_gcode, estimate_program
+from doodlecam.link.grbl.timing import GrblSettings, estimate_gcode, estimate_program
 from doodlecam.machine import parse_machine
 from doodlecam.postprocessors.gcode import DIALECTS, GcodePost
 from test_posts import MACHINE, make_job
@@ -182,7 +182,7 @@ def test_grbl_reversal_stops_and_parse():
 def test_runs_timed_together_equal_runs_timed_one_by_one():
     # estimate_program times every run between synchronisations in one call; a run
     # timed alone (from rest to rest) must give the same block times
-    from doodlecam.grbltime import _segment_time
+    from doodlecam.link.grbl.timing import _segment_time
 
     rng = np.random.default_rng(7)
     s = GrblSettings((150.0, 150.0, 20.0), (2000.0, 2000.0, 500.0))

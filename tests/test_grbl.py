@@ -21,10 +21,11 @@ import serial
 from hypothesis import given, settings, strategies as st
 
 from doodlecam.errors import InputError
-from doodlecam.grbl import (ALARMS, ERRORS, MAX_OUTSTANDING, STATUS_PERIOD, GrblError, GrblLink, Streamer,
-                            parse_status, pen_up_line, prepare, resume_prefix, send_gcode)
-from doodlecam.grblsim import BANNER, GrblConfig, GrblEmulator
-from doodlecam.udpsend import LinkError
+from doodlecam.link.grbl.protocol import (ALARMS, ERRORS, MAX_OUTSTANDING, STATUS_PERIOD, GrblError, parse_status, pen_up_line, prepare, resume_prefix)
+from doodlecam.link.grbl.port import GrblLink
+from doodlecam.link.grbl.streamer import Streamer, send_gcode
+from doodlecam.link.grbl.emulator import BANNER, GrblConfig, GrblEmulator
+from doodlecam.link.session import LinkError
 
 ROOT = Path(__file__).resolve().parent.parent
 ENV = dict(os.environ, PYTHONWARNINGS="ignore")

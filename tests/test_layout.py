@@ -6,7 +6,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from doodlecam.errors import InputError, MachineError
-from doodlecam.layout import fit_to_work_area, layout_options, order_options
+from doodlecam.trace.layout import fit_to_work_area, layout_options, order_options
 from doodlecam.machine import parse_machine
 from doodlecam.model import Drawing
 

@@ -87,7 +87,7 @@ def test_design_outside_the_workspace_is_an_error(fuse):
 
 def test_xy_and_time_input_give_the_same_trajectory(fuse):
     _, traj = fuse
-    from doodlecam.motion.design import tomllib  # tomli on Python 3.10
+    from doodlecam.motion.design import tomllib
 
     data = tomllib.loads((SAMPLES / "fuse.toml").read_text())
     axes = {}

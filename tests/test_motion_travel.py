@@ -7,8 +7,7 @@ from hypothesis import given, settings, strategies as st
 from doodlecam.errors import MachineError
 from doodlecam.machine import parse_machine
 from doodlecam.model import Travel
-from doodlecam.travel import (TRAVEL_LAWS, _ramp, axis_move_state, axis_move_time, make_travel, travel_state,
-                              travel_time_by_law)
+from doodlecam.plan.travel import (TRAVEL_LAWS, _ramp, axis_move_state, axis_move_time, make_travel, travel_state, travel_time_by_law)
 
 from conftest import PROFILE  # tests/ is on sys.path under pytest
 

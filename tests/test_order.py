@@ -5,7 +5,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from doodlecam.order import merge_ends, order_polylines, order_strokes, travel_length
+from doodlecam.geometry.order import merge_ends, order_polylines, order_strokes, travel_length
 
 
 def _key(p):

@@ -5,8 +5,8 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from doodlecam.order import order_strokes
-from doodlecam.order_search import greedy, local_search, nearest_k, perturb, rotate_loops, tour_cost
+from doodlecam.geometry.order import order_strokes
+from doodlecam.geometry.order_search import greedy, local_search, nearest_k, perturb, rotate_loops, tour_cost
 
 
 def _strokes(rng, n, loops=0.3, grid=None):
@@ -140,7 +140,7 @@ def test_same_strokes_same_order_and_work_sized_by_count():
     a = order_strokes(polys, (0.0, 0.0), budget=30.0)
     b = order_strokes(polys, (0.0, 0.0), budget=30.0)
     assert a.source == b.source and a.travel == b.travel  # not the clock: the count of strokes
-    from doodlecam.order import _KICKS_MIN
+    from doodlecam.geometry.order import _KICKS_MIN
 
     assert 0 < a.meta["kicks"] <= len(polys) + _KICKS_MIN
 
@@ -161,7 +161,7 @@ def test_a_cold_numba_cache_does_not_change_the_order(tmp_path):
 
     code = (
         "import numpy as np, time\n"
-        "from doodlecam.order import order_strokes\n"
+        "from doodlecam.geometry.order import order_strokes\n"
         "rng = np.random.default_rng(5)\n"
         "polys = [np.cumsum(rng.normal(size=(4, 2)), axis=0) + rng.random(2) * 200 for _ in range(60)]\n"
         "t = time.perf_counter()\n"

@@ -3,8 +3,8 @@ import pytest
 from hypothesis import given, settings, strategies as st
 
 from doodlecam.model import Spline, Stroke
-from doodlecam.plan import Limits, check_profile, make_grid, plan_stroke
-from doodlecam.sample import TRACKING_STEPS, reference_positions, sample_stroke
+from doodlecam.plan.planner import Limits, check_profile, make_grid, plan_stroke
+from doodlecam.plan.sample import TRACKING_STEPS, reference_positions, sample_stroke
 
 from conftest import report_curve
 
@@ -140,7 +140,7 @@ def test_profile_state_is_consistent(limits):
 
 def test_fivebar_plan_is_verified_on_the_fine_grid():
     from doodlecam.machine import load_machine
-    from doodlecam.pipeline import kinematics_for
+    from doodlecam.registry import kinematics_for
 
     m = load_machine("fivebar")
     kin = kinematics_for(m)
@@ -175,7 +175,7 @@ def test_straight_strokes_get_the_exact_trapezoid():
     general solver on a fine grid, within every limit on the 20x finer check, and
     refusing what the general solver refuses."""
     from doodlecam.errors import PlanError
-    from doodlecam.plan import _straight
+    from doodlecam.plan.planner import _straight
 
     lim = Limits(np.array([150.0, 120.0]), np.array([2000.0, 1500.0]), np.eye(2), 200.0)
     rng = np.random.default_rng(0)

@@ -10,7 +10,7 @@ import pytest
 from doodlecam.errors import InputError, OutputError
 from doodlecam.machine import load_machine
 from doodlecam.model import Job, Profile, Spline, Stroke, StrokeSamples
-from doodlecam.pipeline import kinematics_for
+from doodlecam.registry import kinematics_for
 from doodlecam.plot import output_paths, pick_strokes, plot_job, stroke_figure
 
 ROOT = Path(__file__).resolve().parent.parent

@@ -11,12 +11,12 @@ import numpy as np
 import pytest
 from scipy.spatial import cKDTree
 
-from doodlecam import plcfile
+from doodlecam.link.plc import packetfile as plcfile
 from doodlecam.api import PostProcessor
 from doodlecam.errors import InputError, PluginError
 from doodlecam.machine import parse_machine
 from doodlecam.model import Job, Profile, Spline, Stroke, StrokeSamples, Travel
-from doodlecam.plcfile import DRAW, MOVE, PlcCommand, PlcHeader, commands_from_job, read_plc, to_csv, write_plc
+from doodlecam.link.plc.packetfile import (DRAW, MOVE, PlcCommand, PlcHeader, commands_from_job, read_plc, to_csv, write_plc)
 from doodlecam.postprocessors.gcode import GcodePost
 from doodlecam.postprocessors.plc import PlcPost
 from doodlecam.postprocessors.svg import SvgPost

@@ -3,7 +3,7 @@ from hypothesis import given, settings, strategies as st
 from hypothesis.extra.numpy import arrays
 from scipy.interpolate import BSpline
 
-from doodlecam.fit import fit_pieces, fit_polyline
+from doodlecam.geometry.fit import fit_pieces, fit_polyline
 from doodlecam.model import Spline
 
 

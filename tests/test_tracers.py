@@ -14,7 +14,7 @@ from skimage import data, draw
 
 from doodlecam import registry
 from doodlecam.errors import InputError, PluginError
-from doodlecam.fit import densify
+from doodlecam.geometry.fit import densify
 from doodlecam.plugins.contours import ContoursTracer
 from doodlecam.plugins.edges import EdgesTracer
 from doodlecam.plugins.hatch import HatchTracer, hatch_mask

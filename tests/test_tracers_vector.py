@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from doodlecam.errors import InputError, PluginError
-from doodlecam.layout import fit_to_work_area
+from doodlecam.trace.layout import fit_to_work_area
 from doodlecam.plugins.vector import VectorTracer
 
 SAMPLES = Path(__file__).resolve().parent.parent / "samples" / "vectors"

@@ -16,11 +16,13 @@ import numpy as np
 import pytest
 from hypothesis import given, settings, strategies as st
 
-from doodlecam import plcproto as P
-from doodlecam.plcfile import DRAW, MOVE, RECORD_DTYPE, PlcHeader, read_plc_array, write_plc
-from doodlecam.plcproto import Fault, Msg, State
-from doodlecam.plcsim import REENTRY_ROW, STOP_ROW, Impairments, PlcConfig, PlcSimulator
-from doodlecam.udpsend import LinkError, UdpSender, load_state
+from doodlecam.link.plc import protocol as P
+from doodlecam.link.plc.packetfile import DRAW, MOVE, RECORD_DTYPE, PlcHeader, read_plc_array, write_plc
+from doodlecam.link.plc.protocol import Fault, Msg, State
+from doodlecam.link.plc.simulator import REENTRY_ROW, STOP_ROW, PlcConfig, PlcSimulator
+from doodlecam.link.plc.network import Impairments
+from doodlecam.link.session import LinkError, load_state
+from doodlecam.link.plc.sender import UdpSender
 
 ROOT = Path(__file__).resolve().parent.parent
 ENV = dict(os.environ, PYTHONWARNINGS="ignore")

@@ -17,7 +17,7 @@ Units: mm and s (a design may use any length unit; the actuator check assumes
 mm). Nothing here is imported by ``doodlecam --help``.
 """
 
-from ..errors import DoodleError
+from doodlecam.errors import DoodleError
 
 
 class MotionError(DoodleError):

@@ -24,11 +24,11 @@ from typing import Any
 
 import numpy as np
 
-from ..errors import InputError
-from . import MotionError
-from . import laws as L
-from .envelope import Finding, check_segment
-from .polynomial import ORDER_NAMES, Condition, optimise_powers, solve
+from doodlecam.errors import InputError
+from doodlecam.motion import MotionError
+from doodlecam.motion import laws as L
+from doodlecam.motion.envelope import Finding, check_segment
+from doodlecam.motion.polynomial import ORDER_NAMES, Condition, optimise_powers, solve
 
 try:  # Python 3.11+
     import tomllib
@@ -637,7 +637,7 @@ def _actuator_derivatives(kin, q, dq, ddq):
 
 
 def _check_machine(traj: Trajectory, machine, kin, rep: Report, per_segment: int) -> None:
-    from ..errors import DoodleError
+    from doodlecam.errors import DoodleError
 
     d = traj.design
     names = [a.name for a in traj.axes]
@@ -645,7 +645,7 @@ def _check_machine(traj: Trajectory, machine, kin, rep: Report, per_segment: int
         raise MotionError(f"{d.source}: the machine check needs axes named x and y (the pen position); this design has "
                           f"{', '.join(names)}")
     if kin is None:
-        from ..pipeline import kinematics_for
+        from doodlecam.registry import kinematics_for
 
         kin = kinematics_for(machine)
     ends = sorted({traj.t0, traj.t1, *(s.t1 for a in traj.axes for s in a.segments)})

@@ -16,8 +16,8 @@ from pathlib import Path
 
 import numpy as np
 
-from ..atomic import write_bytes
-from ..errors import OutputError
+from doodlecam.atomic import write_bytes
+from doodlecam.errors import OutputError
 
 COLUMNS = ("pos", "vel", "acc", "jerk")
 
@@ -56,7 +56,7 @@ def axis_csv(traj, axis: str, n: int | None = None) -> bytes:
 
 def read_table(path: Path) -> tuple[list[str], np.ndarray]:
     """A CSV with one header line of column names and numeric rows."""
-    from ..errors import InputError
+    from doodlecam.errors import InputError
 
     path = Path(path)
     try:

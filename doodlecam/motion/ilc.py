@@ -28,7 +28,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from . import MotionError
+from doodlecam.motion import MotionError
 
 
 def fir_coefficients(omega_c: float) -> np.ndarray:

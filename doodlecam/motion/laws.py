@@ -26,7 +26,7 @@ from typing import Callable
 
 import numpy as np
 
-from . import MotionError
+from doodlecam.motion import MotionError
 
 PI = np.pi
 

@@ -25,7 +25,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from . import MotionError
+from doodlecam.motion import MotionError
 
 ORDER_NAMES = ("pos", "vel", "acc", "jerk")
 OBJECTIVES = {"velocity": 1, "acceleration": 2, "jerk": 3}
@@ -116,7 +116,8 @@ class PolySegment:
         """(powers, C): d(t) = Σ C_i (t − t0)^{p_i}, the thesis's coefficients (eq. 3.3)."""
         if self.powers is not None:
             return self.powers.copy(), self.coef / self.duration**self.powers
-        from numpy.polynomial import chebyshev as C, polynomial as P
+        from numpy.polynomial import chebyshev as C
+        from numpy.polynomial import polynomial as P
 
         mono = C.cheb2poly(self.coef)  # monomials in u = 2τ − 1; substitute u below
         out = np.zeros(len(mono))

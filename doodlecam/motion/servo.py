@@ -24,8 +24,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from . import MotionError
-from .ilc import fir_coefficients, learn_step
+from doodlecam.motion import MotionError
+from doodlecam.motion.ilc import fir_coefficients, learn_step
 
 
 @dataclass(frozen=True)

@@ -1,0 +1,2 @@
+"""Batch conversion of a folder of pictures: parallel, incremental, resumable (``doodlecam batch``).
+"""

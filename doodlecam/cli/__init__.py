@@ -1,0 +1,85 @@
+"""The ``doodlecam`` command line.
+
+Only click is imported at start-up; every command imports the stages it needs,
+so ``doodlecam --help`` answers fast. Errors a user can cause print one line
+and exit non-zero, without a traceback.
+"""
+
+from __future__ import annotations
+
+import sys
+
+import click
+
+from doodlecam import __version__
+from doodlecam.errors import DoodleError
+
+# Commands that live in their own modules, imported only when invoked (or
+# when --help lists them): "name": "module:function".
+LAZY_COMMANDS: dict[str, str] = {
+    "convert": "doodlecam.cli.convert:convert",
+    "machines": "doodlecam.cli.machines:machines",
+    "inspect": "doodlecam.cli.inspect:inspect",
+    "send": "doodlecam.cli.send:send",
+    "sim": "doodlecam.cli.send:sim",
+    "plot": "doodlecam.cli.plot:plot",
+    "motion": "doodlecam.cli.motion:motion",
+    "learn": "doodlecam.cli.motion:learn",
+    "batch": "doodlecam.cli.batch:batch",
+    "plugins": "doodlecam.cli.plugins:plugins",
+}
+
+
+class LazyGroup(click.Group):
+    """A click group that imports a command's module only when it is needed."""
+
+    def list_commands(self, ctx):
+        return sorted(set(super().list_commands(ctx)) | set(LAZY_COMMANDS))
+
+    def get_command(self, ctx, name):
+        if name in LAZY_COMMANDS and name not in self.commands:
+            import importlib
+
+            module, attr = LAZY_COMMANDS[name].split(":")
+            return getattr(importlib.import_module(module), attr)
+        return super().get_command(ctx, name)
+
+
+@click.group(cls=LazyGroup, context_settings={"help_option_names": ["-h", "--help"]})
+@click.version_option(__version__, prog_name="doodlecam")
+def cli():
+    """Turn pictures into time-optimal pen-plotter jobs.
+
+    \b
+    trace -> fit B-splines -> order -> plan (time-optimal) -> sample -> post
+    Start with:  doodlecam convert samples/images/camera.png -o out/
+    """
+
+
+
+
+def main(argv=None) -> int:
+    try:
+        rv = cli.main(args=argv, prog_name="doodlecam", standalone_mode=False)
+        if isinstance(rv, int):  # click returns Exit codes instead of raising without standalone mode
+            return rv
+    except click.exceptions.Exit as e:
+        return e.exit_code
+    except click.ClickException as e:
+        e.show()
+        return e.exit_code
+    except click.exceptions.Abort:
+        click.echo("doodlecam: aborted", err=True)
+        return 130
+    except KeyboardInterrupt:
+        click.echo("doodlecam: interrupted; no output was written", err=True)
+        return 130
+    except DoodleError as e:
+        click.echo(f"doodlecam: error: {e}", err=True)
+        return e.exit_code
+    return 0
+
+
+def entry() -> None:
+    """Console-script entry point."""
+    sys.exit(main())

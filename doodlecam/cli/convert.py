@@ -1,0 +1,56 @@
+"""``doodlecam convert``: one picture or vector file into a machine job.
+"""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import click
+
+from doodlecam.cli.options import job_kwargs, job_options
+
+
+@click.command()
+@click.argument("input", type=click.Path(path_type=Path))
+@click.option("-o", "--out", "outdir", type=click.Path(path_type=Path), default=Path("out"), show_default=True,
+              help="Output folder (created if needed).")
+@click.option("--json", "as_json", is_flag=True, help="Print the summary as JSON.")
+@job_options
+def convert(input, outdir, as_json, **options):
+    """Convert a picture into a machine job: PLC packet file, G-code and SVG preview."""
+    from doodlecam.machine import load_machine
+    from doodlecam.pipeline import Settings
+    from doodlecam.pipeline import convert as run
+
+    kw = job_kwargs(**options)
+    settings = Settings(**{**kw, "machine": load_machine(kw["machine"])})
+    result = run(input, outdir, settings)
+    s = result.summary()
+    if as_json:
+        click.echo(json.dumps(s, indent=2))
+        return
+    click.echo(f"{input} -> {outdir}/  (machine {s['machine']}, solver {result.job.meta['solver']})")
+    click.echo(f"  strokes            {s['strokes']}  ({s['control_points']} control points, fit within {s['max_fit_error_mm']:.3f} mm)")
+    click.echo(f"  pen-down length    {s['pen_down_mm']:.1f} mm")
+    click.echo(f"  travel length      {s['travel_mm']:.1f} mm")
+    by_law = s["travel_time_by_law_s"]
+    if by_law:
+        base = by_law.get("trapezoid", 0.0)
+        click.echo(f"  travel law         {s['travel_law']}: {by_law.get(s['travel_law'], 0):.1f} s pen-up; smooth laws cost "
+                   + ", ".join(f"{k} {v - base:+.1f} s" for k, v in by_law.items() if k != "trapezoid"))
+    click.echo(f"  planned job time   {s['job_time_s']:.1f} s  (drawing {s['draw_time_s']:.1f} s, {s['samples']} velocity samples)")
+    click.echo(f"  limits             acceleration <= {s['worst_acceleration_ratio']:.6f}, velocity <= "
+               f"{s['worst_velocity_ratio']:.6f} of the limit (checked on a 20x finer grid)")
+    if s.get("worst_ramp_ratio") is not None:  # nonlinear kinematics: the cranks along the sampled ramps
+        click.echo(f"                     actuators along the sampled ramps <= {s['worst_ramp_ratio']:.6f} of their limits"
+                   + (f" ({s['strokes_slowed_for_ramps']} stroke{'s' if s['strokes_slowed_for_ramps'] > 1 else ''} "
+                      "planned slower for it)" if s["strokes_slowed_for_ramps"] else ""))
+    enforced = s["path_tolerance_mm"] > 0
+    click.echo(f"  pen on the curve   within half a step at every sample instant; up to "
+               f"{s['max_between_samples_mm']:.3f} mm off between instants"
+               + (f" (kept within {s['path_tolerance_mm']:g} mm)" if enforced else ""))
+    if not enforced and s["max_between_samples_mm"] > s["max_fit_error_mm"]:
+        click.echo("                     (the PLC's linear ramps; set [sampling] path_tolerance in the machine profile "
+                   "to keep within it, docs/sampling.md)")
+    click.echo("  wrote              " + ", ".join(s["outputs"]))

@@ -1,0 +1,82 @@
+"""The options that several commands share (convert, batch, plot, plugins).
+"""
+
+from __future__ import annotations
+
+import click
+
+PLUGIN_DIR = click.option("--plugin-dir", "plugin_dirs", multiple=True, type=click.Path(file_okay=False),
+                          help="Folder of drop-in plugin .py files (repeatable; also $DOODLECAM_PLUGIN_PATH).")
+
+
+def _pairs(values: tuple[str, ...], what: str) -> dict[str, str]:
+    out = {}
+    for v in values:
+        key, sep, val = v.partition("=")
+        if not sep or not key:
+            raise click.BadParameter(f"'{v}' is not KEY=VALUE", param_hint=what)
+        out[key.strip()] = val
+    return out
+
+
+
+
+def job_options(f):
+    """The options every job-making command shares (convert, batch, plot ...)."""
+    opts = [
+        click.option("-m", "--machine", default="doodlebot", show_default=True, help="Machine profile: a name or a .toml path."),
+        click.option("--tracer", help="Tracer plugin (default: chosen by file type; 'edges' for pictures)."),
+        click.option("--tracer-opt", multiple=True, metavar="KEY=VALUE", help="Tracer option (repeatable)."),
+        click.option("--post", "posts", multiple=True, metavar="NAME",
+                     help="Post-processor (repeatable). Default: plc, gcode and svg."),
+        click.option("--post-opt", multiple=True, metavar="POST.KEY=VALUE",
+                     help="Post option, e.g. gcode.pen_up='M5' (repeatable)."),
+        click.option("--solver", help="Planner: reach (exact, fast; default), lp[:clarabel|highs|osqp] (cross-check), "
+                     "qp[:clarabel|highs|osqp] (smoothed). Default: the profile's [machine] solver."),
+        click.option("--smoothing", type=float, help="Weight of the smoothing QP against time (solver qp). Default: the profile's."),
+        click.option("--path-tolerance", type=float, metavar="MM",
+                     help="Keep the pen within MM of the curve between velocity samples too (0 = off: faster "
+                     "drawing, the pen may stray ~0.7 mm). Default: the profile's [sampling] path_tolerance, "
+                     "else its fit tolerance."),
+        click.option("--width", type=float, metavar="MM", help="Target drawing width in mm (aspect kept). Default: fill the work area."),
+        click.option("--height", type=float, metavar="MM", help="Target drawing height in mm (aspect kept)."),
+        click.option("--scale", type=float, metavar="MM", help="Fixed scale: mm per source unit (px, or mm: 1 = an SVG/DXF at true size)."),
+        click.option("--margin", type=float, metavar="MM", help="Margin inside the work area (default: the profile's)."),
+        click.option("--rotate", type=click.Choice(["0", "90", "180", "270", "auto"]),
+                     help="Quarter turns counter-clockwise; auto turns the drawing when it then fits larger."),
+        click.option("--fit", type=click.Choice(["canvas", "ink"]),
+                     help="Fit the whole picture frame (canvas) or only what is drawn (ink)."),
+        click.option("--keep-direction", is_flag=True, default=None,
+                     help="Never draw a stroke backwards (for pens that draw differently each way)."),
+        PLUGIN_DIR,
+    ]
+    for opt in reversed(opts):
+        f = opt(f)
+    return f
+
+
+def job_kwargs(machine, tracer, tracer_opt, posts, post_opt, solver, smoothing, path_tolerance, width, height, scale,
+               margin, rotate, fit, keep_direction, plugin_dirs) -> dict:
+    """The shared options, parsed: keyword arguments for pipeline.Settings
+    (with ``machine`` still the profile's name or path)."""
+    post_opts: dict[str, dict[str, str]] = {}
+    for key, val in _pairs(post_opt, "--post-opt").items():
+        name, dot, opt = key.partition(".")
+        if not dot:
+            raise click.BadParameter(f"'{key}' must be POST.KEY=VALUE, e.g. gcode.pen_up=M5", param_hint="--post-opt")
+        post_opts.setdefault(name, {})[opt] = val
+    posts = tuple(posts) or ("plc", "gcode", "svg")
+    if path_tolerance is not None and not path_tolerance >= 0:
+        raise click.BadParameter(f"must be 0 (off) or a distance in mm, got {path_tolerance:g}", param_hint="--path-tolerance")
+    unused = set(post_opts) - set(posts)
+    if unused:
+        raise click.BadParameter(f"options given for '{sorted(unused)[0]}', which is not among the posts {', '.join(posts)}",
+                                 param_hint="--post-opt")
+    return dict(
+        machine=machine, tracer=tracer, tracer_options=_pairs(tracer_opt, "--tracer-opt"), posts=posts,
+        post_options=post_opts, solver=solver, smoothing=smoothing, path_tolerance=path_tolerance,
+        plugin_dirs=tuple(plugin_dirs),
+        layout={k: v for k, v in dict(width=width, height=height, scale=scale, margin=margin, rotate=rotate, fit=fit).items()
+                if v is not None},
+        order={"reverse": False} if keep_direction else {},
+    )

@@ -1,0 +1,109 @@
+"""Compiled B-spline kernels (numba): knots, basis functions, evaluation, distance to a stretch.
+
+The data model (``Spline``), the fitter and the planner's follower all evaluate splines
+through these; they import nothing from doodlecam, so everything can import them.
+"""
+
+import numba
+import numpy as np
+
+
+@numba.njit(cache=True, nogil=True, inline="always")
+def knot(j, p, nseg):  # pragma: no cover - compiled
+    """Knot j of the clamped uniform knot vector: p + 1 zeros, even steps, p + 1 ones."""
+    return min(max(j - p, 0), nseg) / nseg
+
+
+@numba.njit(cache=True, nogil=True, inline="always")
+def basis_at(x, p, nseg, N, left, right):  # pragma: no cover - compiled
+    """The p + 1 basis functions that do not vanish at x, into N; returns the
+    index of the first (= the knot span). Cox-de Boor as in the NURBS book's
+    A2.2, or the closed form of a cubic where the knots are evenly spaced."""
+    s = min(max(int(x * nseg), 0), nseg - 1)  # knot span [s, s + 1] / nseg
+    step = 1.0 / nseg  # knot j is j * step, as numpy.linspace makes Spline.knots
+    if s + 1 < nseg and x >= (s + 1) * step:  # x * nseg rounded across a knot:
+        s += 1  # right-continuous at knots, as scipy (it matters for the top derivative)
+    elif s > 0 and x < s * step:
+        s -= 1
+    if p == 3 and p <= s < nseg - p:
+        t = x * nseg - s
+        t2 = t * t
+        t3 = t2 * t
+        N[0] = (1.0 - t) ** 3 / 6.0
+        N[1] = (3.0 * t3 - 6.0 * t2 + 4.0) / 6.0
+        N[2] = (-3.0 * t3 + 3.0 * t2 + 3.0 * t + 1.0) / 6.0
+        N[3] = t3 / 6.0
+        return s
+    k = s + p
+    N[0] = 1.0
+    for j in range(1, p + 1):
+        left[j] = x - knot(k + 1 - j, p, nseg)
+        right[j] = knot(k + j, p, nseg) - x
+        saved = 0.0
+        for r in range(j):
+            t = N[r] / (right[r + 1] + left[j - r])
+            N[r] = saved + right[r + 1] * t
+            saved = left[j - r] * t
+        N[j] = saved
+    return s
+
+
+@numba.njit(cache=True, nogil=True, inline="always")
+def _point(c, k, nseg, u, N, left, right):  # pragma: no cover - compiled
+    """The spline (control points c, degree k, nseg spans) at u in [0, 1]: (x, y)."""
+    f = basis_at(u, k, nseg, N, left, right)
+    sx = 0.0
+    sy = 0.0
+    for r in range(k + 1):
+        sx += N[r] * c[f + r, 0]
+        sy += N[r] * c[f + r, 1]
+    return sx, sy
+
+
+@numba.njit(cache=True, nogil=True)
+def bspline_eval(c, k, nseg, x, out):  # pragma: no cover - compiled
+    """out[j] = the clamped uniform B-spline of degree k with nseg knot spans and
+    control points c (n, 2) at x[j] clipped to [0, 1] (a derivative of such a
+    spline is one too, of degree k - 1 over the same spans). scipy's BSpline
+    costs ~50 us per call before any work, and the planner, sampler and
+    deviation check call it thousands of times per picture."""
+    N = np.empty(k + 1)
+    left = np.empty(k + 1)
+    right = np.empty(k + 1)
+    for j in range(x.shape[0]):
+        out[j, 0], out[j, 1] = _point(c, k, nseg, min(max(x[j], 0.0), 1.0), N, left, right)
+
+
+@numba.njit(cache=True, nogil=True)
+def distance_to_stretch(c0, c1, c2, k, nseg, x, lo, hi, candidates, iterations, out):  # pragma: no cover - compiled
+    """out[i] = distance from x[i] to the spline (control points c0, its first and
+    second derivatives' c1, c2; degree k, nseg spans) on u in [lo[i], hi[i]]: the
+    nearest of ``candidates`` evenly spread parameters, then Newton steps on
+    (q(u) - x) . q'(u) = 0 kept within one spacing of it (follow.distance_to_stretch)."""
+    N = np.empty(k + 1)
+    left = np.empty(k + 1)
+    right = np.empty(k + 1)
+    for i in range(x.shape[0]):
+        px, py = x[i, 0], x[i, 1]
+        step = (hi[i] - lo[i]) / (candidates - 1)
+        best, ub = np.inf, lo[i]
+        for j in range(candidates):
+            u = lo[i] + step * j
+            qx, qy = _point(c0, k, nseg, u, N, left, right)
+            d = np.sqrt((qx - px) ** 2 + (qy - py) ** 2)
+            if d < best:
+                best, ub = d, u
+        a, b = max(ub - step, 0.0), min(ub + step, 1.0)
+        u = ub
+        for _ in range(iterations):
+            qx, qy = _point(c0, k, nseg, u, N, left, right)
+            d1x, d1y = _point(c1, k - 1, nseg, u, N, left, right)
+            d2x, d2y = (0.0, 0.0) if k < 2 else _point(c2, k - 2, nseg, u, N, left, right)
+            rx, ry = qx - px, qy - py
+            g = d1x * rx + d1y * ry
+            h = d1x * d1x + d1y * d1y + d2x * rx + d2y * ry
+            if h > 1e-12:
+                u -= g / h
+            u = min(max(u, a), b)
+        qx, qy = _point(c0, k, nseg, u, N, left, right)
+        out[i] = min(np.sqrt((qx - px) ** 2 + (qy - py) ** 2), best)

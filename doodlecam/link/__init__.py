@@ -1,0 +1,2 @@
+"""The machine links: the PLC over UDP (``link.plc``) and GRBL over serial (``link.grbl``).
+"""

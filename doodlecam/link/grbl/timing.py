@@ -1,0 +1,242 @@
+"""How long GRBL 1.1 really takes for a G-code program: a model of its planner.
+
+GRBL does not follow the feeds it is given exactly: its planner
+(grbl/planner.c) limits every block and every junction, and only looks a few
+blocks ahead. This module reproduces that model, so a user knows the job time
+the firmware will take, not only the time doodlecam planned:
+
+* a block's nominal speed is its F (G1) or the rapid rate (G0), capped so no
+  axis exceeds its max rate ($110..$112): ``min_i(rate_i / |u_i|)`` for the
+  block's unit vector u; its acceleration is ``min_i(accel_i / |u_i|)``
+  ($120..$122), the same ``limit_value_by_axis_maximum`` GRBL uses;
+* the junction between two blocks allows
+  ``v² = a_j · δ · sin(θ/2) / (1 − sin(θ/2))`` with δ the junction deviation
+  ($11), ``cos θ = −u_prev · u`` and ``a_j`` the acceleration limit along
+  ``u − u_prev``; a straight junction is unlimited, a reversal stops; the entry
+  speed is also at most both blocks' nominal speeds;
+* look-ahead is bounded: GRBL's 16-entry block ring holds 15 blocks, the
+  executing one included, and the last of them must be able to stop; a sender
+  that keeps the buffer full (as ``doodlecam send`` does) sees exactly this
+  window: block i may leave at most at the speed from which blocks
+  i+1..i+14 can still brake to rest;
+* M-codes (spindle/servo changes, outside laser mode) and G4 dwells
+  synchronise: the planner empties and the machine stops; a dwell adds its
+  time (GRBL's G4 P is in seconds).
+
+Each block then runs a trapezoid (or triangle) between its entry and exit
+speeds. Stepper segment quantisation (~ms) is ignored. Units: mm, s, mm/s.
+Everything is vectorised with NumPy: the backward pass runs over all windows
+at once (14 steps), the forward pass is a min-plus prefix scan.
+"""
+
+from __future__ import annotations
+
+import re
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from doodlecam.errors import InputError
+
+SOME_LARGE_VALUE = 1.0e38
+
+
+@dataclass(frozen=True)
+class GrblSettings:
+    """GRBL 1.1 settings that shape motion time (mm/s, mm/s², mm)."""
+
+    max_rate: tuple[float, float, float] = (83.333, 83.333, 8.333)  # $110..$112 / 60
+    acceleration: tuple[float, float, float] = (500.0, 500.0, 100.0)  # $120..$122 (mm/s²)
+    junction_deviation: float = 0.01  # $11
+    blocks: int = 16  # BLOCK_BUFFER_SIZE; the ring holds blocks - 1
+
+    @classmethod
+    def from_machine(cls, machine, junction_deviation: float = 0.01) -> "GrblSettings":
+        """Settings matching a doodlecam machine profile (Z like X: a pen lift is short)."""
+        x, y = machine.axes
+        return cls((x.max_velocity, y.max_velocity, x.max_velocity),
+                   (x.max_acceleration, y.max_acceleration, x.max_acceleration), junction_deviation)
+
+
+@dataclass
+class Estimate:
+    """The estimated time (s) and its parts."""
+
+    motion: float = 0.0
+    dwell: float = 0.0
+    blocks: int = 0
+    block_times: np.ndarray = field(default_factory=lambda: np.zeros(0))
+
+    @property
+    def total(self) -> float:
+        return self.motion + self.dwell
+
+
+def _axis_limit(values: np.ndarray, unit: np.ndarray) -> np.ndarray:
+    """GRBL's limit_value_by_axis_maximum for each row of unit (n, 3)."""
+    with np.errstate(divide="ignore"):
+        r = np.where(unit != 0, values / np.abs(unit), SOME_LARGE_VALUE)
+    return r.min(axis=1)
+
+
+def _segment_time(points: np.ndarray, feeds: np.ndarray, s: GrblSettings, rest: np.ndarray | None = None) -> np.ndarray:
+    """Times (s) of the blocks points[k] -> points[k+1].
+
+    ``feeds[k]`` is the block's requested speed (mm/s; inf for rapids).
+    ``rest[k]``: block k starts from rest (a synchronisation before it); by
+    default only the first. Runs between synchronisations are independent, so
+    many are timed in one call: a rest start is an entry speed of 0, which both
+    passes carry exactly (one call per run cost more than the model itself).
+    Zero-length blocks (GRBL drops them) get time 0.
+    """
+    d = np.diff(points, axis=0)
+    L = np.linalg.norm(d, axis=1)
+    if rest is None:
+        rest = np.zeros(len(L), bool)
+        rest[:1] = True
+    keep = L > 0  # GRBL drops zero-length blocks
+    out = np.zeros(len(L))
+    d, L, feeds = d[keep], L[keep], feeds[keep]
+    n = len(L)
+    if n == 0:
+        return out
+    # a kept block starts from rest when it is the first of its run (a dropped
+    # block's rest start passes on to the next kept one)
+    run = np.cumsum(rest)[keep]
+    starts = np.r_[True, run[1:] != run[:-1]]
+    u = d / L[:, None]
+    rate, acc = np.asarray(s.max_rate, float), np.asarray(s.acceleration, float)
+    a = _axis_limit(acc, u)
+    nominal = np.minimum(feeds, _axis_limit(rate, u))
+    n2 = nominal ** 2
+
+    # Junction limits: block k's entry, from u[k-1] and u[k]; the first block starts at rest.
+    cos = -(u[:-1] * u[1:]).sum(1)
+    ju = u[1:] - u[:-1]
+    jn = np.linalg.norm(ju, axis=1)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        ja = _axis_limit(acc, ju / np.where(jn > 0, jn, 1.0)[:, None])
+        sin_d2 = np.sqrt(np.clip(0.5 * (1.0 - cos), 0.0, 1.0))
+        vj2 = np.maximum(0.0, ja * s.junction_deviation * sin_d2 / (1.0 - sin_d2))
+    vj2 = np.where(cos > 0.999999, 0.0, np.where(cos < -0.999999, SOME_LARGE_VALUE, vj2))
+    me = np.empty(n)  # max entry speed²
+    me[0] = 0.0
+    me[1:] = np.minimum(vj2, np.minimum(n2[1:], n2[:-1]))
+    me[starts] = 0.0
+
+    # Backward pass over every window at once: block i's exit may be at most the
+    # entry of block i+1 from which blocks up to i+W-1 can still stop.
+    W = max(int(s.blocks) - 1, 1)
+    pad = W
+    me_p = np.concatenate([me, np.zeros(pad + 1)])  # past the program end: rest
+    two_aL = np.concatenate([2.0 * a * L, np.zeros(pad + 1)])
+    idx = np.arange(n)
+    cur = np.zeros(n)  # exit² of block i + W - 1
+    for k in range(W - 1, 0, -1):
+        j = idx + k
+        cur = np.minimum(me_p[j], cur + two_aL[j])
+    limit = cur  # exit² bound of block i (= entry² bound of block i+1)
+
+    # Forward pass: exit_i² = min(limit_i, exit_{i-1}² + 2 a_i L_i), from rest. A min-plus scan;
+    # a rest start has limit 0 on the block before it, so the scan restarts there.
+    C = np.cumsum(2.0 * a * L)
+    exit2 = C + np.minimum(0.0, np.minimum.accumulate(limit - C))
+    exit2 = np.maximum(exit2, 0.0)
+    entry2 = np.concatenate([[0.0], exit2[:-1]])
+    entry2[starts] = 0.0
+
+    vi, vf, vn = np.sqrt(entry2), np.sqrt(exit2), nominal
+    d1 = (n2 - entry2) / (2 * a)
+    d2 = (n2 - exit2) / (2 * a)
+    cruise = L - d1 - d2
+    with np.errstate(invalid="ignore", divide="ignore"):
+        trap = (vn - vi) / a + (vn - vf) / a + np.where(cruise > 0, cruise / vn, 0.0)
+        vp = np.sqrt(np.maximum((2 * a * L + entry2 + exit2) / 2, np.maximum(entry2, exit2)))
+        tri = (vp - vi) / a + (vp - vf) / a
+    out[keep] = np.where(cruise >= 0, trap, tri)
+    return out
+
+
+def estimate_program(program, settings: GrblSettings = GrblSettings(), start=(0.0, 0.0, 0.0)) -> Estimate:
+    """Estimate a program given as a list of moves.
+
+    Items: ``("G0", x, y[, z], None)`` rapids, ``("G1", x, y[, z], F)`` with F in
+    mm/min (None keeps the modal feed), ``("G4", seconds)`` dwells and
+    ``("M", text)`` commands (both synchronise: the machine stops). Coordinates
+    are absolute mm; x, y or z None keeps that axis.
+    """
+    pos = np.zeros(3)
+    pos[:len(start)] = np.asarray(start, float)
+    est = Estimate()
+    # all runs in one call: block k goes from pts[k] to pts[k+1]; a synchronisation
+    # (dwell, M command) makes the next block start from rest
+    pts, feeds, rest = [pos.copy()], [], []
+    feed = None
+    sync = True
+    for item in program:
+        kind = item[0]
+        if kind in ("G0", "G1"):
+            coords, f = item[1:-1], item[-1]
+            target = pts[-1].copy()
+            for k, c in enumerate(coords[:3]):
+                if c is not None:
+                    target[k] = c
+            if kind == "G1":
+                if f is not None:
+                    feed = f
+                if feed is None:
+                    raise InputError("G1 without a feed rate: GRBL refuses it (error:22); add F")
+                v = feed / 60.0
+            else:
+                v = np.inf
+            pts.append(target)
+            feeds.append(v)
+            rest.append(sync)
+            sync = False
+        elif kind == "G4":
+            sync = True
+            est.dwell += float(item[1])
+        elif kind == "M":
+            sync = True
+        else:
+            raise ValueError(f"unknown program item {item!r}")
+    bt = _segment_time(np.array(pts), np.array(feeds), settings, np.array(rest, bool)) if feeds else np.zeros(0)
+    bt = bt[bt > 0]  # the blocks GRBL keeps (zero-length ones take no time)
+    est.block_times, est.blocks, est.motion = bt, len(bt), float(bt.sum())
+    return est
+
+
+_WORD = re.compile(r"([A-Z])\s*([-+]?(?:\d+\.?\d*|\.\d+))")
+
+
+def parse_gcode(text: str) -> list[tuple]:
+    """The moves of a G-code text (the subset doodlecam writes, plus modal G0/G1), for estimate_program."""
+    program: list[tuple] = []
+    motion = None
+    for no, raw in enumerate(text.splitlines(), 1):
+        line = re.sub(r"\(.*?\)", "", raw.split(";")[0]).upper().strip()
+        if not line:
+            continue
+        words = _WORD.findall(line)
+        g = [float(v) for k, v in words if k == "G"]
+        vals = {k: float(v) for k, v in words if k in "XYZFP"}
+        if any(k == "M" for k, _ in words):
+            program.append(("M", line))
+        if 4.0 in g:
+            program.append(("G4", vals.get("P", 0.0)))
+            continue
+        for m in (0.0, 1.0):
+            if m in g:
+                motion = f"G{int(m)}"
+        if any(k in vals for k in "XYZ"):
+            if motion is None:
+                raise InputError(f"line {no}: a move before any G0/G1; cannot estimate")
+            program.append((motion, vals.get("X"), vals.get("Y"), vals.get("Z"), vals.get("F")))
+        elif "F" in vals and motion == "G1":
+            program.append(("G1", None, None, None, vals["F"]))  # a feed-only line sets the modal feed
+    return program
+
+
+def estimate_gcode(text: str, settings: GrblSettings = GrblSettings(), start=(0.0, 0.0, 0.0)) -> Estimate:
+    """Estimate GRBL 1.1's time for a G-code text."""
+    return estimate_program(parse_gcode(text), settings, start)

@@ -1,0 +1,252 @@
+"""The PLC packet file: the report's header + command list, as bytes.
+
+The DoodleBot PLC (report sections 2.1.0.5 and 3.4.2.2, table 3.4.2) takes a
+header (delta_time, no_commands, max_accel_x/y, move_speed_x/y) and then a
+numbered command list. Each command is
+
+* type 0, DRAW: x, y are axis *velocity targets* in steps/s. The PLC ramps
+  each axis linearly from its current velocity to the target over one
+  delta_time. DRAW commands are executed pen-down.
+* type 1, MOVE: x, y are an absolute *position* in steps from the machine
+  origin, reached with the PLC's own move profile (move_speed, max_accel),
+  from rest to rest. MOVE commands are executed pen-up.
+
+The report's machine has no separate pen command, so the pen follows the
+command type: the PLC lowers the pen (and waits its down delay) before a DRAW
+that follows a MOVE, and lifts it before a MOVE that follows a DRAW.
+
+The byte layout is documented in docs/formats.md; this module is the one
+reader and writer (the UDP transport and ``doodlecam inspect`` use it too).
+"""
+
+from __future__ import annotations
+
+import io
+import math
+import zlib
+from dataclasses import dataclass
+
+import numpy as np
+
+from doodlecam.errors import InputError, OutputError
+
+MAGIC = b"\x89DCPLC\r\n"  # high bit + CRLF catch 7-bit and text-mode mangling, as PNG does
+VERSION = 1
+DRAW, MOVE = 0, 1
+
+HEADER_DTYPE = np.dtype([
+    ("magic", "S8"),
+    ("version", "<u2"),
+    ("record_size", "<u2"),
+    ("no_commands", "<u4"),
+    ("delta_time", "<f8"),
+    ("steps_per_mm_x", "<f8"),
+    ("steps_per_mm_y", "<f8"),
+    ("max_accel_x", "<i4"),
+    ("max_accel_y", "<i4"),
+    ("move_speed_x", "<i4"),
+    ("move_speed_y", "<i4"),
+])
+RECORD_DTYPE = np.dtype([
+    ("command_no", "<u4"),
+    ("type", "<u2"),
+    ("reserved", "<u2"),  # written as 0, ignored by version-1 readers
+    ("x", "<i4"),
+    ("y", "<i4"),
+])
+TRAILER_SIZE = 4  # CRC-32 (zlib) of every byte before it, little-endian uint32
+assert HEADER_DTYPE.itemsize == 56 and RECORD_DTYPE.itemsize == 16
+
+_I32 = np.iinfo(np.int32)
+
+
+@dataclass(frozen=True)
+class PlcHeader:
+    """The report's header plus steps/mm, so a reader can convert back to mm."""
+
+    delta_time: float  # s, period of the DRAW velocity samples
+    no_commands: int
+    max_accel_x: int  # steps/s^2
+    max_accel_y: int  # steps/s^2
+    move_speed_x: int  # steps/s, for MOVE commands
+    move_speed_y: int  # steps/s
+    steps_per_mm_x: float
+    steps_per_mm_y: float
+
+
+@dataclass(frozen=True, slots=True)
+class PlcCommand:
+    """One command: DRAW (type 0) velocity in steps/s, MOVE (type 1) position in steps."""
+
+    command_no: int  # 1..no_commands
+    type: int  # DRAW = 0 (pen down), MOVE = 1 (pen up)
+    x: int
+    y: int
+
+    @property
+    def is_draw(self) -> bool:
+        return self.type == DRAW
+
+
+# ---------------------------------------------------------------- from a job
+
+def _floor_rate(value: float) -> int:
+    # Round limits down: the PLC must never be told it may exceed the profile.
+    return max(1, min(int(_I32.max), int(math.floor(value * (1 + 1e-12)))))
+
+
+def commands_array(job) -> tuple[PlcHeader, np.ndarray]:
+    """Like :func:`commands_from_job`, as a RECORD_DTYPE array (fast path)."""
+    m = job.machine
+    spm = np.array([m.x.steps_per_mm, m.y.steps_per_mm])
+    if len(job.samples) != len(job.strokes):
+        raise OutputError("job has no velocity samples for its strokes; plan and sample it before writing PLC commands")
+    dts = {s.delta_time for s in job.samples}
+    if len(dts) > 1:
+        raise OutputError(f"job strokes were sampled with different periods {sorted(dts)}; the PLC header has one delta_time, re-sample the job")
+    dt = dts.pop() if dts else m.delta_time
+    home = job.travels[-1].end if job.travels else np.asarray(m.home, dtype=float)
+
+    blocks = []
+    for s in job.samples:
+        move = np.round(np.asarray(s.start) * spm)[None]
+        # Round the running sum, not each sample: the ramp model's position is
+        # dT * (sum of targets), so this keeps the drawn position within a
+        # fraction of a step of the plan instead of a random walk of rounding
+        # errors, while every target stays within 1 step/s of the exact value.
+        cum = np.round(np.cumsum(np.asarray(s.velocity) * spm, axis=0))
+        draws = np.diff(np.vstack([np.zeros((1, 2)), cum]), axis=0)
+        blocks.append((move, draws))
+    n = sum(1 + len(d) for _, d in blocks) + 1
+    out = np.zeros(n, RECORD_DTYPE)
+    xy = np.empty((n, 2))
+    types = np.full(n, DRAW, dtype=np.uint16)
+    i = 0
+    for move, draws in blocks:
+        types[i], xy[i] = MOVE, move[0]
+        xy[i + 1:i + 1 + len(draws)] = draws
+        i += 1 + len(draws)
+    types[i], xy[i] = MOVE, np.round(np.asarray(home) * spm)
+    if np.abs(xy).max(initial=0) > _I32.max:
+        raise OutputError("a PLC command exceeds the int32 range; check steps_per_mm and the work area in the machine profile")
+    out["command_no"] = np.arange(1, n + 1)
+    out["type"] = types
+    out["x"], out["y"] = xy[:, 0], xy[:, 1]
+    vx, vy = (v * k for v, k in zip(m.move_speed, spm))
+    header = PlcHeader(
+        delta_time=float(dt), no_commands=n,
+        max_accel_x=_floor_rate(m.x.max_acceleration * spm[0]),
+        max_accel_y=_floor_rate(m.y.max_acceleration * spm[1]),
+        move_speed_x=_floor_rate(vx), move_speed_y=_floor_rate(vy),
+        steps_per_mm_x=float(spm[0]), steps_per_mm_y=float(spm[1]),
+    )
+    return header, out
+
+
+def commands_from_job(job) -> tuple[PlcHeader, list[PlcCommand]]:
+    """Header and commands for a planned, sampled Job.
+
+    Per stroke: a MOVE to its start (rounded to steps), then one DRAW per
+    velocity sample (steps/s); finally a MOVE home. Numbered 1..N.
+    """
+    header, arr = commands_array(job)
+    return header, to_commands(arr)
+
+
+# ---------------------------------------------------------------- array <-> objects
+
+def to_array(commands) -> np.ndarray:
+    """PlcCommand list (or a RECORD_DTYPE array, returned as is) -> RECORD_DTYPE array."""
+    if isinstance(commands, np.ndarray):
+        return commands.astype(RECORD_DTYPE, copy=False)
+    rows = ((c.command_no, c.type, 0, c.x, c.y) for c in commands)
+    return np.fromiter(rows, dtype=RECORD_DTYPE, count=len(commands))
+
+
+def to_commands(arr: np.ndarray) -> list[PlcCommand]:
+    cols = (arr["command_no"].tolist(), arr["type"].tolist(), arr["x"].tolist(), arr["y"].tolist())
+    return [PlcCommand(*row) for row in zip(*cols)]
+
+
+# ---------------------------------------------------------------- bytes
+
+def write_plc(header: PlcHeader, commands) -> bytes:
+    """The packet file's bytes for a header and its commands (list or array)."""
+    arr = to_array(commands)
+    if header.no_commands != len(arr):
+        raise ValueError(f"header says {header.no_commands} commands but {len(arr)} were given")
+    h = np.zeros(1, HEADER_DTYPE)
+    h["magic"], h["version"], h["record_size"] = MAGIC, VERSION, RECORD_DTYPE.itemsize
+    for name in PlcHeader.__dataclass_fields__:
+        h[name] = getattr(header, name)
+    body = h.tobytes() + arr.tobytes()
+    return body + np.array([zlib.crc32(body)], "<u4").tobytes()
+
+
+def read_plc(data: bytes, name: str = "PLC data") -> tuple[PlcHeader, list[PlcCommand]]:
+    """Parse and check a packet file; raise InputError naming ``name`` if it is not valid."""
+    header, arr = read_plc_array(data, name)
+    return header, to_commands(arr)
+
+
+def read_plc_array(data: bytes, name: str = "PLC data") -> tuple[PlcHeader, np.ndarray]:
+    """Like :func:`read_plc`, with the commands as a read-only RECORD_DTYPE array."""
+    def fail(why: str, todo: str = "re-export it with 'doodlecam post'") -> InputError:
+        return InputError(f"{name}: {why}; {todo}")
+
+    data = bytes(data)
+    if data[:len(MAGIC)] != MAGIC[:len(data)]:  # a short prefix of MAGIC is truncated, below
+        raise fail("not a doodlecam PLC file (bad magic)", "give a .plc file written by doodlecam")
+    if len(data) < HEADER_DTYPE.itemsize + TRAILER_SIZE:
+        raise fail(f"truncated PLC file ({len(data)} bytes, shorter than the {HEADER_DTYPE.itemsize + TRAILER_SIZE}-byte header and checksum)")
+    h = np.frombuffer(data, HEADER_DTYPE, count=1)[0]
+    if int(h["version"]) != VERSION:
+        raise fail(f"PLC file format version {int(h['version'])} is not supported (this doodlecam reads version {VERSION})",
+                   "use the doodlecam version that wrote it or re-export it")
+    if int(h["record_size"]) != RECORD_DTYPE.itemsize:
+        raise fail(f"PLC file has {int(h['record_size'])}-byte command records, version {VERSION} uses {RECORD_DTYPE.itemsize}")
+    n = int(h["no_commands"])
+    expected = HEADER_DTYPE.itemsize + n * RECORD_DTYPE.itemsize + TRAILER_SIZE
+    if len(data) != expected:
+        what = "truncated" if len(data) < expected else "has trailing bytes"
+        raise fail(f"PLC file {what}: header says {n} commands ({expected} bytes) but it has {len(data)} bytes")
+    stored = int(np.frombuffer(data, "<u4", count=1, offset=expected - TRAILER_SIZE)[0])
+    actual = zlib.crc32(data[:expected - TRAILER_SIZE])
+    if stored != actual:
+        raise fail(f"PLC file is corrupt (CRC-32 {actual:08x} does not match the stored {stored:08x})")
+    arr = np.frombuffer(data, RECORD_DTYPE, count=n, offset=HEADER_DTYPE.itemsize)
+    # A valid checksum only proves the bytes are intact; check they make sense.
+    dt, sx, sy = float(h["delta_time"]), float(h["steps_per_mm_x"]), float(h["steps_per_mm_y"])
+    if not all(math.isfinite(v) and v > 0 for v in (dt, sx, sy)):
+        raise fail(f"PLC header has a non-positive delta_time or steps_per_mm ({dt:g}, {sx:g}, {sy:g})")
+    if n and not np.array_equal(arr["command_no"], np.arange(1, n + 1)):
+        k = int(np.argmax(arr["command_no"] != np.arange(1, n + 1)))
+        raise fail(f"PLC command {k + 1} is numbered {int(arr['command_no'][k])}; commands must run 1..{n}")
+    bad = np.flatnonzero(arr["type"] > MOVE)
+    if len(bad):
+        raise fail(f"PLC command {bad[0] + 1} has unknown type {int(arr['type'][bad[0]])} (0 = DRAW, 1 = MOVE)")
+    header = PlcHeader(
+        delta_time=dt, no_commands=n,
+        max_accel_x=int(h["max_accel_x"]), max_accel_y=int(h["max_accel_y"]),
+        move_speed_x=int(h["move_speed_x"]), move_speed_y=int(h["move_speed_y"]),
+        steps_per_mm_x=sx, steps_per_mm_y=sy,
+    )
+    return header, arr
+
+
+# ---------------------------------------------------------------- text
+
+def to_csv(header: PlcHeader, commands) -> str:
+    """A CSV dump: '#' comment lines with the header, then command_no,type,x,y.
+
+    Units: DRAW x, y in steps/s, MOVE x, y in steps (see the module docstring).
+    """
+    arr = to_array(commands)
+    buf = io.StringIO()
+    buf.write(f"# doodlecam PLC commands, format version {VERSION}\n")
+    for key, value in vars(header).items():
+        buf.write(f"# {key}={value}\n")
+    buf.write("command_no,type,x,y\n")
+    table = np.column_stack([arr["command_no"], arr["type"], arr["x"], arr["y"]]).astype(np.int64)
+    np.savetxt(buf, table, fmt="%d", delimiter=",")
+    return buf.getvalue()

@@ -1,0 +1,177 @@
+"""Constraint rows of the discretised time-optimal problem.
+
+On the grid u_0 < ... < u_N the unknowns are b_k = u-dot^2 at the nodes; the
+path acceleration a_k = (b_k+1 - b_k) / (2 h_k) is constant on interval k, so
+b is linear in u there: b = b_k (1 - tau) + b_k+1 tau with tau = (u - u_k)/h_k.
+Every limit becomes rows  tot b_k + beta (b_k+1 - b_k) <= gamma  per interval
+(arrays of shape (K, R); unused rows have gamma = inf) plus node bounds ub.
+
+``bernstein_rows`` (linear kinematics, theta = M q): on an interval inside one
+knot span, actuator acceleration theta' a_k + theta'' b(tau) and velocity
+squared theta'^2 b(tau) are polynomials in tau whose Bernstein coefficients
+are linear in (b_k, b_k+1); bounding every coefficient bounds the polynomial
+(convex hull property), so the limits hold at *every* u, not only at nodes.
+``collocation_rows`` checks nodes only (TOPP-RA's collocation: the reference
+optimum on a very fine grid). ``sampled_rows`` handles nonlinear kinematics
+by sampling inside each interval; the planner verifies and refines those.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from functools import cached_property, lru_cache
+from math import comb
+
+import numpy as np
+
+from doodlecam.model import Spline
+
+
+@dataclass(frozen=True)
+class Rows:
+    """Rows  tot b_k + beta (b_k+1 - b_k) <= gamma,  i.e. alpha = tot - beta.
+
+    Stored as (tot, beta) because on fine grids alpha and beta are huge and
+    nearly opposite (beta ~ 1/h): tot (the coefficient of b itself, e.g.
+    theta'') is computed without that cancellation and the solvers stay exact.
+    """
+
+    tot: np.ndarray  # (K, R)
+    beta: np.ndarray  # (K, R)
+    gamma: np.ndarray  # (K, R), > 0; inf where unused
+    ub: np.ndarray  # (K + 1,) upper bounds on b
+
+    @property
+    def alpha(self) -> np.ndarray:
+        return self.tot - self.beta
+
+    @cached_property
+    def implied_ub(self) -> np.ndarray:
+        """Finite upper bounds on every b_k implied by rows whose coefficients are
+        both >= 0 (velocity rows): alpha b_k <= gamma and beta b_k+1 <= gamma.
+        (Computed once: the LP/QP back-ends use it for bounds, scaling and row pruning.)"""
+        alpha = self.alpha
+        ok = np.isfinite(self.gamma) & (alpha >= 0) & (self.beta >= 0)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            left = np.where(ok & (alpha > 0), self.gamma / alpha, np.inf).min(axis=1)
+            right = np.where(ok & (self.beta > 0), self.gamma / self.beta, np.inf).min(axis=1)
+        ub = self.ub.copy()
+        ub[:-1] = np.minimum(ub[:-1], left)
+        ub[1:] = np.minimum(ub[1:], right)
+        return ub
+
+    def ratios(self, b: np.ndarray) -> np.ndarray:
+        """(K, R) constraint usage (tot b_k + beta (b_k+1 - b_k)) / gamma."""
+        lhs = self.tot * b[:-1, None] + self.beta * np.diff(b)[:, None]
+        return np.where(np.isfinite(self.gamma), lhs / self.gamma, 0.0)
+
+
+@lru_cache(maxsize=None)
+def _b_matrix(n: int) -> np.ndarray:
+    """T with bernstein = power @ T.T for degree-n polynomials on [0, 1]."""
+    return np.array([[comb(i, j) / comb(n, j) if j <= i else 0.0 for j in range(n + 1)] for i in range(n + 1)])
+
+
+def bernstein_rows(spline: Spline, u: np.ndarray, M: np.ndarray, vmax: np.ndarray, amax: np.ndarray,
+                   pen_speed: float | None = None) -> Rows:
+    """Certified rows for linear kinematics (the grid must contain every knot).
+
+    Per interval (compiled: this is the planner's hot path): the Taylor
+    coefficients of q', q'' at the left end give, for every actuator,
+    acceleration  a_k P(tau) + b(tau) Q(tau)  and velocity squared
+    theta'(tau)^2 b(tau) in power form; their Bernstein coefficients are the
+    rows. Sizes: 2 p acceleration rows and 2 p velocity rows per actuator,
+    plus 2 p pen-speed rows.
+    """
+    from doodlecam.plan.kernels import bernstein_rows as kernel
+
+    p = spline.degree
+    K, na = len(u) - 1, M.shape[0]
+    d = np.stack([spline(u[:-1], j) for j in range(1, p + 1)] + [np.zeros((K, 2))])  # right limits at knots
+    R = na * 4 * p + (2 * p if pen_speed is not None else 0)
+    tot, beta, gamma = np.empty((K, R)), np.empty((K, R)), np.empty((K, R))
+    kernel(d, np.diff(u), np.ascontiguousarray(M, float), np.asarray(vmax, float), np.asarray(amax, float),
+          float(pen_speed) ** 2 if pen_speed is not None else 0.0, _b_matrix(p - 1), _b_matrix(2 * p - 1),
+          tot, beta, gamma)
+    return Rows(tot, beta, gamma, np.full(len(u), np.inf))
+
+
+def collocation_rows(spline: Spline, u: np.ndarray, M: np.ndarray, vmax: np.ndarray, amax: np.ndarray,
+                     pen_speed: float | None = None) -> Rows:
+    """Limits at the nodes only (acceleration uses the interval to the right)."""
+    h = np.diff(u)
+    th1 = spline(u, 1) @ M.T
+    th2 = spline(u, 2) @ M.T
+    c1 = th1[:-1] / (2 * h)[:, None]
+    tot = np.concatenate([th2[:-1], -th2[:-1]], axis=1)
+    beta = np.concatenate([c1, -c1], axis=1)
+    gamma = np.tile(np.concatenate([amax, amax]), (len(h), 1))
+    ub = (vmax[None, :] ** 2 / np.maximum(th1 ** 2, 1e-300)).min(axis=1)
+    if pen_speed is not None:
+        ub = np.minimum(ub, pen_speed ** 2 / np.maximum((spline(u, 1) ** 2).sum(axis=1), 1e-300))
+    return Rows(tot, beta, gamma, ub)
+
+
+def sampled_rows(spline: Spline, u: np.ndarray, kinematics, vmax, amax, pen_speed=None, taus=(0.0, 0.5, 1.0)) -> Rows:
+    """Rows at sample points inside every interval, for nonlinear kinematics."""
+    h = np.diff(u)
+    parts = []
+    for tau in taus:
+        uu = u[:-1] + tau * h
+        q, dq, ddq = spline(uu), spline(uu, 1), spline(uu, 2)
+        _, t1, t2 = kinematics.derivatives(q, dq, ddq)
+        # theta' a_k + theta'' (b_k + tau (b_k+1 - b_k)):  tot = theta''
+        b_ = t2 * tau + t1 / (2 * h)[:, None]
+        parts.append((np.concatenate([t2, -t2], 1), np.concatenate([b_, -b_], 1), np.tile(np.concatenate([amax, amax]), (len(h), 1))))
+        sq = t1 ** 2
+        parts.append((sq, sq * tau, np.tile(vmax ** 2, (len(h), 1))))
+        if pen_speed is not None:
+            s2 = (dq ** 2).sum(axis=1, keepdims=True)
+            parts.append((s2, s2 * tau, np.full((len(h), 1), float(pen_speed) ** 2)))
+    tot, beta, gamma = (np.concatenate([p[i] for p in parts], axis=1) for i in range(3))
+    return Rows(tot, beta, gamma, np.full(len(u), np.inf))
+
+
+def jerk_coefficients(spline: Spline, u: np.ndarray, taus=(0.0, 0.5, 1.0)):
+    """Per tau in ``taus``: (tau, u there, c1, c2) on every interval of the grid u,
+    the pen's jerk across the path being sqrt(b) (c1 a + c2 b) (see jerk_rows)."""
+    h = np.diff(u)
+    uu = (u[:-1, None] + np.asarray(taus)[None, :] * h[:, None]).T  # (len(taus), K): all at once
+    d1, d2, d3 = spline(uu, 1), spline(uu, 2), spline(uu, 3)
+    sp = np.maximum(np.linalg.norm(d1, axis=-1), 1e-12)
+    c12 = d1[..., 0] * d2[..., 1] - d1[..., 1] * d2[..., 0]
+    c13 = d1[..., 0] * d3[..., 1] - d1[..., 1] * d3[..., 0]
+    dot12 = (d1 * d2).sum(axis=-1)
+    kappa = c12 / sp ** 3
+    kappa_s = (c13 * sp ** 2 - 3 * c12 * dot12) / sp ** 6  # d kappa / d arc length
+    c1, c2 = 3 * kappa * sp ** 2, 3 * kappa * dot12 + sp ** 3 * kappa_s
+    return [(tau, uu[i], c1[i], c2[i]) for i, tau in enumerate(taus)]
+
+
+def jerk_rows(coefficients, u: np.ndarray, b_hat: np.ndarray, jerk_max) -> Rows:
+    """Rows bounding the pen's jerk across the path, |3 v kappa a_t + v^3 dkappa/ds| <= jerk_max
+    (mm/s^3; a number, or a function of the curve parameter u), at the points of
+    ``coefficients`` (jerk_coefficients on the grid u) inside every interval.
+
+    With v = |q'| sqrt(b) and a_t = |q'| a + (q'.q''/|q'|) b it is sqrt(b) (c1 a + c2 b),
+    c1 = 3 kappa |q'|^2, c2 = 3 kappa q'.q'' + |q'|^3 dkappa/ds. sqrt(b) is taken from
+    ``b_hat`` (nodes), a profile the new one stays below, so the linear rows
+    |c1 a + c2 b| <= jerk_max / sqrt(b_hat) are conservative. This jerk is what the
+    PLC's constant-acceleration periods cannot follow (docs/sampling.md).
+    """
+    h = np.diff(u)
+    parts = []
+    for tau, uu, c1, c2 in coefficients:
+        bh = b_hat[:-1] * (1 - tau) + b_hat[1:] * tau
+        jm = jerk_max(uu) if callable(jerk_max) else jerk_max
+        g = jm / np.sqrt(np.maximum(bh, 1e-300))
+        tot, beta = c2[:, None], (c2 * tau + c1 / (2 * h))[:, None]
+        parts.append((np.concatenate([tot, -tot], 1), np.concatenate([beta, -beta], 1), np.column_stack([g, g])))
+    tot, beta, gamma = (np.concatenate([p[i] for p in parts], axis=1) for i in range(3))
+    return Rows(tot, beta, gamma, np.full(len(u), np.inf))
+
+
+def stack(a: Rows, b: Rows) -> Rows:
+    """Both sets of rows on the same grid."""
+    return Rows(np.concatenate([a.tot, b.tot], 1), np.concatenate([a.beta, b.beta], 1),
+                np.concatenate([a.gamma, b.gamma], 1), np.minimum(a.ub, b.ub))

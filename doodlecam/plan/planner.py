@@ -1,0 +1,292 @@
+"""Plan: a time-optimal feed profile along each stroke (Verscheure et al. 2009).
+
+Unknowns on the grid u_0 < ... < u_N are b_k = u-dot^2 >= 0, with the path
+acceleration a_k = (b_k+1 - b_k) / (2 h_k) constant on each interval, so b is
+linear in u between nodes and the time is sum 2 h_k / (sqrt b_k + sqrt b_k+1).
+Every limit is a linear row in (b_k, b_k+1) (doodlecam/plan/constraints.py):
+Bernstein bounds make them hold everywhere on the curve for linear kinematics;
+nonlinear kinematics (the five-bar arm) is sampled inside each interval,
+verified on a 20x finer grid and refined where that check fails.
+
+Solvers (``solver=``): "reach" — the exact O(N) two-pass reachability solver
+(default); "lp[:backend]" — max sum b through qpsolvers (Clarabel by default,
+OSQP or HiGHS), a cross-check; "qp[:backend]" — the smoothing QP (penalised
+changes of a, a jerk proxy) warm-started from the reach solution.
+
+The grid contains every knot and is refined where constraints bind but the
+Bernstein bound is loose (``adaptive``), instead of everywhere.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+
+from doodlecam.errors import PlanError
+from doodlecam.model import Profile, Spline
+from doodlecam.plan import constraints, convex, reach
+
+SOLVERS = ("reach", "lp", "lp:osqp", "lp:highs", "lp:clarabel", "qp", "qp:osqp", "qp:highs", "qp:clarabel")
+CHECK_REFINE = 20  # the verification grid is this many times finer
+# jerk_max: the rows take sqrt(b) from a profile b_hat the solution stays below. The
+# first solve takes the plan without the bound; the next min(that, 2 x the last),
+# which the last solution satisfies, so each is at least as fast (camera.png, same
+# bound: drawing 83 s -> 70 s). Re-solving with b_hat = the last b alone gains nothing:
+# the last solution is then the greatest feasible one.
+JERK_GROW = (1.0, 2.0)
+
+
+@dataclass(frozen=True)
+class Limits:
+    """Actuator limits and how to get actuator derivatives along a path."""
+
+    vmax: np.ndarray  # (n_act,) actuator velocity limits, units/s
+    amax: np.ndarray  # (n_act,) actuator acceleration limits, units/s^2
+    M: np.ndarray | None  # (n_act, 2) when theta = M @ xy, else None
+    pen_speed: float | None = None  # mm/s cap on |q-dot|
+    kinematics: Any = None  # api.Kinematics, used when M is None
+
+    @classmethod
+    def from_machine(cls, machine, kinematics) -> "Limits":
+        vmax, amax = kinematics.actuator_limits()
+        M = None if kinematics.linear_map is None else np.asarray(kinematics.linear_map, dtype=float)
+        return cls(np.asarray(vmax, float), np.asarray(amax, float), M, machine.pen.max_speed, kinematics)
+
+    def derivatives(self, spline: Spline, u: np.ndarray):
+        """theta'(u), theta''(u), each (len(u), n_act), and |q'(u)|."""
+        d1, d2 = spline(u, 1), spline(u, 2)
+        if self.M is not None:
+            return d1 @ self.M.T, d2 @ self.M.T, np.linalg.norm(d1, axis=1)
+        _, t1, t2 = self.kinematics.derivatives(spline(u), d1, d2)
+        return t1, t2, np.linalg.norm(d1, axis=1)
+
+
+_GAUSS = np.polynomial.legendre.leggauss(6)
+
+
+def _span_measures(spline: Spline):
+    """Arc length (mm) and total turning (rad) of every knot span."""
+    bp = spline.breakpoints
+    x, w = _GAUSS
+    lo, hi = bp[:-1, None], bp[1:, None]
+    uu = ((lo + hi) / 2 + (hi - lo) / 2 * x).ravel()
+    d1, d2 = spline(uu, 1), spline(uu, 2)
+    sp = np.linalg.norm(d1, axis=1)
+    turn = np.abs(d1[:, 0] * d2[:, 1] - d1[:, 1] * d2[:, 0]) / np.maximum(sp, 1e-300) ** 2  # |kappa| ds/du
+    half = (hi - lo) / 2
+    length = (half * (sp.reshape(-1, len(x)) * w)).sum(axis=1)
+    turning = (half * (turn.reshape(-1, len(x)) * w)).sum(axis=1)
+    return length, turning
+
+
+def make_grid(spline: Spline, spacing: float = 0.5, turn_step: float = 0.05, n_points: int | None = None,
+              min_per_span: int = 2, max_points: int = 200_000) -> np.ndarray:
+    """Grid in u: every knot; each span split so steps are ~``spacing`` mm and
+    turn ~``turn_step`` rad at most (dense where the curve is tight), or into
+    ``n_points`` nodes in total distributed by the same weights."""
+    bp = spline.breakpoints
+    length, turning = _span_measures(spline)
+    weight = length / spacing + turning / turn_step
+    if n_points is not None:
+        n = np.maximum(np.floor(weight / weight.sum() * (n_points - 1)).astype(int), 1)
+        short = (n_points - 1) - n.sum()  # hand out the remainder by largest weight per step
+        if short > 0:
+            order = np.argsort(-(weight / n))
+            n[order[: min(short, len(n))]] += 1
+            n[0] += max(short - len(n), 0)
+    else:
+        n = np.clip(np.ceil(weight).astype(int), min_per_span, None)
+        if n.sum() > max_points:
+            n = np.maximum((n * max_points / n.sum()).astype(int), 1)
+    starts = np.repeat(bp[:-1], n)
+    widths = np.repeat(np.diff(bp) / n, n)
+    frac = np.arange(n.sum()) - np.repeat(np.cumsum(n) - n, n)
+    return np.append(starts + widths * frac, 1.0)
+
+
+def build_rows(spline: Spline, u: np.ndarray, limits: Limits, mode: str = "bernstein") -> constraints.Rows:
+    if mode == "collocation":
+        if limits.M is None:
+            raise PlanError("collocation mode needs linear kinematics")
+        return constraints.collocation_rows(spline, u, limits.M, limits.vmax, limits.amax, limits.pen_speed)
+    if limits.M is not None:
+        return constraints.bernstein_rows(spline, u, limits.M, limits.vmax, limits.amax, limits.pen_speed)
+    return constraints.sampled_rows(spline, u, limits.kinematics, limits.vmax, limits.amax, limits.pen_speed)
+
+
+def profile_times(u: np.ndarray, b: np.ndarray) -> np.ndarray:
+    sb = np.sqrt(np.maximum(b, 0.0))
+    with np.errstate(divide="ignore"):
+        dt = 2 * np.diff(u) / (sb[:-1] + sb[1:])
+    return np.concatenate([[0.0], np.cumsum(dt)])
+
+
+def interval_ratios(spline: Spline, u: np.ndarray, b: np.ndarray, limits: Limits, refine: int = CHECK_REFINE):
+    """Per interval, the worst (acceleration, velocity, pen speed) / limit on
+    ``refine`` points inside it, straight from the spline (no bounds)."""
+    from doodlecam.plan.kernels import interval_worst
+
+    h = np.diff(u)
+    tau = np.linspace(0.0, 1.0, refine + 1)
+    uu = (u[:-1, None] + tau[None, :] * h[:, None]).ravel()
+    t1, t2, sp = limits.derivatives(spline, uu)
+    return interval_worst(np.asarray(b, float), h, t1, t2, sp, limits.amax, limits.vmax,
+                          float(limits.pen_speed or 0.0), refine)
+
+
+def check_profile(spline: Spline, profile: Profile, limits: Limits, refine: int = CHECK_REFINE):
+    """Worst (acceleration / limit, velocity / limit) on a grid ``refine`` times
+    finer than the one solved on, evaluated directly from the spline."""
+    wa, wv, wp = interval_ratios(spline, profile.u, profile.b, limits, refine)
+    return float(wa.max()), float(max(wv.max(), wp.max()))
+
+
+def _solve(rows, u, solver: str, b0: float, bN: float) -> np.ndarray:
+    if solver == "reach":
+        try:
+            return reach.solve(rows.tot, rows.beta, rows.gamma, rows.ub, b0, bN)
+        except ValueError as e:
+            raise PlanError(str(e)) from None
+    kind, _, backend = solver.partition(":")
+    return convex.solve_lp(rows, u, b0, bN, backend or "clarabel")
+
+
+def _split(u: np.ndarray, which: np.ndarray) -> np.ndarray:
+    mid = (u[:-1] + u[1:])[which] / 2
+    return np.sort(np.concatenate([u, mid]))
+
+
+def check_solver(solver: str) -> None:
+    if solver not in SOLVERS:
+        raise PlanError(f"unknown solver '{solver}'; choose one of {', '.join(SOLVERS)}")
+
+
+def plan_stroke(spline: Spline, limits: Limits, solver: str = "reach", spacing: float = 0.5,
+                n_points: int | None = None, adaptive: bool = True, smoothing: float = 0.0,
+                v_start: float = 0.0, v_end: float = 0.0, mode: str = "bernstein",
+                max_rounds: int = 6, jerk_max=None, grid: np.ndarray | None = None) -> Profile:
+    """Time-optimal profile along ``spline``; v_start / v_end are pen speeds (mm/s).
+
+    ``jerk_max`` (mm/s^3, a number or a function of u such as
+    follow.JerkBound): also bound the pen's jerk across the path
+    (constraints.jerk_rows), which slows it where the curve's turning changes
+    fast; two more solves on the final grid (``JERK_GROW``).
+    ``grid``: plan on these u instead of making (and refining) a grid, e.g. the
+    grid of an earlier plan of the same stroke.
+    """
+    check_solver(solver)
+    speed_ends = np.linalg.norm(spline(np.array([0.0, 1.0]), 1), axis=1)
+    b0 = (v_start / max(speed_ends[0], 1e-300)) ** 2
+    bN = (v_end / max(speed_ends[1], 1e-300)) ** 2
+    if solver == "reach" and mode == "bernstein" and grid is None and n_points is None and _straight(spline, limits):
+        return _trapezoid(spline, limits, b0, bN)
+    if grid is not None:
+        u, adaptive = np.asarray(grid, float), False
+    else:
+        u = make_grid(spline, spacing, n_points=n_points)
+    base = solver if solver.startswith(("reach", "lp")) else "reach"
+    nonlinear = limits.M is None and mode != "collocation"
+    best_t = np.inf
+    for round_ in range(max_rounds):
+        rows = build_rows(spline, u, limits, mode)
+        b = _solve(rows, u, base, b0, bN)
+        if mode == "collocation" or not (adaptive or nonlinear):
+            break
+        wa, wv, wp = interval_ratios(spline, u, b, limits, refine=8 if not nonlinear else CHECK_REFINE)
+        worst = np.maximum(np.maximum(wa, wv), wp)
+        if nonlinear:
+            split = worst > 1 + 1e-9  # sampled rows missed a peak: refine there
+        else:
+            used = rows.ratios(b).max(axis=1)
+            t = profile_times(u, b)[-1]
+            if not np.isfinite(t) or t > best_t * (1 - 1e-4):
+                break  # refinement no longer pays
+            best_t = t
+            split = (used > 1 - 1e-6) & (worst < 1 - 2e-3)  # binding, but the bound is loose
+        if not split.any() or len(u) + split.sum() > 200_000 or round_ == max_rounds - 1:
+            break  # (u and b stay in step: split only when another solve follows)
+        u = _split(u, split)
+    if jerk_max:
+        base_rows = rows
+        coefficients = constraints.jerk_coefficients(spline, u)
+        b_free = b
+        for grow in JERK_GROW:
+            # b <= b_hat keeps sqrt(b) below the sqrt(b_hat) the rows were made with
+            b_hat = np.minimum(b_free, grow * b) * (1 + 1e-12)
+            jr = constraints.jerk_rows(coefficients, u, b_hat, jerk_max)
+            rows = constraints.stack(base_rows, constraints.Rows(jr.tot, jr.beta, jr.gamma, b_hat))
+            if grow == JERK_GROW[0] and jr.ratios(b_free).max(initial=0.0) <= 1.0:
+                break  # the plan already keeps the bound (a straight stroke, say): it is the answer
+            b = _solve(rows, u, base, b0, bN)
+    if solver.startswith("qp"):
+        backend = solver.partition(":")[2] or "clarabel"
+        b = convex.solve_smooth(rows, u, smoothing if smoothing > 0 else 1.0, b, b0, bN, backend)
+    b = _certify(spline, u, b, limits, b0, bN, rows if not nonlinear else None)
+    a = np.diff(b) / (2 * np.diff(u))
+    t = profile_times(u, b)
+    if not np.all(np.isfinite(t)):
+        raise PlanError("the planned profile stops mid-stroke (a limit forces zero speed); check the machine's limits")
+    return Profile(u=u, b=b, a=a, t=t, solver=solver)
+
+
+def _straight(spline: Spline, limits: Limits) -> bool:
+    """A straight stroke at constant speed in u (q'' = 0: a fitted segment) on
+    linear kinematics, whose optimum is a trapezoid."""
+    if limits.M is None or spline.degree < 2:
+        return False
+    d1 = spline.derivative_controls[1]
+    return bool(np.abs(d1[0]).max() > 1e-9 and np.abs(spline.derivative_controls[2]).max() <= 1e-9 * np.abs(d1[0]).max())
+
+
+def _trapezoid(spline: Spline, limits: Limits, b0: float, bN: float) -> Profile:
+    """The exact time-optimal profile of a straight stroke: with q' constant and
+    q'' = 0 every limit is a bound on |a| or on b alone, so the fastest profile
+    accelerates at the largest allowed a, cruises at the largest allowed b and
+    brakes (hatching has thousands of these; the general solver costs ~1.5 ms each)."""
+    q1 = spline.derivative_controls[1][0]  # q', mm per u, the same everywhere
+    d = limits.M @ q1  # actuator units per u
+    with np.errstate(divide="ignore"):
+        a = float(np.min(limits.amax / np.abs(d)))
+        cap = float(np.min(limits.vmax ** 2 / d ** 2))
+    if limits.pen_speed:
+        cap = min(cap, float(limits.pen_speed) ** 2 / float(q1 @ q1))
+    if max(b0, bN) > cap * (1 + 1e-9):
+        raise PlanError("the start/end speeds cannot be met within the limits; lower them")
+    if b0 > (bN + 2 * a) * (1 + 1e-9):
+        raise PlanError("the requested start speed is too high to stop in time")
+    if bN > (b0 + 2 * a) * (1 + 1e-9):
+        raise PlanError("the requested end speed cannot be reached within the stroke; lower it")
+    u1, u2 = (cap - b0) / (2 * a), 1.0 - (cap - bN) / (2 * a)
+    if u1 < u2:
+        u = np.array([0.0, u1, u2, 1.0])
+    else:  # no time to cruise: accelerate until braking must start
+        u = np.unique(np.clip([0.0, (bN - b0 + 2 * a) / (4 * a), 1.0], 0.0, 1.0))
+    # a hair inside the limits, as the general solver's certify leaves it; the ends as asked
+    b = np.minimum(np.minimum(b0 + 2 * a * u, bN + 2 * a * (1 - u)), cap) * (1 - 1e-12)
+    b[0], b[-1] = b0, bN
+    return Profile(u=u, b=b, a=np.diff(b) / (2 * np.diff(u)), t=profile_times(u, b), solver="reach")
+
+
+def _certify(spline, u, b, limits, b0, bN, rows) -> np.ndarray:
+    """Remove solver-tolerance violations exactly: the rows are homogeneous in b
+    (rest to rest), so scaling b down by the worst ratio restores them. For
+    sampled (nonlinear) rows the 20x finer check itself is the certificate."""
+    if rows is not None:
+        from doodlecam.plan.kernels import max_ratio
+
+        r = float(max_ratio(rows.tot, rows.beta, rows.gamma, b))
+        fin = np.isfinite(rows.ub) & (rows.ub > 0)
+        if fin.any():
+            r = max(r, float((b[fin] / rows.ub[fin]).max()))
+        acc_r, vel_r = r, np.sqrt(max(r, 0.0))
+    else:
+        wa, wv, wp = interval_ratios(spline, u, b, limits)
+        acc_r, vel_r = float(wa.max()), float(max(wv.max(), wp.max()))
+    c = min(1.0 / max(acc_r, 1e-300), 1.0 / max(vel_r, 1e-300) ** 2)
+    if c < 1.0:
+        if (b0 > 0 or bN > 0) and c < 1 - 1e-6:
+            raise PlanError("the start/end speeds cannot be met within the limits; lower them")
+        b = b * c * (1 - 1e-12)
+    return b

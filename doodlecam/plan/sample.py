@@ -1,0 +1,322 @@
+"""Sample: a planned stroke as velocity targets every dT for the PLC.
+
+The PLC ramps each axis linearly from one velocity target to the next over a
+period dT (report 2.1.0.5): the position it reaches is the trapezoidal sum of
+the targets and its acceleration on each period is (v_j - v_j-1) / dT.
+Sampling the planned velocity naively drifts off the curve (the report's
+footnote to 2.4.6): a time-optimal plan switches acceleration between sample
+instants, which whole-period ramps cannot follow in time.
+
+They can follow it in *space*. The targets solve a small QP per stroke whose
+reached positions x_j must lie within ``tolerance`` of the curve near the
+planned point q(s_j), with a free tangential shift d_j (the pen may run a
+little ahead or behind the plan, never off the path):
+
+    minimise   sum_j d_j^2 + lam |v_j - v_plan(t_j)|^2
+    subject to |x_j - q(s_j) - q'(s_j) d_j| <= tol  per axis (linearised; then
+               re-linearised at s_j + d_j and checked exactly),
+               x_j = x_j-1 + dT (v_j-1 + v_j) / 2, the end point reached exactly
+               in whole machine steps, the last target zero (rest),
+               |M (v_j - v_j-1)| <= A_max dT and |M v_j| <= V_max per actuator.
+
+If the limits leave no such targets in ceil(T / dT) periods, periods are
+added (the stroke runs slightly slower than planned) until they do.
+
+``follow=True`` (a path tolerance is set) also penalises the targets'
+component *across* the curve at every instant, with the shifts kept within a
+trust region so the linearisation holds. With each instant on the curve and
+the pen moving along it there, the period's parabola is the quadratic that
+touches the curve at both ends, which hugs it; and the one motion the instants
+cannot see, targets alternating +-e that keep every x_j in place but swing
+the pen e dT / 4 off the curve between them, is damped (docs/sampling.md).
+"""
+
+from __future__ import annotations
+
+import collections
+import functools
+import threading
+
+import numpy as np
+
+from doodlecam.errors import PlanError
+from doodlecam.model import Stroke, StrokeSamples
+
+# Weight of velocity fidelity against timing fidelity (per dT^2).
+VELOCITY_WEIGHT = 1e-3
+# Largest distance per axis (in machine steps) from a sample instant's position to the curve;
+# half a step is the target, 0.4 leaves room for whole-steps/s rounding in the post.
+TRACKING_STEPS = 0.4
+# follow=True: a target's velocity across the curve, e, is penalised as the swing
+# e dT / 4 it causes mid-period, with this weight (per mm^2, against 1 per mm^2 of
+# shift at the instants); shifts per solve stay within ~TRUST_MM of arc.
+NORMAL_WEIGHT = 10.0
+TRUST_MM = 0.5
+
+
+class _Coo:
+    """Sparse matrix assembled from index arrays (scipy's block helpers cost
+    ~15 ms per stroke, ten times the solve itself)."""
+
+    def __init__(self, ncols: int):
+        self.r, self.c, self.v, self.n, self.ncols = [], [], [], 0, ncols
+
+    def add(self, rows, cols, vals):
+        rows = np.asarray(rows)
+        self.r.append((rows + self.n).ravel())
+        self.c.append(np.broadcast_to(cols, rows.shape).ravel())
+        self.v.append(np.broadcast_to(np.asarray(vals, float), rows.shape).ravel())
+
+    def close(self, nrows: int):
+        self.n += nrows
+
+    def csc(self):
+        import scipy.sparse as sp
+
+        return sp.csc_matrix((np.concatenate(self.v), (np.concatenate(self.r), np.concatenate(self.c))),
+                             shape=(self.n, self.ncols))
+
+
+def _clarabel(P, q, A, b, n_eq):
+    """min 1/2 z'Pz + q'z s.t. the first ``n_eq`` rows of A z = b, the rest <= b
+    (P upper triangular, CSC). Clarabel directly: qpsolvers' checks and
+    re-stacking cost more than the solve."""
+    import clarabel
+
+    settings = clarabel.DefaultSettings()
+    settings.verbose = False
+    # refinement buys residuals of 3e-10 instead of 1e-8 (mm, mm/s) at a quarter of the
+    # time; the limit rows keep a 1e-6 relative margin and positions are checked after
+    settings.iterative_refinement_enable = False
+    cones = [clarabel.ZeroConeT(n_eq), clarabel.NonnegativeConeT(A.shape[0] - n_eq)]
+    res = clarabel.DefaultSolver(P, q, A, b, cones, settings).solve()
+    return np.asarray(res.x) if res.status == clarabel.SolverStatus.Solved else None
+
+
+@functools.lru_cache(maxsize=256)
+def _objective(m: int):
+    """CSC pattern (upper triangle) of the objective for m instants: diagonal,
+    plus each target's (vx_j, vy_j) coupling for the penalty across the curve.
+    Returns the matrix (zeros) and where in its data the diagonal of vx, the
+    diagonal of vy and the couplings go."""
+    import scipy.sparse as sp
+
+    n = m - 1
+    N = 2 * n + 3 * m
+    # column c < n (vx_c): row c; column n + j (vy_j): rows j, n + j; the rest: diagonal
+    counts = np.ones(N, np.int64)
+    counts[n : 2 * n] = 2
+    indptr = np.concatenate([[0], np.cumsum(counts)])
+    indices = np.arange(N, dtype=np.int64).repeat(counts)
+    jn = np.arange(n)
+    indices[indptr[n + jn]] = jn
+    P = sp.csc_matrix((np.zeros(len(indices)), indices, indptr), shape=(N, N))
+    return P, indptr[jn], indptr[n + jn] + 1, indptr[n + jn]
+
+
+_TAG = 1e9
+_WORK = threading.local()  # per thread: working copies of the cached matrices, filled in place
+
+
+def _working(key, template):
+    """This thread's copy of a cached (immutable) matrix: Clarabel copies its data
+    at set-up, so one copy per pattern can be refilled for every solve instead of
+    building a scipy matrix each time (a quarter of a millisecond)."""
+    cache = getattr(_WORK, "cache", None)
+    if cache is None:
+        cache = _WORK.cache = collections.OrderedDict()
+    if key in cache:
+        cache.move_to_end(key)
+    else:
+        cache[key] = template.copy()
+        if len(cache) > 64:
+            cache.popitem(last=False)
+    return cache[key]
+
+
+@functools.lru_cache(maxsize=256)
+def _pattern(m: int, dt: float, M: tuple | None, trust: bool):
+    """The constraint matrix for m instants, built once per (m, dT, kinematics):
+    only the tangent coefficients of the tracking rows change between solves
+    (assembling the rest every time cost as much as the solve). Returns the CSC
+    matrix with zeros there, the number of equality rows, and where in the CSC
+    data the tangent coefficients go (positions, and the sign, instant and axis
+    of each).
+
+    Unknowns: [vx (n), vy (n), xx (m), xy (m), d (m)], n = m - 1: targets v_1..v_n
+    (v_0 = v_m = 0), positions x_1..x_m from the start, shifts d in mm along the
+    tangent. Rows: ramps and end point (equalities); tracking boxes at instants
+    1..m-1; monotone shifted parameter; per actuator |M dv| <= A dT and |M v| <= V;
+    with ``trust``, |d| <= a trust radius.
+    """
+    n = m - 1
+    nv, nx = 2 * n, 2 * m
+    N = nv + nx + m
+    V = lambda a, j: a * n + j  # noqa: E731  column of v_{j+1} on axis a
+    X = lambda a, j: nv + a * m + j  # noqa: E731  column of x_{j+1}
+    D = lambda j: nv + nx + j  # noqa: E731
+    j, jn, k = np.arange(m), np.arange(n), np.arange(m - 1)
+    A = _Coo(N)
+    # ramp: x_j - x_j-1 - dT/2 (v_j-1 + v_j) = 0 at instants 1..m; then the end exactly
+    for a in range(2):
+        A.add(j, X(a, j), 1.0)
+        A.add(j[1:], X(a, j[1:] - 1), -1.0)
+        A.add(jn, V(a, jn), -dt / 2)
+        A.add(jn + 1, V(a, jn), -dt / 2)
+        A.close(m)
+    A.add(np.arange(2), [X(0, m - 1), X(1, m - 1)], 1.0)
+    A.close(2)
+    n_eq = A.n
+    # tracking box: sign (x - tang d) <= sign p + tol; the tangent entries hold
+    # -(_TAG + their index) so they can be found after the CSC sort
+    tags = []
+    for sign in (1.0, -1.0):
+        for a in range(2):
+            A.add(k, X(a, k), sign)
+            A.add(k, D(k), -(_TAG + len(tags) * (m - 1) + k))
+            tags.append((sign, a))
+            A.close(m - 1)
+    # the shifted parameter stays monotone: u_j + d_j / L <= u_j+1 + d_j+1 / L
+    A.add(k, D(k), 1.0)
+    A.add(k, D(k + 1), -1.0)
+    A.close(m - 1)
+    if M is not None:
+        Mk = np.asarray(M, float).reshape(-1, 2)
+        na = Mk.shape[0]
+        for sign in (1.0, -1.0):  # blocks of m acceleration rows, then n velocity rows
+            for a in range(2):
+                c = sign * Mk[:, a]
+                off = (np.arange(na) * (m + n))[:, None]
+                A.add(off + jn, np.broadcast_to(V(a, jn), (na, n)), np.repeat(c[:, None], n, 1))
+                A.add(off + jn + 1, np.broadcast_to(V(a, jn), (na, n)), np.repeat(-c[:, None], n, 1))
+                A.add(off + m + jn, np.broadcast_to(V(a, jn), (na, n)), np.repeat(c[:, None], n, 1))
+            A.close(na * (m + n))
+    if trust:
+        for sign in (1.0, -1.0):
+            A.add(j, D(j), sign)
+            A.close(m)
+    csc = A.csc()
+    tagged = np.flatnonzero(csc.data <= -_TAG)
+    idx = (-csc.data[tagged] - _TAG).astype(np.int64)  # 0 .. 4 (m-1) - 1
+    block, inst = np.divmod(idx, max(m - 1, 1))
+    signs = np.array([t[0] for t in tags])[block]
+    axes = np.array([t[1] for t in tags])[block]
+    csc.data[tagged] = 0.0
+    return csc, n_eq, tagged, signs, inst, axes
+
+
+def _qp(p, tang, v_plan, end, dt, tol, limits, L, nrm=None, trust=None):
+    """One linearised QP. p: (m, 3) curve points relative to the start and
+    their u, tang: (m, 2) tangents per mm of shift, end: (2,). Returns (v, x, d) or None.
+
+    ``nrm`` (m, 2): unit normals of the curve at the instants; the targets'
+    components along them are penalised with NORMAL_WEIGHT.
+    ``trust``: (m,) bounds on |d|, so the linearisation holds.
+    """
+    m = len(p)
+    n = m - 1
+    nv, nx = 2 * n, 2 * m
+    M = None if limits.M is None else tuple(np.asarray(limits.M, float).ravel())
+    key = (m, float(dt), M, trust is not None)
+    base, n_eq, tagged, signs, inst, axes = _pattern(*key)
+    A = _working(key, base)
+    A.data[tagged] = -signs * tang[inst, axes]
+    lam = VELOCITY_WEIGHT * dt * dt
+    diag = np.concatenate([np.full(nv, lam), np.zeros(nx), np.ones(m)]) + 1e-12
+    P, dx, dy, cross = _objective(m)
+    P = _working(m, P)
+    pdata = P.data
+    pdata[:] = diag[P.indices]  # every column's first entry is its diagonal but vy's
+    pdata[cross] = 0.0
+    if nrm is not None:
+        w = NORMAL_WEIGHT * (dt / 4) ** 2  # the swing e dT / 4 per unit of velocity across
+        nx_, ny_ = nrm[:n, 0], nrm[:n, 1]
+        pdata[dx] += w * nx_ * nx_
+        pdata[dy] += w * ny_ * ny_
+        pdata[cross] = w * nx_ * ny_
+    q = np.concatenate([-lam * v_plan[:n, 0], -lam * v_plan[:n, 1], np.zeros(nx + m)])
+    rhs = [np.zeros(2 * m), end]
+    for sign in (1.0, -1.0):
+        for a in range(2):
+            rhs.append(sign * p[:-1, a] + tol)
+    rhs.append(L * np.diff(p[:, 2]))
+    if M is not None:
+        # a hair inside the limits so solver tolerance (~1e-8) never shows as overshoot
+        for _sign in (1.0, -1.0):
+            for i in range(len(limits.amax)):
+                rhs += [np.full(m, limits.amax[i] * dt * (1 - 1e-6)), np.full(n, limits.vmax[i] * (1 - 1e-6))]
+    if trust is not None:
+        rhs += [trust, trust]
+    z = _clarabel(P, q, A, np.concatenate(rhs), n_eq)
+    if z is None:
+        return None
+    v = np.column_stack([z[:n], z[n:nv]])
+    x = np.column_stack([z[nv : nv + m], z[nv + m : nv + 2 * m]])
+    return v, x, z[nv + nx : nv + nx + m]
+
+
+def sample_stroke(stroke: Stroke, dt: float, limits, steps_per_mm=(80.0, 80.0), tracking_steps: float = TRACKING_STEPS,
+                  max_extra: float = 1.0, follow: bool = False) -> StrokeSamples:
+    """Velocity targets (mm/s) for one planned stroke at t = dT, 2 dT, ...
+
+    The stroke starts and ends on whole machine steps (``steps_per_mm``), so a
+    post that writes whole steps lands exactly on every stroke's end.
+    ``follow``: also keep the pen moving along the curve at the instants, so it
+    stays near the curve between them (see the module doc; up to 5 linearised
+    solves instead of 3).
+    """
+    prof, spline = stroke.profile, stroke.spline
+    k = np.asarray(steps_per_mm, float)
+    start = np.round(spline.start * k) / k
+    end = np.round(spline.end * k) / k - start
+    tol = tracking_steps / k.max()
+    L = max(spline.length, 1e-9)
+    m0 = max(int(np.ceil(prof.duration / dt - 1e-9)), 2)  # up, then down to rest
+    m = m0
+    while m <= m0 * (1 + max_extra) + 4:
+        c = prof.duration / (m * dt)  # time scale <= 1: a uniformly slower plan is within limits
+        t = dt * np.arange(1, m + 1)
+        u, ud, _ = prof.state_at(c * t)
+        u[-1] = 1.0
+        v_plan = spline(u, 1) * (c * ud)[:, None]
+        v_plan[-1] = 0.0
+        ok = False
+        for _ in range(5 if follow else 3):  # linearise, solve, re-linearise at the shifted points
+            p = spline(u) - start
+            d1 = spline(u, 1)
+            tang = d1 / L  # d is in mm of arc (roughly): q(u + d/L) ~ q + q' d / L
+            nrm = trust = None
+            if follow:
+                speed = np.maximum(np.linalg.norm(d1, axis=1), 1e-12)
+                nrm = np.column_stack([-d1[:, 1], d1[:, 0]]) / speed[:, None]
+                trust = TRUST_MM * L / speed  # ~TRUST_MM of arc
+            # the box is 3/4 of the tolerance: the rest absorbs the linearisation error
+            res = _qp(np.column_stack([p, u]), tang, v_plan, end, dt, 0.75 * tol, limits, L, nrm, trust)
+            if res is None:
+                break
+            v, x, d = res
+            u_new = np.clip(u + d / L, 0.0, 1.0)
+            u_new[-1] = 1.0
+            err = np.abs(x - (spline(u_new) - start))[:-1]  # per axis: steps are per axis
+            if err.size == 0 or err.max() <= tol:
+                ok = True
+                u = u_new
+                break
+            u = np.maximum.accumulate(u_new)
+        if ok:
+            vel = np.vstack([v, np.zeros((1, 2))])
+            return StrokeSamples(start=start, velocity=vel, delta_time=dt, time_scale=c, sample_u=np.append(0.0, u))
+        m += max(1, m0 // 20)
+    raise PlanError("cannot follow the stroke within the limits with velocity samples every "
+                    f"{dt * 1000:g} ms; use a shorter [sampling] delta_time")
+
+
+def reference_positions(stroke: Stroke, samples: StrokeSamples) -> np.ndarray:
+    """The curve points the sampler aimed at for t = 0, dT, ..., M dT (mm)."""
+    if samples.sample_u is not None:
+        return stroke.spline(samples.sample_u)
+    t = samples.delta_time * np.arange(len(samples.velocity) + 1)
+    u, _, _ = stroke.profile.state_at(samples.time_scale * t)
+    pos = stroke.spline(u)
+    pos[-1] = stroke.spline.end
+    return pos

@@ -1,0 +1,108 @@
+"""Layout: a traced drawing placed in the machine's work area, in millimetres.
+
+Pictures keep their framing (the whole canvas is fitted, not just the inked
+part, unless ``fit = "ink"``); the aspect ratio is always kept; the drawing is
+centred inside the margin, optionally rotated by a quarter turn when that
+makes it larger (``rotate = "auto"``), or set to a target size (``width`` /
+``height`` in mm) or a fixed ``scale`` (mm per drawing unit: 1 draws an SVG
+in mm at its true size). Image rows (y down) become machine y (up), and
+strokes shorter than the pen width are dropped: they would only leave a dot.
+
+Image tracers put a pixel's centre at its integer index, so a W x H picture's
+canvas is [-0.5, W - 0.5] x [-0.5, H - 0.5] (``units == "px"``); other
+drawings may name their canvas in ``meta["canvas"] = (x0, y0, x1, y1)``.
+
+Options come from the profile's ``[layout]`` / ``[order]`` tables, overridden
+by the CLI; both are checked here so that a bad value fails before any work.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+
+from doodlecam.errors import InputError
+from doodlecam.model import Drawing
+from doodlecam.options import LAYOUT_DEFAULTS, ORDER_DEFAULTS, layout_options, order_options  # noqa: F401  (checked here before)
+
+def _canvas(drawing: Drawing, pts: np.ndarray, fit: str) -> tuple[float, float, float, float]:
+    """(x0, y0, x1, y1) in drawing units: the frame to fit."""
+    ink = (*pts.min(axis=0), *pts.max(axis=0))
+    if fit == "ink":
+        return ink
+    frame = drawing.meta.get("canvas")
+    if frame is None and drawing.extent is not None:
+        w, h = drawing.extent
+        off = 0.5 if drawing.units == "px" else 0.0  # pixel centres at integer indices
+        frame = (-off, -off, w - off, h - off)
+    if frame is None:
+        return ink
+    return (min(frame[0], ink[0]), min(frame[1], ink[1]), max(frame[2], ink[2]), max(frame[3], ink[3]))
+
+
+def fit_to_work_area(drawing: Drawing, machine, options: dict[str, Any] | None = None) -> Drawing:
+    """The drawing in machine millimetres, inside the work area's margin.
+
+    ``options`` override the profile's ``[layout]`` table (keys as
+    ``LAYOUT_DEFAULTS``). Raises InputError when there is nothing to draw or
+    the requested size does not fit.
+    """
+    opt = layout_options({**getattr(machine, "layout", {}), **(options or {})})
+    src = drawing.source or "drawing"
+    if not drawing.polylines:
+        raise InputError(f"{src}: nothing to draw; try other tracer options or another picture")
+    pts = np.concatenate(drawing.polylines)
+    if not np.isfinite(pts).all():
+        raise InputError(f"{src}: the drawing has non-finite coordinates; check the file")
+    x0, y0, x1, y1 = _canvas(drawing, pts, opt["fit"])
+    if drawing.y_down:  # to y up: flip about the canvas
+        y0, y1 = -y1, -y0
+    flip_y = -1.0 if drawing.y_down else 1.0
+    margin = machine.margin if opt["margin"] is None else opt["margin"]
+    aw, ah = machine.width - 2 * margin, machine.height - 2 * margin
+    if aw <= 0 or ah <= 0:
+        raise InputError(f"{src}: margin {margin:g} mm leaves no room on the {machine.width:g} x {machine.height:g} mm work area; use a smaller margin")
+    w, h = max(x1 - x0, 1e-9), max(y1 - y0, 1e-9)
+
+    def fill(turns: int) -> float:  # the scale that fills the area
+        cw, ch = (w, h) if turns % 2 == 0 else (h, w)
+        return min(aw / cw, ah / ch)
+
+    # auto: the quarter turn only when it makes the drawing larger (squarish pictures stay upright)
+    turns = (1 if fill(1) > fill(0) * (1 + 1e-9) else 0) if opt["rotate"] == "auto" else int(opt["rotate"]) // 90
+    cw, ch = (w, h) if turns % 2 == 0 else (h, w)
+    if opt["scale"] is not None:
+        scale = opt["scale"]
+    elif opt["width"] is not None or opt["height"] is not None:
+        scale = min(opt["width"] / cw if opt["width"] is not None else np.inf,
+                    opt["height"] / ch if opt["height"] is not None else np.inf)
+    else:
+        scale = fill(turns)
+    if cw * scale > aw * (1 + 1e-9) or ch * scale > ah * (1 + 1e-9):
+        raise InputError(
+            f"{src}: at {cw * scale:.1f} x {ch * scale:.1f} mm the drawing does not fit the "
+            f"{aw:g} x {ah:g} mm inside the margin of machine '{machine.name}'; choose a smaller size or scale")
+    cx, cy = (x0 + x1) / 2, (y0 + y1) / 2
+    ox, oy = margin + aw / 2, margin + ah / 2
+    cos, sin = [(1, 0), (0, 1), (-1, 0), (0, -1)][turns]
+    min_len = machine.pen.width if opt["min_length"] is None else opt["min_length"]
+    # All points at once: thousands of hatch strokes cost one pass, not a loop.
+    x, y = pts[:, 0] - cx, flip_y * pts[:, 1] - cy
+    q = np.column_stack([ox + scale * (cos * x - sin * y), oy + scale * (sin * x + cos * y)])
+    counts = np.array([len(p) for p in drawing.polylines])
+    stop = np.cumsum(counts)
+    seg = np.r_[0.0, np.hypot(*np.diff(q, axis=0).T)]
+    seg[stop[:-1]] = 0.0  # no segment between one polyline's end and the next one's start
+    cum = np.cumsum(seg)
+    lengths = cum[stop - 1] - cum[stop - counts]
+    keep = (counts >= 2) & (lengths >= max(min_len, 1e-9))
+    out = [piece for piece, k in zip(np.split(q, stop[:-1]), keep) if k]
+    if not out:
+        raise InputError(f"{src}: every stroke is shorter than {min_len:g} mm (the pen width) at this size; "
+                         "draw it larger or use a finer pen")
+    meta = dict(drawing.meta, scale_mm_per_unit=scale, rotation_deg=90 * turns,
+                size_mm=(cw * scale, ch * scale), dropped_short=len(drawing.polylines) - len(out))
+    meta.pop("canvas", None)
+    return Drawing(tuple(out), units="mm", y_down=False, source=drawing.source,
+                   extent=(machine.width, machine.height), meta=meta)
