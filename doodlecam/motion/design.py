@@ -156,11 +156,20 @@ def _parse_segment(src: str, where: str, row: Any, axis: str | None = None) -> S
         row = {"law": row}
     if not isinstance(row, dict):
         raise _err(src, f"{where} must be a table (law = \"...\") or a law name")
-    allowed = set(_SEGMENT_KEYS) | ({"x", "y"} if axis is None else set())
+    # X–Y input: [segment.x] / [segment.y] override keys for one axis; an override
+    # that names a law starts from that law alone (the shared row's powers or b do not carry over)
+    allowed = set(_SEGMENT_KEYS) | ({"x", "y"} if axis is not None else set())
     _unknown(src, where, row, allowed)
-    if axis is not None and isinstance(row.get(axis), dict):
-        row = {**{k: v for k, v in row.items() if k not in ("x", "y")}, **row[axis]}
-        _unknown(src, f"{where} [{axis}]", row, _SEGMENT_KEYS)
+    if axis is not None:
+        for name in ("x", "y"):
+            if name in row and not isinstance(row[name], dict):
+                raise _err(src, f"{where}: [segment.{name}] must be a table of keys that override the row for axis {name}")
+        override = row.get(axis, {})
+        _unknown(src, f"{where} [segment.{axis}]", override, _SEGMENT_KEYS)
+        base = {k: v for k, v in row.items() if k not in ("x", "y")}
+        if "law" in override:
+            base = {k: v for k, v in base.items() if k == "envelope"}
+        row = {**base, **override}
     law = row.get("law", "polynomial")
     if not isinstance(law, str):
         raise _err(src, f"{where} law must be a name, got {law!r}")
@@ -506,6 +515,7 @@ def solve_axis(design: Design, axis: AxisDesign) -> AxisTrajectory:
                 impl = optimise_powers(conds, t0, t1 - t0, spec.optimise, continuity=cont, max_power=spec.max_power,
                                        envelope=_envelope(spec, conds, t0, t1), where=where)
             else:
+                _check_powers(where, spec.powers, cont)
                 impl = solve(conds, t0, t1 - t0, powers=spec.powers, where=where)
         else:
             p0, p1 = law_positions(s, None if carry is None else float(carry[0]))
@@ -524,14 +534,32 @@ def solve_axis(design: Design, axis: AxisDesign) -> AxisTrajectory:
     return AxisTrajectory(axis.name, tuple(solved), pts)
 
 
+def _check_powers(where: str, powers, continuity: int) -> None:
+    """Eq. 3.10: a power that is not a whole number must exceed m + 0.5, m being
+    the derivative up to which segments join continuously; below it the
+    derivative steps at the segment's start (Fig. 3.11). Refused, not lifted:
+    the designer chose the powers, and a silently changed curve is worse."""
+    if powers is None:
+        return
+    q = continuity + 0.5
+    for p in powers:
+        if p != round(p) and not p > q:
+            raise MotionError(f"{where}: power {p:g} breaks eq. 3.10 (a power that is not a whole number must exceed "
+                              f"m + 0.5 = {q:g} for continuity up to {ORDER_NAMES[continuity]}); raise it above {q:g}, "
+                              "make it a whole number or lower [motion] continuity")
+
+
 def _envelope(spec: SegmentSpec, conds, t0: float, t1: float) -> tuple[float, float]:
+    """The optimiser's penalty box: the designer's envelope, else the span of
+    the segment's positions (via points included; the rectangles between
+    successive points are checked afterwards)."""
     if spec.envelope is not None:
         return spec.envelope
-    p0 = next((c.value for c in conds if c.order == 0 and c.t == t0), None)
-    p1 = next((c.value for c in conds if c.order == 0 and c.t == t1), None)
-    if p0 is None or p1 is None:
+    pos = [c.value for c in conds if c.order == 0]
+    ends = [c for c in conds if c.order == 0 and c.t in (t0, t1)]
+    if len(ends) < 2:
         return (-np.inf, np.inf)
-    return (min(p0, p1), max(p0, p1))
+    return (min(pos), max(pos))
 
 
 def _spline(where: str, conds, t0: float, t1: float) -> SplineSegment:
@@ -588,12 +616,7 @@ def check(traj: Trajectory, machine=None, kinematics=None, per_segment: int = 20
         for seg in a.segments:
             t = np.linspace(seg.t0, seg.t1, per_segment)
             f = seg.evaluate(t)
-            env = seg.spec.envelope
-            if env is None:  # the maximum tolerance envelope between the design points' positions
-                p0 = a.points[seg.first_point - 1].values.get(0, f[0, 0])
-                p1 = a.points[seg.last_point - 1].values.get(0, f[0, -1])
-                env = (min(p0, p1), max(p0, p1))
-            rep.findings += check_segment(t, f, seg.where, env, d.tolerance)
+            rep.findings += check_segment(t, f, seg.where, seg.spec.envelope, d.tolerance, _knots(a, seg, f))
             law = L.LAWS.get(seg.spec.law)
             if law is not None and law.continuity < min(d.continuity, 2) and law.name != "dwell":
                 rep.findings.append(Finding("smoothness", seg.where, seg.t0,
@@ -616,6 +639,19 @@ def check(traj: Trajectory, machine=None, kinematics=None, per_segment: int = 20
     if machine is not None:
         _check_machine(traj, machine, kinematics, rep, per_segment)
     return rep
+
+
+def _knots(a: AxisTrajectory, seg: SolvedSegment, f: np.ndarray) -> list:
+    """The segment's design points as envelope knots (t, position, given velocity);
+    an end that gives no position (matched or carried) takes the curve's."""
+    pts = a.points[seg.first_point - 1:seg.last_point]
+    knots = []
+    for i, p in enumerate(pts):
+        pos = p.values.get(0)
+        if pos is None and i in (0, len(pts) - 1):
+            pos = float(f[0, 0] if i == 0 else f[0, -1])
+        knots.append((p.t, pos, p.values.get(1)))
+    return knots
 
 
 def _limits(kin) -> tuple[np.ndarray, np.ndarray]:
