@@ -127,3 +127,53 @@ def test_learn_simulate_shows_saturation_without_the_filter(tmp_path, capsys):
     filt = [c["rms_error"] for c in res["filtered"]]
     assert any(c["saturated"] > 0 for c in res["plain"]) and plain[-1] > 3 * min(plain)
     assert all(c["saturated"] == 0 for c in res["filtered"]) and filt[-1] < 0.05 * filt[0]
+
+
+POWERS_31 = """[motion]
+input = "time"
+continuity = 1
+[[axis.x.point]]
+t = 0
+pos = 0
+vel = 0
+acc = 0
+[[axis.x.point]]
+t = 1
+pos = 10
+vel = 0
+acc = 0
+[[axis.x.segment]]
+powers = [0, 1, 2, 2.1, 2.2, 2.3]
+"""
+
+
+def test_learn_reads_every_table_motion_writes(tmp_path, capsys):
+    # real powers below 3 make the jerk infinite at the segment start: written as inf, documented, read back
+    design = tmp_path / "p.toml"
+    design.write_text(POWERS_31)
+    assert main(["motion", str(design), "-o", str(tmp_path), "--no-plot"]) == 0
+    assert "|jerk| infinite" in capsys.readouterr().out
+    header, rows = read_table(tmp_path / "p.csv", infinite=True)
+    assert rows[0, header.index("x_jerk")] == np.inf and np.isfinite(rows[1:]).all()
+    assert main(["learn", str(tmp_path / "p.csv"), "--simulate", "1", "--json"]) == 0
+    assert "x_pos" in json.loads(capsys.readouterr().out)["columns"]
+    r = run("learn", tmp_path / "p.csv", "--simulate", "1", "--column", "x_jerk")
+    assert r.returncode == 2 and r.stderr.count("\n") == 1 and "column 'x_jerk' row 2 is inf" in r.stderr
+    # any --samples, at any cycle time: the 10-digit times are evenly spaced to their precision
+    for n, cycle in ((3000, "10.6"), (30000, "10.6"), (2, "0.5")):
+        assert main(["motion", str(FUSE), "-o", str(tmp_path), "--no-plot", "--no-machine", "--samples", str(n),
+                     "--cycle-time", cycle]) == 0
+        capsys.readouterr()
+        resp = tmp_path / "resp.csv"
+        header, rows = read_table(tmp_path / "fuse.csv")
+        resp.write_text(",".join(header) + "\n" + "\n".join(",".join(f"{v:.10g}" for v in row) for row in rows) + "\n")
+        assert main(["learn", str(tmp_path / "fuse.csv"), "-r", str(resp), "-o", str(tmp_path / "next.csv"),
+                     "--no-filter"]) == 0
+        assert "rms error 0," in capsys.readouterr().out
+
+
+def test_cycle_time_must_be_finite():
+    for bad in ("inf", "nan", "0", "-1"):
+        r = run("motion", FUSE, "--cycle-time", bad, "--no-plot", "-o", "/tmp/never-written")
+        assert r.returncode == 2 and r.stderr.count("\n") == 1, r.stderr
+        assert "cycle time must be a positive, finite number of seconds" in r.stderr

@@ -155,12 +155,25 @@ def _pick(path: Path, header: list[str], data, cols: list[str], t_ref) -> "objec
     t = data[:, header.index("t")]
     if np.abs(t - t_ref).max() > 1e-6 * max(1.0, float(np.abs(t_ref).max())):
         raise InputError(f"{path}: its times differ from the reference's; sample at the reference's times")
-    out = []
     for c in cols:
         if c not in header:
             raise InputError(f"{path}: no column '{c}' (columns: {', '.join(header)}); name it as in the reference")
-        out.append(data[:, header.index(c)])
-    return np.column_stack(out)
+    return _finite(path, data, header, cols)
+
+
+def _finite(path: Path, data, header: list[str], cols: list[str]):
+    """The columns ``cols`` of a table, refusing an infinite value in any of them
+    (an infinite jerk column is fine as long as it is not learned from)."""
+    import numpy as np
+
+    from doodlecam.errors import InputError
+
+    out = data[:, [header.index(c) for c in cols]]
+    if not np.all(np.isfinite(out)):
+        r, c = np.argwhere(~np.isfinite(out))[0]
+        raise InputError(f"{path}: column '{cols[c]}' row {r + 2} is {out[r, c]:g}; learn from finite columns "
+                         "(positions, --column NAME)")
+    return out
 
 
 @click.command("learn")
@@ -201,17 +214,18 @@ def learn(reference, response, command, out, gain, cutoff, no_filter, filter_mod
 
     if not 0 < gain < 1:
         raise MotionError(f"--gain {gain:g} must lie between 0 and 1 (the thesis uses 0.3)")
-    header, data = read_table(reference)
+    header, data = read_table(reference, infinite=True)
     if "t" not in header:
         raise InputError(f"{reference}: no 't' column; the first line must name the columns, one of them t (s)")
     t = data[:, header.index("t")]
-    if not np.all(np.diff(t) > 0):
-        raise InputError(f"{reference}: times in column t must increase")
-    dt = float(np.mean(np.diff(t)))
-    if np.abs(np.diff(t) - dt).max() > 1e-6 * dt:
+    if not np.all(np.isfinite(t)) or not np.all(np.diff(t) > 0):
+        raise InputError(f"{reference}: times in column t must be finite and increase")
+    dt = (float(t[-1]) - float(t[0])) / (len(t) - 1)
+    # the tables carry 10 significant digits: each time is off by up to 5e-10 of its size
+    if np.abs(np.diff(t) - dt).max() > 1e-6 * dt + 1e-9 * float(np.abs(t).max()):
         raise InputError(f"{reference}: samples are not evenly spaced in time; the FIR filter needs a fixed ΔT")
     cols = _columns(header, columns, reference)
-    r = data[:, [header.index(c) for c in cols]]
+    r = _finite(reference, data, header, cols)
     if cutoff is not None and not cutoff > 0:
         raise MotionError(f"--cutoff {cutoff:g} rad/s must be positive")
     cut = cutoff if cutoff is not None else 1.0 / dt
@@ -224,8 +238,8 @@ def learn(reference, response, command, out, gain, cutoff, no_filter, filter_mod
         return
     if response is None or out is None:
         raise click.UsageError("give --response (the recorded cycle) and -o (the next command), or --simulate CYCLES")
-    y = _pick(response, *read_table(response), cols, t)
-    u = r if command is None else _pick(command, *read_table(command), cols, t)
+    y = _pick(response, *read_table(response, infinite=True), cols, t)
+    u = r if command is None else _pick(command, *read_table(command, infinite=True), cols, t)
     coeffs = None if no_filter else fir_coefficients(cut * dt)
     nxt = np.column_stack([learn_step(u[:, i], r[:, i], y[:, i], gain, coeffs, mode=filter_mode) for i in range(len(cols))])
     lines = [",".join(["t"] + cols)] + [",".join(f"{v:.10g}" for v in row) for row in np.column_stack([t, nxt])]

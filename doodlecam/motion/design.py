@@ -92,8 +92,9 @@ class Design:
         any speed, §5.4)."""
         t0 = min(p.t for a in self.axes for p in a.points)
         t1 = max(p.t for a in self.axes for p in a.points)
-        if not cycle_time > 0:
-            raise MotionError(f"{self.source}: cycle time must be positive, got {cycle_time:g} s")
+        if not (cycle_time > 0 and np.isfinite(cycle_time)):
+            raise MotionError(f"{self.source}: cycle time must be a positive, finite number of seconds, "
+                              f"got {cycle_time:g}; give e.g. --cycle-time 10.6")
         k = cycle_time / (t1 - t0)
         axes = []
         for a in self.axes:
