@@ -115,18 +115,29 @@ def test_learn_errors(fuse_out, tmp_path):
     assert r.returncode == 2 and "Nyquist" in r.stderr
 
 
-def test_learn_simulate_shows_saturation_without_the_filter(tmp_path, capsys):
-    # the thesis's Example 1 run at 2 s a cycle, 600 samples: the same story as on its rig
-    assert main(["motion", str(FUSE), "-o", str(tmp_path), "--no-plot", "--no-machine", "--cycle-time", "2",
-                 "--samples", "600"]) == 0
-    capsys.readouterr()
-    assert main(["learn", str(tmp_path / "fuse.csv"), "--simulate", "16", "--gain", "0.5", "--column", "x_pos",
-                 "--json"]) == 0
-    res = json.loads(capsys.readouterr().out)["columns"]["x_pos"]
-    plain = [c["rms_error"] for c in res["plain"]]
-    filt = [c["rms_error"] for c in res["filtered"]]
-    assert any(c["saturated"] > 0 for c in res["plain"]) and plain[-1] > 3 * min(plain)
-    assert all(c["saturated"] == 0 for c in res["filtered"]) and filt[-1] < 0.05 * filt[0]
+def readme_demo_block() -> str:
+    text = (ROOT / "README.md").read_text(encoding="utf-8")
+    start = text.index("<!-- learn-demo -->")
+    return text[start:text.index("<!-- /learn-demo -->")]
+
+
+def test_readme_learning_demo_prints_what_the_readme_shows(tmp_path):
+    # the README's two commands, as a user runs them; the README's printed lines must be the command's
+    out = tmp_path / "out"
+    r = run("motion", FUSE, "--cycle-time", "10.6", "--strict", "-o", out)
+    assert r.returncode == 0, r.stderr
+    r = run("learn", out / "fuse.csv", "--simulate", "16")
+    assert r.returncode == 0, r.stderr
+    shown = [ln.strip() for ln in readme_demo_block().splitlines() if ln.strip() and not ln.startswith(("<!--", "```", "$"))]
+    printed = [ln.strip() for ln in r.stdout.splitlines()]
+    assert len(shown) > 10 and all(ln in printed for ln in shown), [ln for ln in shown if ln not in printed]
+    r = run("learn", out / "fuse.csv", "--simulate", "16", "--json")
+    res = json.loads(r.stdout)
+    assert res["servo"]["tick_s"] == pytest.approx(416e-6)
+    for col in ("x_pos", "y_pos"):
+        c = res["columns"][col]
+        assert 7 <= c["plain_saturates_at"] <= 10 and c["filtered_saturates_at"] is None and c["thesis_saturates_at"] is None
+        assert c["filtered"][-1]["rms_error"] < 0.25 * c["filtered"][0]["rms_error"]
 
 
 POWERS_31 = """[motion]

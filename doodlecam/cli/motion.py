@@ -251,11 +251,17 @@ def learn(reference, response, command, out, gain, cutoff, no_filter, filter_mod
     click.echo(f"wrote {out}: next command, gain {gain:g}, filter {m}")
 
 
+THESIS_CUTOFF = 16.0  # rad/s, the cut-off of the thesis's filtering example (Fig. 7.9)
+
+
 def _simulate(t, r, cols, cycles, gain, cut, mode, as_json) -> None:
+    """Plain learning, the chosen filter and the thesis's filter (eq. 7.12 as
+    printed, 16 rad/s) side by side on the simulated servo axis."""
     import numpy as np
 
     from doodlecam.motion.servo import ServoAxis, learning_cycles
 
+    axis0 = ServoAxis(accel_limit=1.0, noise=0.0005)
     results = {}
     for i, c in enumerate(cols):
         ref = r[:, i]
@@ -263,22 +269,28 @@ def _simulate(t, r, cols, cycles, gain, cut, mode, as_json) -> None:
         peak = float(np.abs(acc).max())
         if peak == 0:
             continue
-        axis = ServoAxis(accel_limit=3.0 * peak, noise=0.0005)
-        results[c] = {
-            "accel_limit": axis.accel_limit,
-            "plain": [s.__dict__ for s in learning_cycles(axis, t, ref, cycles, gain, None)],
-            "filtered": [s.__dict__ for s in learning_cycles(axis, t, ref, cycles, gain, cut, mode)],
-        }
-    if as_json:
-        click.echo(json.dumps({"gain": gain, "cutoff_rad_s": cut, "mode": mode, "columns": results}, indent=2))
-        return
-    click.echo(f"simulated servo axis: bandwidth {ServoAxis.bandwidth:g} Hz, "
-               f"actuator limit 3x the reference's peak acceleration; gain {gain:g}, cut-off {cut:.4g} rad/s ({mode})")
-    for c, res in results.items():
-        click.echo(f"{c} (limit {res['accel_limit']:.4g} mm/s²)      plain learning (eq. 7.5)        with the FIR filter")
-        click.echo(f"{'cycle':>6} {'rms err':>10} {'max err':>10} {'effort':>7} {'sat':>6}   {'rms err':>10} {'max err':>10} {'effort':>7} {'sat':>6}")
-        for p, f in zip(res["plain"], res["filtered"]):
-            click.echo(f"{p['cycle']:>6} {p['rms_error']:>10.3g} {p['max_error']:>10.3g} {p['effort']:>7.2f} {p['saturated']:>6.1%}   "
-                       f"{f['rms_error']:>10.3g} {f['max_error']:>10.3g} {f['effort']:>7.2f} {f['saturated']:>6.1%}")
-    click.echo("effort = peak demanded / available acceleration (> 1: the actuator saturates); sat = share of servo ticks saturated")
+        from dataclasses import replace
 
+        axis = replace(axis0, accel_limit=3.0 * peak)
+        runs = {"plain": learning_cycles(axis, t, ref, cycles, gain, None),
+                "filtered": learning_cycles(axis, t, ref, cycles, gain, cut, mode),
+                "thesis": learning_cycles(axis, t, ref, cycles, gain, THESIS_CUTOFF, "command")}
+        results[c] = {"accel_limit": axis.accel_limit, **{k: [s.__dict__ for s in v] for k, v in runs.items()},
+                      **{f"{k}_saturates_at": next((s.cycle for s in v if s.saturated > 0), None) for k, v in runs.items()}}
+    if as_json:
+        click.echo(json.dumps({"gain": gain, "cutoff_rad_s": cut, "mode": mode, "thesis_cutoff_rad_s": THESIS_CUTOFF,
+                               "servo": {"bandwidth_hz": axis0.bandwidth, "damping": axis0.damping, "tick_s": axis0.tick},
+                               "columns": results}, indent=2))
+        return
+    click.echo(f"simulated servo axis: {axis0.bandwidth:g} Hz, damping {axis0.damping:g}, controller every "
+               f"{axis0.tick * 1e6:g} µs, actuator limit 3x the reference's peak acceleration; gain {gain:g}")
+    click.echo(f"columns: plain learning (eq. 7.5) | filtered ({mode}, cut-off {cut:.4g} rad/s) | "
+               f"thesis filter (eq. 7.12 as printed, {THESIS_CUTOFF:g} rad/s); rms error, sat = share of servo ticks saturated")
+    for c, res in results.items():
+        click.echo(f"{c} (limit {res['accel_limit']:.4g} mm/s²)")
+        click.echo(f"{'cycle':>6} {'plain':>10} {'sat':>6}   {'filtered':>10} {'sat':>6}   {'thesis':>10} {'sat':>6}")
+        for p, f, h in zip(res["plain"], res["filtered"], res["thesis"]):
+            click.echo(f"{p['cycle']:>6} {p['rms_error']:>10.3g} {p['saturated']:>6.1%}   "
+                       f"{f['rms_error']:>10.3g} {f['saturated']:>6.1%}   {h['rms_error']:>10.3g} {h['saturated']:>6.1%}")
+        said = {k: res[f"{k}_saturates_at"] for k in ("plain", "filtered", "thesis")}
+        click.echo("  " + "; ".join(f"{k}: " + (f"saturates at cycle {v}" if v else "never saturates") for k, v in said.items()))
