@@ -141,3 +141,16 @@ def test_per_axis_segment_override():
     data["segment"][0]["y"] = "cycloidal"
     with pytest.raises(MotionError, match=r"\[segment.y\] must be a table"):
         parse_design(data, "o.toml")
+
+
+def test_constant_velocity_joining_smoothly_is_not_flagged():
+    # accelerate to 10 mm/s, run at it, slow to rest: every join continuous to acceleration
+    pts = [{"t": 0, "pos": 0, "vel": 0, "acc": 0}, {"t": 1, "pos": 5, "vel": 10, "acc": 0},
+           {"t": 2, "pos": 15, "vel": 10, "acc": 0}, {"t": 3, "pos": 20, "vel": 0, "acc": 0}]
+    traj = solve_design(axis_design(pts, ["polynomial", "constant-velocity", "polynomial"]))
+    rep = check(traj)
+    assert rep.ok, [str(x) for x in rep.findings]
+    # joined to rest it still jumps, and the joint check says so
+    rough = check(solve_design(axis_design([pts[0], {"t": 1, "pos": 0}, {"t": 2, "pos": 10}, {"t": 3, "pos": 10}],
+                                           ["dwell", "constant-velocity", "dwell"])))
+    assert {x.kind for x in rough.findings} == {"discontinuity"}

@@ -619,7 +619,8 @@ def check(traj: Trajectory, machine=None, kinematics=None, per_segment: int = 20
             f = seg.evaluate(t)
             rep.findings += check_segment(t, f, seg.where, seg.spec.envelope, d.tolerance, _knots(a, seg, f))
             law = L.LAWS.get(seg.spec.law)
-            if law is not None and law.continuity < min(d.continuity, 2) and law.name != "dwell":
+            # a dwell and a constant velocity are smooth inside; their joins are judged below
+            if law is not None and law.continuity < min(d.continuity, 2) and law.name not in ("dwell", "constant-velocity"):
                 rep.findings.append(Finding("smoothness", seg.where, seg.t0,
                                             f"{law.title} has a discontinuous {ORDER_NAMES[law.continuity + 1]} "
                                             f"(infinite jerk: a low-speed law, §2.7.1); use a §2.7.2 law or a polynomial"))
