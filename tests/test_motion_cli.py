@@ -188,3 +188,18 @@ def test_cycle_time_must_be_finite():
         r = run("motion", FUSE, "--cycle-time", bad, "--no-plot", "-o", "/tmp/never-written")
         assert r.returncode == 2 and r.stderr.count("\n") == 1, r.stderr
         assert "cycle time must be a positive, finite number of seconds" in r.stderr
+
+
+def test_rotation_axis_is_in_degrees_or_radians(tmp_path, capsys):
+    design = tmp_path / "rot.toml"
+    design.write_text('[motion]\ninput = "time"\n'
+                      '[axis.theta]\npoint = [{t = 0, pos = 0, vel = 0, acc = 0}, {t = 1, pos = 90, vel = 0, acc = 0}]\n'
+                      '[axis.w]\nunit = "rad"\npoint = [{t = 0, pos = 0}, {t = 1, pos = 1}]\n'
+                      '[axis.x]\npoint = [{t = 0, pos = 0}, {t = 1, pos = 10}]\n')
+    assert main(["motion", str(design), "-o", str(tmp_path), "--no-plot"]) == 0
+    out = capsys.readouterr().out
+    assert "axis theta (deg): peak |vel| 168.8 deg/s, |acc| 519.6 deg/s²" in out  # 1.875 · 90, 5.7735 · 90
+    assert "axis w (rad): peak |vel| 1 rad/s" in out and "axis x (mm): peak |vel| 10 mm/s" in out
+    design.write_text(design.read_text().replace('unit = "rad"', 'unit = "grad"'))
+    r = run("motion", design, "-o", tmp_path, "--no-plot")
+    assert r.returncode == 2 and "[axis.w] unit = 'grad': use \"mm\" for a linear axis" in r.stderr

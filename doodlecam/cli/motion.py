@@ -87,7 +87,7 @@ def _summary(path, traj, rep, written) -> dict:
             segs.append({"segment": s.number, "points": [s.first_point, s.last_point], "t0": s.t0, "t1": s.t1,
                          "law": s.spec.law, "form": s.impl.describe(),
                          "peak_velocity": float(np.abs(f[1]).max()), "peak_acceleration": float(np.abs(f[2]).max())})
-        axes.append({"axis": a.name, "segments": segs, "peaks": rep.peaks[a.name]})
+        axes.append({"axis": a.name, "unit": a.unit, "segments": segs, "peaks": rep.peaks[a.name]})
     return {
         "design": str(path), "name": d.name, "input": d.input, "continuity": d.continuity,
         "duration_s": traj.t1 - traj.t0, "samples": d.samples, "axes": axes,
@@ -104,7 +104,9 @@ def _print_summary(s: dict) -> None:
     for a in s["axes"]:
         p = a["peaks"]
         jerk = "infinite" if p["jerk_infinite"] else f"{p['jerk']:.4g}"
-        click.echo(f"  axis {a['axis']}: peak |vel| {p['velocity']:.4g}, |acc| {p['acceleration']:.4g}, |jerk| {jerk}")
+        u = a["unit"]
+        click.echo(f"  axis {a['axis']} ({u}): peak |vel| {p['velocity']:.4g} {u}/s, |acc| {p['acceleration']:.4g} {u}/s², "
+                   f"|jerk| {jerk}" + ("" if jerk == "infinite" else f" {u}/s³"))
         for g in a["segments"]:
             click.echo(f"    {g['segment']:>2}  {g['t0']:.4f}-{g['t1']:.4f} s  {g['form']:<40} "
                        f"|vel| {g['peak_velocity']:<10.4g} |acc| {g['peak_acceleration']:.4g}")

@@ -66,11 +66,19 @@ class SegmentSpec:
     params: dict[str, float] = field(default_factory=dict)
 
 
+UNITS = ("mm", "deg", "rad")
+ROTATION_NAMES = ("theta", "θ", "Θ")  # an axis so named turns (the end effector's orientation, §6.1): degrees
+
+
 @dataclass(frozen=True)
 class AxisDesign:
     name: str
     points: tuple[DesignPoint, ...]
     segments: tuple[SegmentSpec, ...]
+    unit: str = "mm"  # of position; derivatives per s, s², s³
+
+    def units(self) -> tuple[str, str, str, str]:
+        return (self.unit, f"{self.unit}/s", f"{self.unit}/s²", f"{self.unit}/s³")
 
 
 @dataclass(frozen=True)
@@ -100,7 +108,7 @@ class Design:
         for a in self.axes:
             pts = tuple(DesignPoint(p.index, t0 + (p.t - t0) * k, {o: v / k**o for o, v in p.values.items()},
                                     p.match, p.via) for p in a.points)
-            axes.append(AxisDesign(a.name, pts, a.segments))
+            axes.append(AxisDesign(a.name, pts, a.segments, a.unit))
         return Design(**{**self.__dict__, "axes": tuple(axes)})
 
 
@@ -261,7 +269,10 @@ def parse_design(data: dict[str, Any], source: str = "<design>") -> Design:
         for name, ax in table.items():
             if not isinstance(ax, dict):
                 raise _err(src, f"[axis.{name}] must be a table")
-            _unknown(src, f"[axis.{name}]", ax, {"point", "segment"})
+            _unknown(src, f"[axis.{name}]", ax, {"point", "segment", "unit"})
+            unit = ax.get("unit", "deg" if name in ROTATION_NAMES else "mm")
+            if unit not in UNITS:
+                raise _err(src, f"[axis.{name}] unit = {unit!r}: use \"mm\" for a linear axis, \"deg\" or \"rad\" for a rotation")
             rows = ax.get("point")
             if not isinstance(rows, list) or len(rows) < 2:
                 raise _err(src, f"axis {name}: give at least two [[axis.{name}.point]] rows (t, pos, vel, acc, jerk)")
@@ -270,7 +281,8 @@ def parse_design(data: dict[str, Any], source: str = "<design>") -> Design:
                 t, vals, m, via = _parse_point(src, f"[[axis.{name}.point]] {i}", r, _AXIS_POINT, i)
                 pts.append(DesignPoint(i, t, vals.get("", {}), frozenset(m.get("", ())), via))
             pts = tuple(pts)
-            axes.append(AxisDesign(name, pts, _segments(src, ax.get("segment", []), pts, f"[[axis.{name}.segment]]", None)))
+            axes.append(AxisDesign(name, pts, _segments(src, ax.get("segment", []), pts, f"[[axis.{name}.segment]]", None),
+                                   unit))
 
     for a in axes:
         _check_points(src, a)
@@ -403,6 +415,10 @@ class AxisTrajectory:
     name: str
     segments: tuple[SolvedSegment, ...]
     points: tuple[DesignPoint, ...]
+    unit: str = "mm"
+
+    def units(self) -> tuple[str, str, str, str]:
+        return (self.unit, f"{self.unit}/s", f"{self.unit}/s²", f"{self.unit}/s³")
 
     @property
     def t0(self) -> float:
@@ -532,7 +548,7 @@ def solve_axis(design: Design, axis: AxisDesign) -> AxisTrajectory:
                                           f"{float(f[o]):.6g} there; drop the condition or use law = \"polynomial\"")
         solved.append(SolvedSegment(axis.name, s + 1, spec, impl, P0.index, P1.index))
         carry = impl.evaluate([t1])[:, 0]
-    return AxisTrajectory(axis.name, tuple(solved), pts)
+    return AxisTrajectory(axis.name, tuple(solved), pts, axis.unit)
 
 
 def _check_powers(where: str, powers, continuity: int) -> None:

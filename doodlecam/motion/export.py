@@ -99,8 +99,8 @@ def plot_png(traj, report=None, n: int = 2000, dpi: int = 110) -> bytes:
     fig = Figure(figsize=(4.2 * ncol, 9.0))
     FigureCanvasAgg(fig)
     t = np.linspace(traj.t0, traj.t1, n)
-    units = ("mm", "mm/s", "mm/s²", "mm/s³")
     for j, a in enumerate(traj.axes):
+        units = a.units()
         f = a.evaluate(t)
         joints = [s.t1 for s in a.segments[:-1]]
         for k in range(4):
