@@ -154,3 +154,64 @@ def test_constant_velocity_joining_smoothly_is_not_flagged():
     rough = check(solve_design(axis_design([pts[0], {"t": 1, "pos": 0}, {"t": 2, "pos": 10}, {"t": 3, "pos": 10}],
                                            ["dwell", "constant-velocity", "dwell"])))
     assert {x.kind for x in rough.findings} == {"discontinuity"}
+
+
+def quintic_xy(**extra):
+    data = {"motion": {}, "point": [{"t": 0, "x": 0, "y": 0, "vx": 0, "vy": 0, "ax": 0, "ay": 0},
+                                    {"t": 1, "x": 30, "y": 40, "vx": 0, "vy": 0, "ax": 0, "ay": 0}]}
+    for k, v in extra.items():
+        if k == "motion":
+            data["motion"].update(v)
+        else:
+            data[k] = v
+    return data
+
+
+def test_product_acceleration_limit_names_the_worst_point():
+    # §4.5.3: a 50 mm straight quintic rise in 1 s peaks at 10√3·50/3 = 5.7735·50 mm/s² at t = 1/2 − √3/6
+    peak, t_peak = 10 * np.sqrt(3) / 3 * 50, 0.5 - np.sqrt(3) / 6
+    rep = check(solve_design(parse_design(quintic_xy(motion={"product_acceleration": 250.0}), "p.toml")))
+    assert rep.product["peak"] == pytest.approx(peak, rel=1e-5)
+    (f,) = rep.findings
+    assert f.kind == "product" and min(abs(f.t - t_peak), abs(f.t - (1 - t_peak))) < 1e-3
+    assert "segment 1 (points 1-2" in f.where and f"{peak:.4g} mm/s²" in f.message and "1.15x the 250" in f.message
+    assert check(solve_design(parse_design(quintic_xy(motion={"product_acceleration": 300.0}), "p.toml"))).ok
+
+
+def test_drive_torque_eq_4_1():
+    drive = {"x": {"motor_inertia": 1e-5, "load_inertia": 2e-5, "lead": 40.0, "max_torque": 0.0025,
+                   "friction_torque": 0.002, "viscous": 1e-5}}
+    traj = solve_design(parse_design(quintic_xy(drive=drive), "p.toml"))
+    rep = check(traj)
+    # independently: T = (J_m + J_p)·a·2π/lead + T_f·sign(v) + c·v·2π/lead on a fine grid
+    t = np.linspace(0, 1, 100001)
+    f = traj.axis("x").evaluate(t)
+    k = 2 * np.pi / 40.0
+    torque = 3e-5 * f[2] * k + 0.002 * np.sign(f[1] * k) + 1e-5 * f[1] * k
+    i = np.abs(torque).argmax()
+    (dr,) = rep.drives
+    assert dr["peak_torque"] == pytest.approx(abs(torque[i]), rel=1e-4) and dr["t"] == pytest.approx(t[i], abs=1e-3)
+    assert [x.kind for x in rep.findings] == ["torque"] and "axis x segment 1" in rep.findings[0].where
+    drive["x"]["max_torque"] = 0.01
+    assert check(solve_design(parse_design(quintic_xy(drive=drive), "p.toml"))).ok
+    # a rotation axis in degrees: Θ'' = ratio · a · π/180
+    data = {"motion": {"input": "time"}, "axis": {"theta": {"point": [{"t": 0, "pos": 0, "vel": 0, "acc": 0},
+                                                                       {"t": 1, "pos": 90, "vel": 0, "acc": 0}]}},
+            "drive": {"theta": {"motor_inertia": 1e-4, "load_inertia": 0.0, "ratio": 10.0, "max_torque": 1.0}}}
+    rep = check(solve_design(parse_design(data, "r.toml")))
+    assert rep.drives[0]["peak_torque"] == pytest.approx(1e-4 * 10 * np.deg2rad(10 * np.sqrt(3) / 3 * 90), rel=1e-5)
+
+
+@pytest.mark.parametrize("drive,message", [
+    ({"z": {}}, r"\[drive.z\]: the design has no axis 'z'"),
+    ({"x": {"motor_inertia": 1e-5, "load_inertia": 0, "max_torque": 1}}, r"\[drive.x\] needs lead"),
+    ({"x": {"motor_inertia": 1e-5, "load_inertia": 0, "lead": 40}}, r"\[drive.x\] needs max_torque"),
+    ({"x": {"motor_inertia": 1e-5, "load_inertia": 0, "lead": 0, "max_torque": 1}}, r"lead = 0 must be positive"),
+    ({"x": {"motor_inertia": 1e-5, "load_inertia": 0, "lead": 4, "max_torque": 1, "torqe": 1}},
+     r"unknown key 'torqe'"),
+])
+def test_drive_errors(drive, message):
+    with pytest.raises(MotionError, match=message):
+        parse_design(quintic_xy(drive=drive), "p.toml")
+    with pytest.raises(MotionError, match="product_acceleration = -1 must be positive"):
+        parse_design(quintic_xy(motion={"product_acceleration": -1}), "p.toml")

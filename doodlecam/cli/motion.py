@@ -92,6 +92,7 @@ def _summary(path, traj, rep, written) -> dict:
         "design": str(path), "name": d.name, "input": d.input, "continuity": d.continuity,
         "duration_s": traj.t1 - traj.t0, "samples": d.samples, "axes": axes,
         "machine": rep.machine, "actuators": rep.actuators, "fastest_cycle_s": rep.fastest_cycle,
+        "product": rep.product, "drives": rep.drives,
         "findings": [{"kind": f.kind, "where": f.where, "t": f.t, "message": f.message} for f in rep.findings],
         "ok": rep.ok, "outputs": written,
     }
@@ -118,6 +119,12 @@ def _print_summary(s: dict) -> None:
                        f"{act['acceleration_limit']:g} ({act['acceleration_ratio']:.3g}x)")
         if s["fastest_cycle_s"]:
             click.echo(f"    fastest run within the limits: {s['fastest_cycle_s']:.4g} s (--cycle-time)")
+    if s["product"]:
+        p = s["product"]
+        click.echo(f"  product: peak acceleration {p['peak']:.4g} of {p['limit']:g} mm/s² at t = {p['t']:.4g} s ({p['where']})")
+    for dr in s["drives"]:
+        click.echo(f"  drive {dr['axis']} (eq. 4.1): peak torque {dr['peak_torque']:.4g} of {dr['max_torque']:g} N·m "
+                   f"({dr['ratio']:.3g}x) at t = {dr['t']:.4g} s ({dr['where']})")
     if s["ok"]:
         click.echo("  checks: envelopes, meandering, continuity" + (", workspace and limits" if s["machine"] else "") + " all pass")
     else:

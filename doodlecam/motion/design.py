@@ -37,7 +37,9 @@ except ModuleNotFoundError:  # pragma: no cover - Python 3.10
 
 POLY_LAWS = ("polynomial", "cubic-spline")
 DEFAULT_SAMPLES = 300  # rows of the MOTDES table (§5.2.2)
-_MOTION_KEYS = {"name", "input", "continuity", "samples", "tolerance", "machine", "origin", "cycle_time", "description"}
+_MOTION_KEYS = {"name", "input", "continuity", "samples", "tolerance", "machine", "origin", "cycle_time", "description",
+                "product_acceleration"}
+_DRIVE_KEYS = {"motor_inertia", "load_inertia", "lead", "ratio", "max_torque", "friction_torque", "viscous", "load_torque"}
 _SEGMENT_KEYS = {"law", "powers", "optimise", "max_power", "envelope", "b", "a1", "a2"}
 _XY_POINT = {"t": None, "x": ("x", 0), "y": ("y", 0), "vx": ("x", 1), "vy": ("y", 1), "ax": ("x", 2), "ay": ("y", 2),
              "jx": ("x", 3), "jy": ("y", 3), "via": None}
@@ -93,6 +95,8 @@ class Design:
     machine: str | None = None
     origin: tuple[float, float] = (0.0, 0.0)
     description: str = ""
+    product_acceleration: float | None = None  # mm/s², the most the carried product tolerates (§4.5.3)
+    drives: tuple["Drive", ...] = ()  # eq. 4.1 per axis
 
     def scaled(self, cycle_time: float) -> "Design":
         """The same design run in ``cycle_time`` s: times stretch, derivative
@@ -221,7 +225,7 @@ def _parse_segment(src: str, where: str, row: Any, axis: str | None = None) -> S
 def parse_design(data: dict[str, Any], source: str = "<design>") -> Design:
     """Validate a parsed TOML design and build a Design."""
     src = source
-    _unknown(src, "the file", data, {"motion", "point", "segment", "axis"})
+    _unknown(src, "the file", data, {"motion", "point", "segment", "axis", "drive"})
     head = data.get("motion", {})
     if not isinstance(head, dict):
         raise _err(src, "[motion] must be a table")
@@ -288,10 +292,78 @@ def parse_design(data: dict[str, Any], source: str = "<design>") -> Design:
         _check_points(src, a)
     d = Design(name=str(head.get("name", Path(source).stem)), axes=tuple(axes), source=src, input=kind,
                continuity=continuity, samples=samples, tolerance=tolerance, machine=machine,
-               origin=origin, description=str(head.get("description", "")))
+               origin=origin, description=str(head.get("description", "")),
+               product_acceleration=_positive(src, "[motion] product_acceleration", head.get("product_acceleration")),
+               drives=_drives(src, data.get("drive", {}), {a.name: a for a in axes}))
     if "cycle_time" in head:
         d = d.scaled(_number(src, "[motion] cycle_time", head["cycle_time"]))
     return d
+
+
+@dataclass(frozen=True)
+class Drive:
+    """One axis's drive for eq. 4.1, T_m − T_r = (J_m + J_p) Θ'' (SI units; Θ the motor angle)."""
+
+    axis: str
+    motor_inertia: float  # J_m, kg·m²
+    load_inertia: float  # J_p, kg·m², the moving parts and the product seen at the motor
+    max_torque: float  # N·m, what the motor delivers
+    lead: float | None = None  # mm of a linear axis per motor revolution
+    ratio: float = 1.0  # motor turns per turn of a rotation axis
+    friction_torque: float = 0.0  # N·m, Coulomb, against the motion
+    viscous: float = 0.0  # N·m·s/rad
+    load_torque: float = 0.0  # N·m, constant (gravity, a process force)
+
+    def motor_rad(self, unit: str) -> float:
+        """Motor radians per unit of the axis position."""
+        if unit == "mm":
+            return 2 * np.pi / self.lead
+        return self.ratio * (np.pi / 180 if unit == "deg" else 1.0)
+
+    def torque(self, unit: str, vel: np.ndarray, acc: np.ndarray) -> np.ndarray:
+        """T_m (N·m) the motor must deliver: (J_m + J_p) Θ'' + T_r(Θ')."""
+        k = self.motor_rad(unit)
+        w, dw = vel * k, acc * k
+        return (self.motor_inertia + self.load_inertia) * dw + self.friction_torque * np.sign(w) + self.viscous * w + self.load_torque
+
+
+def _positive(src: str, where: str, value: Any) -> float | None:
+    if value is None:
+        return None
+    v = _number(src, where, value)
+    if not v > 0:
+        raise _err(src, f"{where} = {v:g} must be positive")
+    return v
+
+
+def _drives(src: str, table: Any, axes: dict) -> tuple[Drive, ...]:
+    if not isinstance(table, dict):
+        raise _err(src, "[drive.AXIS] must be tables, one per axis")
+    out = []
+    for name, row in table.items():
+        where = f"[drive.{name}]"
+        if name not in axes:
+            raise _err(src, f"{where}: the design has no axis '{name}' (axes: {', '.join(axes)})")
+        if not isinstance(row, dict):
+            raise _err(src, f"{where} must be a table")
+        _unknown(src, where, row, _DRIVE_KEYS)
+        for key in ("motor_inertia", "load_inertia", "max_torque"):
+            if key not in row:
+                raise _err(src, f"{where} needs {key} (eq. 4.1: motor_inertia and load_inertia in kg·m², max_torque in N·m)")
+        unit = axes[name].unit
+        if unit == "mm" and "lead" not in row:
+            raise _err(src, f"{where} needs lead, the mm axis {name} travels per motor revolution")
+        if unit != "mm" and "lead" in row:
+            raise _err(src, f"{where}: axis {name} turns ({unit}); give ratio (motor turns per axis turn), not lead")
+        vals = {k: _number(src, f"{where} {k}", v) for k, v in row.items()}
+        for key in ("lead", "ratio", "max_torque"):
+            if key in vals and not vals[key] > 0:
+                raise _err(src, f"{where} {key} = {vals[key]:g} must be positive")
+        for key in ("motor_inertia", "load_inertia", "friction_torque", "viscous"):
+            if vals.get(key, 0.0) < 0:
+                raise _err(src, f"{where} {key} = {vals[key]:g} must be >= 0")
+        out.append(Drive(axis=name, **vals))
+    return tuple(out)
 
 
 def _segments(src: str, rows: Any, pts, where: str, axis: str | None) -> tuple[SegmentSpec, ...]:
@@ -618,6 +690,8 @@ class Report:
     actuators: list[dict[str, Any]] = field(default_factory=list)  # one per actuator
     fastest_cycle: float | None = None  # s, shortest run of this design within the actuator limits
     machine: str | None = None
+    product: dict[str, Any] | None = None  # the carried product's acceleration: limit, peak, where
+    drives: list[dict[str, Any]] = field(default_factory=list)  # eq. 4.1 per axis: peak torque, where
 
     @property
     def ok(self) -> bool:
@@ -654,9 +728,57 @@ def check(traj: Trajectory, machine=None, kinematics=None, per_segment: int = 20
         rep.peaks[a.name] = {n: float(np.nanmax(fin[k])) if np.isfinite(fin[k]).any() else 0.0
                              for k, n in enumerate(("position", "velocity", "acceleration", "jerk"))}
         rep.peaks[a.name]["jerk_infinite"] = bool(np.isinf(f[3]).any())
+    _check_dynamics(traj, rep, per_segment)
     if machine is not None:
         _check_machine(traj, machine, kinematics, rep, per_segment)
     return rep
+
+
+def _grid(traj: Trajectory, per_segment: int) -> np.ndarray:
+    """Sample times over the whole design, dense in every segment of every axis."""
+    ends = sorted({traj.t0, traj.t1, *(s.t1 for a in traj.axes for s in a.segments)})
+    return np.unique(np.concatenate([np.linspace(a, b, per_segment) for a, b in zip(ends, ends[1:])]))
+
+
+def _segment_at(a: AxisTrajectory, t: float) -> str:
+    seg = next((s for s in a.segments if s.t0 <= t <= s.t1), a.segments[-1])
+    return seg.where
+
+
+def _check_dynamics(traj: Trajectory, rep: Report, per_segment: int) -> None:
+    """§4.5.2–4.5.3: the carried product's acceleration limit on the end
+    effector (the vector sum over the linear axes) and eq. 4.1's motor
+    torque per axis that has a [drive]; the worst time and segment named."""
+    d = traj.design
+    if d.product_acceleration is None and not d.drives:
+        return
+    t = _grid(traj, per_segment)
+    f = {a.name: a.evaluate(t) for a in traj.axes}
+    if d.product_acceleration is not None:
+        linear = [a for a in traj.axes if a.unit == "mm"]
+        acc = np.sqrt(sum(f[a.name][2] ** 2 for a in linear))
+        i = int(np.nanargmax(acc))
+        worst = max(linear, key=lambda a: abs(f[a.name][2][i]))
+        lim = d.product_acceleration
+        rep.product = {"limit": lim, "peak": float(acc[i]), "t": float(t[i]), "where": _segment_at(worst, float(t[i])),
+                       "axes": [a.name for a in linear]}
+        if acc[i] > lim * (1 + 1e-9):
+            rep.findings.append(Finding("product", rep.product["where"], float(t[i]),
+                                        f"the product is accelerated at {acc[i]:.4g} mm/s², {acc[i] / lim:.3g}x the "
+                                        f"{lim:g} it tolerates (§4.5.3), at t = {t[i]:.4g} s; lengthen this segment or "
+                                        "change its conditions"))
+    for dr in d.drives:
+        a = traj.axis(dr.axis)
+        torque = dr.torque(a.unit, f[a.name][1], f[a.name][2])
+        i = int(np.nanargmax(np.abs(torque)))
+        where = _segment_at(a, float(t[i]))
+        rep.drives.append({"axis": a.name, "peak_torque": float(abs(torque[i])), "max_torque": dr.max_torque,
+                           "ratio": float(abs(torque[i]) / dr.max_torque), "t": float(t[i]), "where": where})
+        if abs(torque[i]) > dr.max_torque * (1 + 1e-9):
+            rep.findings.append(Finding("torque", where, float(t[i]),
+                                        f"the motor of axis {a.name} must deliver {abs(torque[i]):.4g} N·m (eq. 4.1), "
+                                        f"{abs(torque[i]) / dr.max_torque:.3g}x its {dr.max_torque:g} N·m, at t = "
+                                        f"{t[i]:.4g} s; lengthen this segment, change it or use a stronger drive"))
 
 
 def _knots(a: AxisTrajectory, seg: SolvedSegment, f: np.ndarray) -> list:
@@ -702,8 +824,7 @@ def _check_machine(traj: Trajectory, machine, kin, rep: Report, per_segment: int
         from doodlecam.registry import kinematics_for
 
         kin = kinematics_for(machine)
-    ends = sorted({traj.t0, traj.t1, *(s.t1 for a in traj.axes for s in a.segments)})
-    t = np.unique(np.concatenate([np.linspace(a, b, per_segment) for a, b in zip(ends, ends[1:])]))
+    t = _grid(traj, per_segment)
     fx, fy = traj.axis("x").evaluate(t), traj.axis("y").evaluate(t)
     ox, oy = d.origin
     q = np.column_stack([fx[0] + ox, fy[0] + oy])
