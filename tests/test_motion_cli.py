@@ -203,3 +203,32 @@ def test_rotation_axis_is_in_degrees_or_radians(tmp_path, capsys):
     design.write_text(design.read_text().replace('unit = "rad"', 'unit = "grad"'))
     r = run("motion", design, "-o", tmp_path, "--no-plot")
     assert r.returncode == 2 and "[axis.w] unit = 'grad': use \"mm\" for a linear axis" in r.stderr
+
+
+def test_segment_times_shorten_each_segment_to_its_limit(tmp_path, capsys):
+    from doodlecam.machine import load_machine
+    from doodlecam.motion.design import _retimed, _within_limits, load_design, segment_times, solve_design
+
+    assert main(["motion", str(FUSE), "--cycle-time", "10.6", "--segment-times", "-o", str(tmp_path), "--no-plot",
+                 "--json"]) == 0
+    st = json.loads(capsys.readouterr().out)["segment_times"]
+    assert st["complete"] and st["retimed_cycle_s"] < 0.85 * st["design_cycle_s"]
+    # read the machine's side back from the written table: within the doodlebot's 150 mm/s and 2000 mm/s² per axis
+    header, rows = read_table(tmp_path / "fuse_retimed.csv")
+    assert rows[-1, 0] == pytest.approx(st["retimed_cycle_s"])
+    for axis in "xy":
+        assert np.abs(rows[:, header.index(f"{axis}_vel")]).max() <= 150 * (1 + 1e-6)
+        assert np.abs(rows[:, header.index(f"{axis}_acc")]).max() <= 2000 * (1 + 1e-6)
+    # each moving segment is as short as it can be: 1 % shorter breaks a limit; dwells keep their time
+    d = load_design(FUSE).scaled(10.6)
+    machine = load_machine("doodlebot")
+    got, retimed = segment_times(d, machine)
+    assert [r["shortest_s"] for r in got] == pytest.approx([r["shortest_s"] for r in st["segments"]])
+    for r in got:
+        if r.get("note"):
+            assert r["shortest_s"] == r["design_s"]
+        else:
+            assert not _within_limits(_retimed(retimed, r["segment"] - 1, 0.99 * r["shortest_s"]), machine, None, 401)
+    assert solve_design(retimed).t1 == pytest.approx(st["retimed_cycle_s"])
+    r = run("motion", FUSE, "--segment-times", "--no-machine", "-o", tmp_path, "--no-plot")
+    assert r.returncode == 2 and "per-segment times need limits" in r.stderr

@@ -28,8 +28,10 @@ class ChecksFailed(MotionError):
 @click.option("--split", is_flag=True, help="Also write NAME_AXIS.csv per axis: the thesis's four columns pos, vel, acc, jerk.")
 @click.option("--no-plot", is_flag=True, help="Do not write the PNG.")
 @click.option("--strict", is_flag=True, help="Exit with status 1 when a check fails (outputs are still written).")
+@click.option("--segment-times", is_flag=True,
+              help="Also find each segment's shortest time within every limit (dwells kept) and write NAME_retimed.csv.")
 @click.option("--json", "as_json", is_flag=True, help="Print the summary as JSON.")
-def motion(design, outdir, machine, no_machine, samples, cycle_time, split, no_plot, strict, as_json):
+def motion(design, outdir, machine, no_machine, samples, cycle_time, split, no_plot, strict, segment_times, as_json):
     """Design a multi-segment trajectory from DESIGN.toml (MOTDES).
 
     \b
@@ -60,6 +62,15 @@ def motion(design, outdir, machine, no_machine, samples, cycle_time, split, no_p
     rep = check(traj, mach)
     stem = d.name or design.stem
     outputs = [(outdir / f"{stem}.csv", table_csv(traj))]
+    timing = None
+    if segment_times:
+        from doodlecam.motion.design import segment_times as shortest
+
+        rows, retimed = shortest(d, mach)
+        rtraj = solve_design(retimed)
+        timing = {"segments": rows, "design_cycle_s": traj.t1 - traj.t0, "retimed_cycle_s": rtraj.t1 - rtraj.t0,
+                  "complete": all(r["shortest_s"] is not None for r in rows)}
+        outputs.append((outdir / f"{stem}_retimed.csv", table_csv(rtraj)))
     if split:
         outputs += [(outdir / f"{stem}_{a.name}.csv", axis_csv(traj, a.name)) for a in traj.axes]
     if not no_plot:
@@ -67,6 +78,7 @@ def motion(design, outdir, machine, no_machine, samples, cycle_time, split, no_p
     written = [str(atomic_write(p, data)) for p, data in outputs]  # all built before any is written
 
     summary = _summary(design, traj, rep, written)
+    summary["segment_times"] = timing
     if as_json:
         click.echo(json.dumps(summary, indent=2))
     else:
@@ -131,6 +143,15 @@ def _print_summary(s: dict) -> None:
         click.echo(f"  {len(s['findings'])} check(s) failed:")
         for f in s["findings"]:
             click.echo(f"    {f['where']}: {f['message']}")
+    if s.get("segment_times"):
+        st = s["segment_times"]
+        click.echo("  shortest segment times within every limit (one after another; dwells keep their time):")
+        for r in st["segments"]:
+            best = f"{r['shortest_s']:.4g} s" if r["shortest_s"] is not None else "none"
+            click.echo(f"    {r['segment']:>2}  points {r['points'][0]}-{r['points'][1]}  {r['design_s']:.4g} s -> {best}"
+                       + (f"  ({r['note']})" if r.get("note") else ""))
+        click.echo(f"    cycle {st['design_cycle_s']:.4g} s -> {st['retimed_cycle_s']:.4g} s"
+                   + ("" if st["complete"] else " (some segments cannot keep the limits; see above)"))
     click.echo("  wrote " + ", ".join(s["outputs"]))
 
 

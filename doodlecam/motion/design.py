@@ -863,3 +863,93 @@ def _check_machine(traj: Trajectory, machine, kin, rep: Report, per_segment: int
                                             f"(--cycle-time) or change it"))
     # velocities scale with 1/k and accelerations with 1/k^2 when the design is stretched k times
     rep.fastest_cycle = (traj.t1 - traj.t0) * worst if worst > 0 else None
+
+
+# ------------------------------------------------------- per-segment times
+
+LIMIT_KINDS = ("limit", "product", "torque")
+
+
+def _retimed(design: Design, seg: int, duration: float) -> Design:
+    """The design with segment ``seg`` (0-based, shared by every axis) lasting
+    ``duration`` s: its via points stretch with it, later points shift; the
+    values at the points stay (they are physical: a weld speed is a weld speed)."""
+    axes = []
+    for a in design.axes:
+        ends = [i for i, p in enumerate(a.points) if not p.via]
+        i0, i1 = ends[seg], ends[seg + 1]
+        t0, t1 = a.points[i0].t, a.points[i1].t
+        k = duration / (t1 - t0)
+        pts = []
+        for i, p in enumerate(a.points):
+            if i <= i0:
+                t = p.t
+            elif i <= i1:
+                t = t0 + (p.t - t0) * k
+            else:
+                t = p.t + duration - (t1 - t0)
+            pts.append(DesignPoint(p.index, t, p.values, p.match, p.via))
+        axes.append(AxisDesign(a.name, tuple(pts), a.segments, a.unit))
+    return Design(**{**design.__dict__, "axes": tuple(axes)})
+
+
+def _within_limits(design: Design, machine, kinematics, per_segment: int) -> bool:
+    try:
+        rep = check(solve_design(design), machine, kinematics, per_segment)
+    except MotionError:
+        return False
+    return not any(f.kind in LIMIT_KINDS for f in rep.findings)
+
+
+def segment_times(design: Design, machine=None, kinematics=None, per_segment: int = 401,
+                  span: float = 20.0, steps: int = 32, tol: float = 1e-3) -> tuple[list[dict[str, Any]], Design]:
+    """Shortest duration of every segment that keeps every limit (§4.5: the
+    actuators through the machine, the product's acceleration, eq. 4.1's
+    torque), segment after segment, each with the ones before already
+    shortened; dwells keep their (process) time.
+
+    For each segment the durations from T/``span`` to T·``span`` are scanned
+    on a geometric grid and the first that keeps the limits is refined by
+    bisection against the one below it to ``tol`` (relative). Returns one
+    row per segment and the re-timed design.
+    """
+    d = design
+    ends = [[p.t for p in a.points if not p.via] for a in d.axes]
+    if any(len(e) != len(ends[0]) or not np.allclose(e, ends[0]) for e in ends):
+        raise MotionError(f"{d.source}: per-segment times need axes whose segments share their design-point times "
+                          "(input = \"xy\", or the same times on every axis)")
+    if machine is None and d.product_acceleration is None and not d.drives:
+        raise MotionError(f"{d.source}: per-segment times need limits: a machine (-m), [motion] product_acceleration "
+                          "or [drive.AXIS] tables")
+    if kinematics is None and machine is not None:
+        from doodlecam.registry import kinematics_for
+
+        kinematics = kinematics_for(machine)
+    rows = []
+    for s in range(len(ends[0]) - 1):
+        T = ends[0][s + 1] - ends[0][s]
+        laws = {a.segments[s].law for a in d.axes}
+        row: dict[str, Any] = {"segment": s + 1, "points": [d.axes[0].points[i].index for i, p in enumerate(d.axes[0].points)
+                                                             if not p.via][s:s + 2],
+                               "laws": sorted(laws), "design_s": T, "shortest_s": None}
+        if laws == {"dwell"}:
+            row["shortest_s"], row["note"] = T, "dwell: process time kept"
+            rows.append(row)
+            continue
+        ok = lambda dur: _within_limits(_retimed(d, s, dur), machine, kinematics, per_segment)  # noqa: E731
+        grid = T * np.geomspace(1 / span, span, steps)
+        first = next((i for i, g in enumerate(grid) if ok(g)), None)
+        if first is None:
+            row["note"] = f"no duration from {grid[0]:.4g} to {grid[-1]:.4g} s keeps the limits (its points' own values exceed them)"
+            rows.append(row)
+            continue
+        hi = float(grid[first])
+        if first > 0:
+            lo = float(grid[first - 1])
+            while hi - lo > tol * hi:
+                mid = 0.5 * (lo + hi)
+                lo, hi = (lo, mid) if ok(mid) else (mid, hi)
+        row["shortest_s"] = hi
+        d = _retimed(d, s, hi)
+        rows.append(row)
+    return rows, d
