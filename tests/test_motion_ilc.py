@@ -143,3 +143,23 @@ def test_closed_cycles_run_back_to_back():
     assert all(s.saturated == 0 for s in back)  # run as the machine runs it, never
     assert back[0].max_error < 0.1 * rest[0].max_error
     assert back[-1].rms_error < 0.2 * back[0].rms_error
+
+
+@pytest.mark.parametrize("axis", ["x", "y"])
+def test_example_2_circle_back_to_back(axis):
+    # Example 2's kind (samples/motion/circle.toml, the thesis gives no radius): a closed path moving at its start,
+    # run at 2 s a cycle; cycles back to back as on the rig
+    from pathlib import Path
+
+    from doodlecam.motion.design import load_design, solve_design
+
+    d = load_design(Path(__file__).resolve().parent.parent / "samples" / "motion" / "circle.toml").scaled(2.0)
+    t, axes = solve_design(d).sample()
+    r, peak = axes[axis][0], np.abs(axes[axis][2]).max()
+    servo = ServoAxis(accel_limit=3 * peak, noise=0.0005)
+    plain = learning_cycles(servo, t, r, cycles=12, gain=0.3)
+    assert plain[0].saturated == 0  # no jolt at the cycle start
+    assert 7 <= next(s.cycle for s in plain if s.saturated > 0) <= 10
+    cut = min(1 / (t[1] - t[0]), 0.75 * 2 * np.pi * servo.bandwidth)  # what learn --simulate uses
+    filt = learning_cycles(servo, t, r, cycles=12, gain=0.3, cutoff=cut)
+    assert all(s.saturated == 0 for s in filt) and filt[-1].rms_error < 0.1 * filt[0].rms_error

@@ -213,7 +213,8 @@ def _finite(path: Path, data, header: list[str], cols: list[str]):
               help="Command u_n that produced it (CSV; default: the reference, i.e. the first cycle).")
 @click.option("-o", "--out", "out", type=click.Path(path_type=Path), help="Where to write the next command u_{n+1} (CSV).")
 @click.option("--gain", type=float, default=0.3, show_default=True, help="Learning gain λ, 0 < λ < 1 (the thesis: 0.3).")
-@click.option("--cutoff", type=float, help="FIR filter cut-off, rad/s (default: 1 rad per sample, i.e. 1/ΔT).")
+@click.option("--cutoff", type=float, help="FIR filter cut-off, rad/s (default: 1 rad per sample, i.e. 1/ΔT; with --simulate "
+              "also at most 3/4 of the simulated servo's resonance).")
 @click.option("--no-filter", is_flag=True, help="Plain learning, eq. 7.5 (the command roughens; see --simulate).")
 @click.option("--filter-mode", type=click.Choice(["correction", "command"]), default="correction", show_default=True,
               help="Filter what learning added (correction) or the whole command as eq. 7.12 prints it (command).")
@@ -259,6 +260,11 @@ def learn(reference, response, command, out, gain, cutoff, no_filter, filter_mod
     if cutoff is not None and not cutoff > 0:
         raise MotionError(f"--cutoff {cutoff:g} rad/s must be positive")
     cut = cutoff if cutoff is not None else 1.0 / dt
+    if simulate and cutoff is None:
+        from doodlecam.motion.servo import ServoAxis
+
+        # learning pumps the servo's resonance; the filter must stop below it (the simulated servo's is known)
+        cut = min(cut, 0.75 * 2 * np.pi * ServoAxis.bandwidth)
     if cut * dt >= np.pi:
         raise MotionError(f"--cutoff {cut:g} rad/s is above the Nyquist frequency π/ΔT = {np.pi / dt:.4g} rad/s; lower it")
     if simulate:
