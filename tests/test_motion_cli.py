@@ -115,15 +115,120 @@ def test_learn_errors(fuse_out, tmp_path):
     assert r.returncode == 2 and "Nyquist" in r.stderr
 
 
-def test_learn_simulate_shows_saturation_without_the_filter(tmp_path, capsys):
-    # the thesis's Example 1 run at 2 s a cycle, 600 samples: the same story as on its rig
-    assert main(["motion", str(FUSE), "-o", str(tmp_path), "--no-plot", "--no-machine", "--cycle-time", "2",
-                 "--samples", "600"]) == 0
-    capsys.readouterr()
-    assert main(["learn", str(tmp_path / "fuse.csv"), "--simulate", "16", "--gain", "0.5", "--column", "x_pos",
+def readme_demo_block() -> str:
+    text = (ROOT / "README.md").read_text(encoding="utf-8")
+    start = text.index("<!-- learn-demo -->")
+    return text[start:text.index("<!-- /learn-demo -->")]
+
+
+def test_readme_learning_demo_prints_what_the_readme_shows(tmp_path):
+    # the README's two commands, as a user runs them; the README's printed lines must be the command's
+    out = tmp_path / "out"
+    r = run("motion", FUSE, "--cycle-time", "10.6", "--strict", "-o", out)
+    assert r.returncode == 0, r.stderr
+    r = run("learn", out / "fuse.csv", "--simulate", "16")
+    assert r.returncode == 0, r.stderr
+    shown = [ln.strip() for ln in readme_demo_block().splitlines() if ln.strip() and not ln.startswith(("<!--", "```", "$"))]
+    printed = [ln.strip() for ln in r.stdout.splitlines()]
+    assert len(shown) > 10 and all(ln in printed for ln in shown), [ln for ln in shown if ln not in printed]
+    r = run("learn", out / "fuse.csv", "--simulate", "16", "--json")
+    res = json.loads(r.stdout)
+    assert res["servo"]["tick_s"] == pytest.approx(416e-6)
+    for col in ("x_pos", "y_pos"):
+        c = res["columns"][col]
+        assert 7 <= c["plain_saturates_at"] <= 10 and c["filtered_saturates_at"] is None and c["thesis_saturates_at"] is None
+        assert c["filtered"][-1]["rms_error"] < 0.25 * c["filtered"][0]["rms_error"]
+
+
+POWERS_31 = """[motion]
+input = "time"
+continuity = 1
+[[axis.x.point]]
+t = 0
+pos = 0
+vel = 0
+acc = 0
+[[axis.x.point]]
+t = 1
+pos = 10
+vel = 0
+acc = 0
+[[axis.x.segment]]
+powers = [0, 1, 2, 2.1, 2.2, 2.3]
+"""
+
+
+def test_learn_reads_every_table_motion_writes(tmp_path, capsys):
+    # real powers below 3 make the jerk infinite at the segment start: written as inf, documented, read back
+    design = tmp_path / "p.toml"
+    design.write_text(POWERS_31)
+    assert main(["motion", str(design), "-o", str(tmp_path), "--no-plot"]) == 0
+    assert "|jerk| infinite" in capsys.readouterr().out
+    header, rows = read_table(tmp_path / "p.csv", infinite=True)
+    assert rows[0, header.index("x_jerk")] == np.inf and np.isfinite(rows[1:]).all()
+    assert main(["learn", str(tmp_path / "p.csv"), "--simulate", "1", "--json"]) == 0
+    assert "x_pos" in json.loads(capsys.readouterr().out)["columns"]
+    r = run("learn", tmp_path / "p.csv", "--simulate", "1", "--column", "x_jerk")
+    assert r.returncode == 2 and r.stderr.count("\n") == 1 and "column 'x_jerk' row 2 is inf" in r.stderr
+    # any --samples, at any cycle time: the 10-digit times are evenly spaced to their precision
+    for n, cycle in ((3000, "10.6"), (30000, "10.6"), (2, "0.5")):
+        assert main(["motion", str(FUSE), "-o", str(tmp_path), "--no-plot", "--no-machine", "--samples", str(n),
+                     "--cycle-time", cycle]) == 0
+        capsys.readouterr()
+        resp = tmp_path / "resp.csv"
+        header, rows = read_table(tmp_path / "fuse.csv")
+        resp.write_text(",".join(header) + "\n" + "\n".join(",".join(f"{v:.10g}" for v in row) for row in rows) + "\n")
+        assert main(["learn", str(tmp_path / "fuse.csv"), "-r", str(resp), "-o", str(tmp_path / "next.csv"),
+                     "--no-filter"]) == 0
+        assert "rms error 0," in capsys.readouterr().out
+
+
+def test_cycle_time_must_be_finite():
+    for bad in ("inf", "nan", "0", "-1"):
+        r = run("motion", FUSE, "--cycle-time", bad, "--no-plot", "-o", "/tmp/never-written")
+        assert r.returncode == 2 and r.stderr.count("\n") == 1, r.stderr
+        assert "cycle time must be a positive, finite number of seconds" in r.stderr
+
+
+def test_rotation_axis_is_in_degrees_or_radians(tmp_path, capsys):
+    design = tmp_path / "rot.toml"
+    design.write_text('[motion]\ninput = "time"\n'
+                      '[axis.theta]\npoint = [{t = 0, pos = 0, vel = 0, acc = 0}, {t = 1, pos = 90, vel = 0, acc = 0}]\n'
+                      '[axis.w]\nunit = "rad"\npoint = [{t = 0, pos = 0}, {t = 1, pos = 1}]\n'
+                      '[axis.x]\npoint = [{t = 0, pos = 0}, {t = 1, pos = 10}]\n')
+    assert main(["motion", str(design), "-o", str(tmp_path), "--no-plot"]) == 0
+    out = capsys.readouterr().out
+    assert "axis theta (deg): peak |vel| 168.8 deg/s, |acc| 519.6 deg/s²" in out  # 1.875 · 90, 5.7735 · 90
+    assert "axis w (rad): peak |vel| 1 rad/s" in out and "axis x (mm): peak |vel| 10 mm/s" in out
+    design.write_text(design.read_text().replace('unit = "rad"', 'unit = "grad"'))
+    r = run("motion", design, "-o", tmp_path, "--no-plot")
+    assert r.returncode == 2 and "[axis.w] unit = 'grad': use \"mm\" for a linear axis" in r.stderr
+
+
+def test_segment_times_shorten_each_segment_to_its_limit(tmp_path, capsys):
+    from doodlecam.machine import load_machine
+    from doodlecam.motion.design import _retimed, _within_limits, load_design, segment_times, solve_design
+
+    assert main(["motion", str(FUSE), "--cycle-time", "10.6", "--segment-times", "-o", str(tmp_path), "--no-plot",
                  "--json"]) == 0
-    res = json.loads(capsys.readouterr().out)["columns"]["x_pos"]
-    plain = [c["rms_error"] for c in res["plain"]]
-    filt = [c["rms_error"] for c in res["filtered"]]
-    assert any(c["saturated"] > 0 for c in res["plain"]) and plain[-1] > 3 * min(plain)
-    assert all(c["saturated"] == 0 for c in res["filtered"]) and filt[-1] < 0.05 * filt[0]
+    st = json.loads(capsys.readouterr().out)["segment_times"]
+    assert st["complete"] and st["retimed_cycle_s"] < 0.85 * st["design_cycle_s"]
+    # read the machine's side back from the written table: within the doodlebot's 150 mm/s and 2000 mm/s² per axis
+    header, rows = read_table(tmp_path / "fuse_retimed.csv")
+    assert rows[-1, 0] == pytest.approx(st["retimed_cycle_s"])
+    for axis in "xy":
+        assert np.abs(rows[:, header.index(f"{axis}_vel")]).max() <= 150 * (1 + 1e-6)
+        assert np.abs(rows[:, header.index(f"{axis}_acc")]).max() <= 2000 * (1 + 1e-6)
+    # each moving segment is as short as it can be: 1 % shorter breaks a limit; dwells keep their time
+    d = load_design(FUSE).scaled(10.6)
+    machine = load_machine("doodlebot")
+    got, retimed = segment_times(d, machine)
+    assert [r["shortest_s"] for r in got] == pytest.approx([r["shortest_s"] for r in st["segments"]])
+    for r in got:
+        if r.get("note"):
+            assert r["shortest_s"] == r["design_s"]
+        else:
+            assert not _within_limits(_retimed(retimed, r["segment"] - 1, 0.99 * r["shortest_s"]), machine, None, 401)
+    assert solve_design(retimed).t1 == pytest.approx(st["retimed_cycle_s"])
+    r = run("motion", FUSE, "--segment-times", "--no-machine", "-o", tmp_path, "--no-plot")
+    assert r.returncode == 2 and "per-segment times need limits" in r.stderr

@@ -192,7 +192,7 @@ def test_time_scaling_keeps_the_shape():
         assert np.allclose(fb[k] * 4.0**k, fa[k], rtol=1e-9, atol=1e-9)
     c = solve_design(design(pts, cycle_time=8.0))  # the same through [motion] cycle_time
     assert np.allclose(c.axis("x").evaluate(8 * s), fb)
-    with pytest.raises(MotionError, match="cycle time must be positive"):
+    with pytest.raises(MotionError, match="cycle time must be a positive, finite number"):
         design(pts, cycle_time=0.0)
 
 

@@ -37,7 +37,9 @@ except ModuleNotFoundError:  # pragma: no cover - Python 3.10
 
 POLY_LAWS = ("polynomial", "cubic-spline")
 DEFAULT_SAMPLES = 300  # rows of the MOTDES table (§5.2.2)
-_MOTION_KEYS = {"name", "input", "continuity", "samples", "tolerance", "machine", "origin", "cycle_time", "description"}
+_MOTION_KEYS = {"name", "input", "continuity", "samples", "tolerance", "machine", "origin", "cycle_time", "description",
+                "product_acceleration"}
+_DRIVE_KEYS = {"motor_inertia", "load_inertia", "lead", "ratio", "max_torque", "friction_torque", "viscous", "load_torque"}
 _SEGMENT_KEYS = {"law", "powers", "optimise", "max_power", "envelope", "b", "a1", "a2"}
 _XY_POINT = {"t": None, "x": ("x", 0), "y": ("y", 0), "vx": ("x", 1), "vy": ("y", 1), "ax": ("x", 2), "ay": ("y", 2),
              "jx": ("x", 3), "jy": ("y", 3), "via": None}
@@ -66,11 +68,19 @@ class SegmentSpec:
     params: dict[str, float] = field(default_factory=dict)
 
 
+UNITS = ("mm", "deg", "rad")
+ROTATION_NAMES = ("theta", "θ", "Θ")  # an axis so named turns (the end effector's orientation, §6.1): degrees
+
+
 @dataclass(frozen=True)
 class AxisDesign:
     name: str
     points: tuple[DesignPoint, ...]
     segments: tuple[SegmentSpec, ...]
+    unit: str = "mm"  # of position; derivatives per s, s², s³
+
+    def units(self) -> tuple[str, str, str, str]:
+        return (self.unit, f"{self.unit}/s", f"{self.unit}/s²", f"{self.unit}/s³")
 
 
 @dataclass(frozen=True)
@@ -85,6 +95,8 @@ class Design:
     machine: str | None = None
     origin: tuple[float, float] = (0.0, 0.0)
     description: str = ""
+    product_acceleration: float | None = None  # mm/s², the most the carried product tolerates (§4.5.3)
+    drives: tuple["Drive", ...] = ()  # eq. 4.1 per axis
 
     def scaled(self, cycle_time: float) -> "Design":
         """The same design run in ``cycle_time`` s: times stretch, derivative
@@ -92,14 +104,15 @@ class Design:
         any speed, §5.4)."""
         t0 = min(p.t for a in self.axes for p in a.points)
         t1 = max(p.t for a in self.axes for p in a.points)
-        if not cycle_time > 0:
-            raise MotionError(f"{self.source}: cycle time must be positive, got {cycle_time:g} s")
+        if not (cycle_time > 0 and np.isfinite(cycle_time)):
+            raise MotionError(f"{self.source}: cycle time must be a positive, finite number of seconds, "
+                              f"got {cycle_time:g}; give e.g. --cycle-time 10.6")
         k = cycle_time / (t1 - t0)
         axes = []
         for a in self.axes:
             pts = tuple(DesignPoint(p.index, t0 + (p.t - t0) * k, {o: v / k**o for o, v in p.values.items()},
                                     p.match, p.via) for p in a.points)
-            axes.append(AxisDesign(a.name, pts, a.segments))
+            axes.append(AxisDesign(a.name, pts, a.segments, a.unit))
         return Design(**{**self.__dict__, "axes": tuple(axes)})
 
 
@@ -156,11 +169,20 @@ def _parse_segment(src: str, where: str, row: Any, axis: str | None = None) -> S
         row = {"law": row}
     if not isinstance(row, dict):
         raise _err(src, f"{where} must be a table (law = \"...\") or a law name")
-    allowed = set(_SEGMENT_KEYS) | ({"x", "y"} if axis is None else set())
+    # X–Y input: [segment.x] / [segment.y] override keys for one axis; an override
+    # that names a law starts from that law alone (the shared row's powers or b do not carry over)
+    allowed = set(_SEGMENT_KEYS) | ({"x", "y"} if axis is not None else set())
     _unknown(src, where, row, allowed)
-    if axis is not None and isinstance(row.get(axis), dict):
-        row = {**{k: v for k, v in row.items() if k not in ("x", "y")}, **row[axis]}
-        _unknown(src, f"{where} [{axis}]", row, _SEGMENT_KEYS)
+    if axis is not None:
+        for name in ("x", "y"):
+            if name in row and not isinstance(row[name], dict):
+                raise _err(src, f"{where}: [segment.{name}] must be a table of keys that override the row for axis {name}")
+        override = row.get(axis, {})
+        _unknown(src, f"{where} [segment.{axis}]", override, _SEGMENT_KEYS)
+        base = {k: v for k, v in row.items() if k not in ("x", "y")}
+        if "law" in override:
+            base = {k: v for k, v in base.items() if k == "envelope"}
+        row = {**base, **override}
     law = row.get("law", "polynomial")
     if not isinstance(law, str):
         raise _err(src, f"{where} law must be a name, got {law!r}")
@@ -203,7 +225,7 @@ def _parse_segment(src: str, where: str, row: Any, axis: str | None = None) -> S
 def parse_design(data: dict[str, Any], source: str = "<design>") -> Design:
     """Validate a parsed TOML design and build a Design."""
     src = source
-    _unknown(src, "the file", data, {"motion", "point", "segment", "axis"})
+    _unknown(src, "the file", data, {"motion", "point", "segment", "axis", "drive"})
     head = data.get("motion", {})
     if not isinstance(head, dict):
         raise _err(src, "[motion] must be a table")
@@ -251,7 +273,10 @@ def parse_design(data: dict[str, Any], source: str = "<design>") -> Design:
         for name, ax in table.items():
             if not isinstance(ax, dict):
                 raise _err(src, f"[axis.{name}] must be a table")
-            _unknown(src, f"[axis.{name}]", ax, {"point", "segment"})
+            _unknown(src, f"[axis.{name}]", ax, {"point", "segment", "unit"})
+            unit = ax.get("unit", "deg" if name in ROTATION_NAMES else "mm")
+            if unit not in UNITS:
+                raise _err(src, f"[axis.{name}] unit = {unit!r}: use \"mm\" for a linear axis, \"deg\" or \"rad\" for a rotation")
             rows = ax.get("point")
             if not isinstance(rows, list) or len(rows) < 2:
                 raise _err(src, f"axis {name}: give at least two [[axis.{name}.point]] rows (t, pos, vel, acc, jerk)")
@@ -260,16 +285,85 @@ def parse_design(data: dict[str, Any], source: str = "<design>") -> Design:
                 t, vals, m, via = _parse_point(src, f"[[axis.{name}.point]] {i}", r, _AXIS_POINT, i)
                 pts.append(DesignPoint(i, t, vals.get("", {}), frozenset(m.get("", ())), via))
             pts = tuple(pts)
-            axes.append(AxisDesign(name, pts, _segments(src, ax.get("segment", []), pts, f"[[axis.{name}.segment]]", None)))
+            axes.append(AxisDesign(name, pts, _segments(src, ax.get("segment", []), pts, f"[[axis.{name}.segment]]", None),
+                                   unit))
 
     for a in axes:
         _check_points(src, a)
     d = Design(name=str(head.get("name", Path(source).stem)), axes=tuple(axes), source=src, input=kind,
                continuity=continuity, samples=samples, tolerance=tolerance, machine=machine,
-               origin=origin, description=str(head.get("description", "")))
+               origin=origin, description=str(head.get("description", "")),
+               product_acceleration=_positive(src, "[motion] product_acceleration", head.get("product_acceleration")),
+               drives=_drives(src, data.get("drive", {}), {a.name: a for a in axes}))
     if "cycle_time" in head:
         d = d.scaled(_number(src, "[motion] cycle_time", head["cycle_time"]))
     return d
+
+
+@dataclass(frozen=True)
+class Drive:
+    """One axis's drive for eq. 4.1, T_m − T_r = (J_m + J_p) Θ'' (SI units; Θ the motor angle)."""
+
+    axis: str
+    motor_inertia: float  # J_m, kg·m²
+    load_inertia: float  # J_p, kg·m², the moving parts and the product seen at the motor
+    max_torque: float  # N·m, what the motor delivers
+    lead: float | None = None  # mm of a linear axis per motor revolution
+    ratio: float = 1.0  # motor turns per turn of a rotation axis
+    friction_torque: float = 0.0  # N·m, Coulomb, against the motion
+    viscous: float = 0.0  # N·m·s/rad
+    load_torque: float = 0.0  # N·m, constant (gravity, a process force)
+
+    def motor_rad(self, unit: str) -> float:
+        """Motor radians per unit of the axis position."""
+        if unit == "mm":
+            return 2 * np.pi / self.lead
+        return self.ratio * (np.pi / 180 if unit == "deg" else 1.0)
+
+    def torque(self, unit: str, vel: np.ndarray, acc: np.ndarray) -> np.ndarray:
+        """T_m (N·m) the motor must deliver: (J_m + J_p) Θ'' + T_r(Θ')."""
+        k = self.motor_rad(unit)
+        w, dw = vel * k, acc * k
+        return (self.motor_inertia + self.load_inertia) * dw + self.friction_torque * np.sign(w) + self.viscous * w + self.load_torque
+
+
+def _positive(src: str, where: str, value: Any) -> float | None:
+    if value is None:
+        return None
+    v = _number(src, where, value)
+    if not v > 0:
+        raise _err(src, f"{where} = {v:g} must be positive")
+    return v
+
+
+def _drives(src: str, table: Any, axes: dict) -> tuple[Drive, ...]:
+    if not isinstance(table, dict):
+        raise _err(src, "[drive.AXIS] must be tables, one per axis")
+    out = []
+    for name, row in table.items():
+        where = f"[drive.{name}]"
+        if name not in axes:
+            raise _err(src, f"{where}: the design has no axis '{name}' (axes: {', '.join(axes)})")
+        if not isinstance(row, dict):
+            raise _err(src, f"{where} must be a table")
+        _unknown(src, where, row, _DRIVE_KEYS)
+        for key in ("motor_inertia", "load_inertia", "max_torque"):
+            if key not in row:
+                raise _err(src, f"{where} needs {key} (eq. 4.1: motor_inertia and load_inertia in kg·m², max_torque in N·m)")
+        unit = axes[name].unit
+        if unit == "mm" and "lead" not in row:
+            raise _err(src, f"{where} needs lead, the mm axis {name} travels per motor revolution")
+        if unit != "mm" and "lead" in row:
+            raise _err(src, f"{where}: axis {name} turns ({unit}); give ratio (motor turns per axis turn), not lead")
+        vals = {k: _number(src, f"{where} {k}", v) for k, v in row.items()}
+        for key in ("lead", "ratio", "max_torque"):
+            if key in vals and not vals[key] > 0:
+                raise _err(src, f"{where} {key} = {vals[key]:g} must be positive")
+        for key in ("motor_inertia", "load_inertia", "friction_torque", "viscous"):
+            if vals.get(key, 0.0) < 0:
+                raise _err(src, f"{where} {key} = {vals[key]:g} must be >= 0")
+        out.append(Drive(axis=name, **vals))
+    return tuple(out)
 
 
 def _segments(src: str, rows: Any, pts, where: str, axis: str | None) -> tuple[SegmentSpec, ...]:
@@ -393,6 +487,10 @@ class AxisTrajectory:
     name: str
     segments: tuple[SolvedSegment, ...]
     points: tuple[DesignPoint, ...]
+    unit: str = "mm"
+
+    def units(self) -> tuple[str, str, str, str]:
+        return (self.unit, f"{self.unit}/s", f"{self.unit}/s²", f"{self.unit}/s³")
 
     @property
     def t0(self) -> float:
@@ -506,6 +604,7 @@ def solve_axis(design: Design, axis: AxisDesign) -> AxisTrajectory:
                 impl = optimise_powers(conds, t0, t1 - t0, spec.optimise, continuity=cont, max_power=spec.max_power,
                                        envelope=_envelope(spec, conds, t0, t1), where=where)
             else:
+                _check_powers(where, spec.powers, cont)
                 impl = solve(conds, t0, t1 - t0, powers=spec.powers, where=where)
         else:
             p0, p1 = law_positions(s, None if carry is None else float(carry[0]))
@@ -521,17 +620,35 @@ def solve_axis(design: Design, axis: AxisDesign) -> AxisTrajectory:
                                           f"{float(f[o]):.6g} there; drop the condition or use law = \"polynomial\"")
         solved.append(SolvedSegment(axis.name, s + 1, spec, impl, P0.index, P1.index))
         carry = impl.evaluate([t1])[:, 0]
-    return AxisTrajectory(axis.name, tuple(solved), pts)
+    return AxisTrajectory(axis.name, tuple(solved), pts, axis.unit)
+
+
+def _check_powers(where: str, powers, continuity: int) -> None:
+    """Eq. 3.10: a power that is not a whole number must exceed m + 0.5, m being
+    the derivative up to which segments join continuously; below it the
+    derivative steps at the segment's start (Fig. 3.11). Refused, not lifted:
+    the designer chose the powers, and a silently changed curve is worse."""
+    if powers is None:
+        return
+    q = continuity + 0.5
+    for p in powers:
+        if p != round(p) and not p > q:
+            raise MotionError(f"{where}: power {p:g} breaks eq. 3.10 (a power that is not a whole number must exceed "
+                              f"m + 0.5 = {q:g} for continuity up to {ORDER_NAMES[continuity]}); raise it above {q:g}, "
+                              "make it a whole number or lower [motion] continuity")
 
 
 def _envelope(spec: SegmentSpec, conds, t0: float, t1: float) -> tuple[float, float]:
+    """The optimiser's penalty box: the designer's envelope, else the span of
+    the segment's positions (via points included; the rectangles between
+    successive points are checked afterwards)."""
     if spec.envelope is not None:
         return spec.envelope
-    p0 = next((c.value for c in conds if c.order == 0 and c.t == t0), None)
-    p1 = next((c.value for c in conds if c.order == 0 and c.t == t1), None)
-    if p0 is None or p1 is None:
+    pos = [c.value for c in conds if c.order == 0]
+    ends = [c for c in conds if c.order == 0 and c.t in (t0, t1)]
+    if len(ends) < 2:
         return (-np.inf, np.inf)
-    return (min(p0, p1), max(p0, p1))
+    return (min(pos), max(pos))
 
 
 def _spline(where: str, conds, t0: float, t1: float) -> SplineSegment:
@@ -573,6 +690,8 @@ class Report:
     actuators: list[dict[str, Any]] = field(default_factory=list)  # one per actuator
     fastest_cycle: float | None = None  # s, shortest run of this design within the actuator limits
     machine: str | None = None
+    product: dict[str, Any] | None = None  # the carried product's acceleration: limit, peak, where
+    drives: list[dict[str, Any]] = field(default_factory=list)  # eq. 4.1 per axis: peak torque, where
 
     @property
     def ok(self) -> bool:
@@ -588,14 +707,10 @@ def check(traj: Trajectory, machine=None, kinematics=None, per_segment: int = 20
         for seg in a.segments:
             t = np.linspace(seg.t0, seg.t1, per_segment)
             f = seg.evaluate(t)
-            env = seg.spec.envelope
-            if env is None:  # the maximum tolerance envelope between the design points' positions
-                p0 = a.points[seg.first_point - 1].values.get(0, f[0, 0])
-                p1 = a.points[seg.last_point - 1].values.get(0, f[0, -1])
-                env = (min(p0, p1), max(p0, p1))
-            rep.findings += check_segment(t, f, seg.where, env, d.tolerance)
+            rep.findings += check_segment(t, f, seg.where, seg.spec.envelope, d.tolerance, _knots(a, seg, f))
             law = L.LAWS.get(seg.spec.law)
-            if law is not None and law.continuity < min(d.continuity, 2) and law.name != "dwell":
+            # a dwell and a constant velocity are smooth inside; their joins are judged below
+            if law is not None and law.continuity < min(d.continuity, 2) and law.name not in ("dwell", "constant-velocity"):
                 rep.findings.append(Finding("smoothness", seg.where, seg.t0,
                                             f"{law.title} has a discontinuous {ORDER_NAMES[law.continuity + 1]} "
                                             f"(infinite jerk: a low-speed law, §2.7.1); use a §2.7.2 law or a polynomial"))
@@ -613,9 +728,70 @@ def check(traj: Trajectory, machine=None, kinematics=None, per_segment: int = 20
         rep.peaks[a.name] = {n: float(np.nanmax(fin[k])) if np.isfinite(fin[k]).any() else 0.0
                              for k, n in enumerate(("position", "velocity", "acceleration", "jerk"))}
         rep.peaks[a.name]["jerk_infinite"] = bool(np.isinf(f[3]).any())
+    _check_dynamics(traj, rep, per_segment)
     if machine is not None:
         _check_machine(traj, machine, kinematics, rep, per_segment)
     return rep
+
+
+def _grid(traj: Trajectory, per_segment: int) -> np.ndarray:
+    """Sample times over the whole design, dense in every segment of every axis."""
+    ends = sorted({traj.t0, traj.t1, *(s.t1 for a in traj.axes for s in a.segments)})
+    return np.unique(np.concatenate([np.linspace(a, b, per_segment) for a, b in zip(ends, ends[1:])]))
+
+
+def _segment_at(a: AxisTrajectory, t: float) -> str:
+    seg = next((s for s in a.segments if s.t0 <= t <= s.t1), a.segments[-1])
+    return seg.where
+
+
+def _check_dynamics(traj: Trajectory, rep: Report, per_segment: int) -> None:
+    """§4.5.2–4.5.3: the carried product's acceleration limit on the end
+    effector (the vector sum over the linear axes) and eq. 4.1's motor
+    torque per axis that has a [drive]; the worst time and segment named."""
+    d = traj.design
+    if d.product_acceleration is None and not d.drives:
+        return
+    t = _grid(traj, per_segment)
+    f = {a.name: a.evaluate(t) for a in traj.axes}
+    if d.product_acceleration is not None:
+        linear = [a for a in traj.axes if a.unit == "mm"]
+        acc = np.sqrt(sum(f[a.name][2] ** 2 for a in linear))
+        i = int(np.nanargmax(acc))
+        worst = max(linear, key=lambda a: abs(f[a.name][2][i]))
+        lim = d.product_acceleration
+        rep.product = {"limit": lim, "peak": float(acc[i]), "t": float(t[i]), "where": _segment_at(worst, float(t[i])),
+                       "axes": [a.name for a in linear]}
+        if acc[i] > lim * (1 + 1e-9):
+            rep.findings.append(Finding("product", rep.product["where"], float(t[i]),
+                                        f"the product is accelerated at {acc[i]:.4g} mm/s², {acc[i] / lim:.3g}x the "
+                                        f"{lim:g} it tolerates (§4.5.3), at t = {t[i]:.4g} s; lengthen this segment or "
+                                        "change its conditions"))
+    for dr in d.drives:
+        a = traj.axis(dr.axis)
+        torque = dr.torque(a.unit, f[a.name][1], f[a.name][2])
+        i = int(np.nanargmax(np.abs(torque)))
+        where = _segment_at(a, float(t[i]))
+        rep.drives.append({"axis": a.name, "peak_torque": float(abs(torque[i])), "max_torque": dr.max_torque,
+                           "ratio": float(abs(torque[i]) / dr.max_torque), "t": float(t[i]), "where": where})
+        if abs(torque[i]) > dr.max_torque * (1 + 1e-9):
+            rep.findings.append(Finding("torque", where, float(t[i]),
+                                        f"the motor of axis {a.name} must deliver {abs(torque[i]):.4g} N·m (eq. 4.1), "
+                                        f"{abs(torque[i]) / dr.max_torque:.3g}x its {dr.max_torque:g} N·m, at t = "
+                                        f"{t[i]:.4g} s; lengthen this segment, change it or use a stronger drive"))
+
+
+def _knots(a: AxisTrajectory, seg: SolvedSegment, f: np.ndarray) -> list:
+    """The segment's design points as envelope knots (t, position, given velocity);
+    an end that gives no position (matched or carried) takes the curve's."""
+    pts = a.points[seg.first_point - 1:seg.last_point]
+    knots = []
+    for i, p in enumerate(pts):
+        pos = p.values.get(0)
+        if pos is None and i in (0, len(pts) - 1):
+            pos = float(f[0, 0] if i == 0 else f[0, -1])
+        knots.append((p.t, pos, p.values.get(1)))
+    return knots
 
 
 def _limits(kin) -> tuple[np.ndarray, np.ndarray]:
@@ -648,8 +824,7 @@ def _check_machine(traj: Trajectory, machine, kin, rep: Report, per_segment: int
         from doodlecam.registry import kinematics_for
 
         kin = kinematics_for(machine)
-    ends = sorted({traj.t0, traj.t1, *(s.t1 for a in traj.axes for s in a.segments)})
-    t = np.unique(np.concatenate([np.linspace(a, b, per_segment) for a, b in zip(ends, ends[1:])]))
+    t = _grid(traj, per_segment)
     fx, fy = traj.axis("x").evaluate(t), traj.axis("y").evaluate(t)
     ox, oy = d.origin
     q = np.column_stack([fx[0] + ox, fy[0] + oy])
@@ -688,3 +863,93 @@ def _check_machine(traj: Trajectory, machine, kin, rep: Report, per_segment: int
                                             f"(--cycle-time) or change it"))
     # velocities scale with 1/k and accelerations with 1/k^2 when the design is stretched k times
     rep.fastest_cycle = (traj.t1 - traj.t0) * worst if worst > 0 else None
+
+
+# ------------------------------------------------------- per-segment times
+
+LIMIT_KINDS = ("limit", "product", "torque")
+
+
+def _retimed(design: Design, seg: int, duration: float) -> Design:
+    """The design with segment ``seg`` (0-based, shared by every axis) lasting
+    ``duration`` s: its via points stretch with it, later points shift; the
+    values at the points stay (they are physical: a weld speed is a weld speed)."""
+    axes = []
+    for a in design.axes:
+        ends = [i for i, p in enumerate(a.points) if not p.via]
+        i0, i1 = ends[seg], ends[seg + 1]
+        t0, t1 = a.points[i0].t, a.points[i1].t
+        k = duration / (t1 - t0)
+        pts = []
+        for i, p in enumerate(a.points):
+            if i <= i0:
+                t = p.t
+            elif i <= i1:
+                t = t0 + (p.t - t0) * k
+            else:
+                t = p.t + duration - (t1 - t0)
+            pts.append(DesignPoint(p.index, t, p.values, p.match, p.via))
+        axes.append(AxisDesign(a.name, tuple(pts), a.segments, a.unit))
+    return Design(**{**design.__dict__, "axes": tuple(axes)})
+
+
+def _within_limits(design: Design, machine, kinematics, per_segment: int) -> bool:
+    try:
+        rep = check(solve_design(design), machine, kinematics, per_segment)
+    except MotionError:
+        return False
+    return not any(f.kind in LIMIT_KINDS for f in rep.findings)
+
+
+def segment_times(design: Design, machine=None, kinematics=None, per_segment: int = 401,
+                  span: float = 20.0, steps: int = 32, tol: float = 1e-3) -> tuple[list[dict[str, Any]], Design]:
+    """Shortest duration of every segment that keeps every limit (§4.5: the
+    actuators through the machine, the product's acceleration, eq. 4.1's
+    torque), segment after segment, each with the ones before already
+    shortened; dwells keep their (process) time.
+
+    For each segment the durations from T/``span`` to T·``span`` are scanned
+    on a geometric grid and the first that keeps the limits is refined by
+    bisection against the one below it to ``tol`` (relative). Returns one
+    row per segment and the re-timed design.
+    """
+    d = design
+    ends = [[p.t for p in a.points if not p.via] for a in d.axes]
+    if any(len(e) != len(ends[0]) or not np.allclose(e, ends[0]) for e in ends):
+        raise MotionError(f"{d.source}: per-segment times need axes whose segments share their design-point times "
+                          "(input = \"xy\", or the same times on every axis)")
+    if machine is None and d.product_acceleration is None and not d.drives:
+        raise MotionError(f"{d.source}: per-segment times need limits: a machine (-m), [motion] product_acceleration "
+                          "or [drive.AXIS] tables")
+    if kinematics is None and machine is not None:
+        from doodlecam.registry import kinematics_for
+
+        kinematics = kinematics_for(machine)
+    rows = []
+    for s in range(len(ends[0]) - 1):
+        T = ends[0][s + 1] - ends[0][s]
+        laws = {a.segments[s].law for a in d.axes}
+        row: dict[str, Any] = {"segment": s + 1, "points": [d.axes[0].points[i].index for i, p in enumerate(d.axes[0].points)
+                                                             if not p.via][s:s + 2],
+                               "laws": sorted(laws), "design_s": T, "shortest_s": None}
+        if laws == {"dwell"}:
+            row["shortest_s"], row["note"] = T, "dwell: process time kept"
+            rows.append(row)
+            continue
+        ok = lambda dur: _within_limits(_retimed(d, s, dur), machine, kinematics, per_segment)  # noqa: E731
+        grid = T * np.geomspace(1 / span, span, steps)
+        first = next((i for i, g in enumerate(grid) if ok(g)), None)
+        if first is None:
+            row["note"] = f"no duration from {grid[0]:.4g} to {grid[-1]:.4g} s keeps the limits (its points' own values exceed them)"
+            rows.append(row)
+            continue
+        hi = float(grid[first])
+        if first > 0:
+            lo = float(grid[first - 1])
+            while hi - lo > tol * hi:
+                mid = 0.5 * (lo + hi)
+                lo, hi = (lo, mid) if ok(mid) else (mid, hi)
+        row["shortest_s"] = hi
+        d = _retimed(d, s, hi)
+        rows.append(row)
+    return rows, d

@@ -54,8 +54,12 @@ def axis_csv(traj, axis: str, n: int | None = None) -> bytes:
     return ("\n".join([",".join(COLUMNS)] + [",".join(r) for r in rows]) + "\n").encode()
 
 
-def read_table(path: Path) -> tuple[list[str], np.ndarray]:
-    """A CSV with one header line of column names and numeric rows."""
+def read_table(path: Path, infinite: bool = False) -> tuple[list[str], np.ndarray]:
+    """A CSV with one header line of column names and numeric rows.
+
+    ``infinite``: accept ``inf`` / ``-inf`` (the jerk a real-power polynomial
+    has at its segment's start, §3.6.2, is written so); the caller checks the
+    columns it uses. ``nan`` is refused always."""
     from doodlecam.errors import InputError
 
     path = Path(path)
@@ -75,8 +79,10 @@ def read_table(path: Path) -> tuple[list[str], np.ndarray]:
         raise InputError(f"{path}: not a table of numbers ({e}); one header line, then comma-separated numbers") from None
     if data.shape[1] != len(header):
         raise InputError(f"{path}: {data.shape[1]} columns of numbers but {len(header)} names in the header; make them agree")
-    if not np.all(np.isfinite(data)):
-        raise InputError(f"{path}: holds a value that is not a finite number; fix the table")
+    bad = np.isnan(data) if infinite else ~np.isfinite(data)
+    if bad.any():
+        r, c = np.argwhere(bad)[0]
+        raise InputError(f"{path}: row {r + 2} column '{header[c]}' is {data[r, c]:g}, not a finite number; fix the table")
     return header, data
 
 
@@ -93,8 +99,8 @@ def plot_png(traj, report=None, n: int = 2000, dpi: int = 110) -> bytes:
     fig = Figure(figsize=(4.2 * ncol, 9.0))
     FigureCanvasAgg(fig)
     t = np.linspace(traj.t0, traj.t1, n)
-    units = ("mm", "mm/s", "mm/s²", "mm/s³")
     for j, a in enumerate(traj.axes):
+        units = a.units()
         f = a.evaluate(t)
         joints = [s.t1 for s in a.segments[:-1]]
         for k in range(4):

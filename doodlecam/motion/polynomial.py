@@ -110,7 +110,22 @@ class PolySegment:
                 # a real power below k gives an infinite derivative at τ = 0 (e.g. jerk of τ^2.5)
                 terms = np.where(self.coef == 0, 0.0, self.basis(tau, k) * self.coef)
                 out[k] = terms.sum(axis=1) / self.duration**k
+                if self.powers is not None:
+                    out[k] = self._start_limit(tau, k, out[k])
         return out
+
+    def _start_limit(self, tau: np.ndarray, k: int, row: np.ndarray) -> np.ndarray:
+        """Where two infinite terms meet at τ = 0 (inf − inf = nan) the term of
+        the lowest power dominates as τ → 0+: the derivative is ±inf by its sign."""
+        bad = np.isnan(row) & (tau == 0)
+        if not bad.any():
+            return row
+        p = np.asarray(self.powers, float)
+        live = (self.coef != 0) & (p < k) & (_falling(p, k) != 0)
+        j = int(np.flatnonzero(live)[np.argmin(p[live])])
+        row = row.copy()
+        row[bad] = np.sign(self.coef[j] * _falling(p[j:j + 1], k)[0]) * np.inf
+        return row
 
     def power_form(self) -> tuple[np.ndarray, np.ndarray]:
         """(powers, C): d(t) = Σ C_i (t − t0)^{p_i}, the thesis's coefficients (eq. 3.3)."""
