@@ -76,7 +76,7 @@ def trace(path: Path, settings: Settings) -> Drawing:
     return drawing
 
 
-REPLANS = 4  # at most this many re-plans of a stroke still off the curve between samples
+REPLANS = 10  # at most this many re-plans of a stroke still off the curve between samples
 RAMP_REPLANS = 3  # ... and of one whose ramps pass a (nonlinear) actuator's limit
 
 
@@ -90,7 +90,7 @@ def plan_job(drawing: Drawing, machine: Machine, solver: str = "reach", plugin_d
     from doodlecam.geometry.order import order_strokes
     from doodlecam.plan.follow import JerkBound, jerk_limit, path_deviation, ramp_ratios
     from doodlecam.plan.planner import Limits, check_profile, check_solver, plan_stroke
-    from doodlecam.plan.sample import sample_stroke
+    from doodlecam.plan.sample import sample_stroke, whole_step_limits, written_samples
     from doodlecam.plan.travel import machine_law, make_travel, travel_time_by_law
     from doodlecam.options import order_options
 
@@ -120,6 +120,9 @@ def plan_job(drawing: Drawing, machine: Machine, solver: str = "reach", plugin_d
     path_tol = machine.path_tolerance
     jerk = JerkBound(jerk_limit(path_tol, machine.delta_time)) if path_tol > 0 else None
     steps = (machine.x.steps_per_mm, machine.y.steps_per_mm)
+    # planned within what whole-step rounding leaves, so the samples (which keep
+    # that, sample.whole_step_limits) need no extra periods to follow the plan
+    plan_limits = whole_step_limits(limits, steps, machine.delta_time)
 
     # Nonlinear kinematics: the samples are pen motion, and the cranks follow its
     # constant-acceleration periods with varying acceleration that can pass their
@@ -129,10 +132,11 @@ def plan_job(drawing: Drawing, machine: Machine, solver: str = "reach", plugin_d
     ramps = [0.0] * len(strokes)  # per stroke: worst actuator ratio along the sampled ramps (nonlinear)
 
     def plan_one(n: int, s: Stroke, jerk_max, grid=None):
-        lim = limits if scale[n - 1] == 1.0 else replace(limits, vmax=limits.vmax * np.sqrt(scale[n - 1]),
-                                                         amax=limits.amax * scale[n - 1])
+        lim = plan_limits if scale[n - 1] == 1.0 else replace(plan_limits, vmax=plan_limits.vmax * np.sqrt(scale[n - 1]),
+                                                              amax=plan_limits.amax * scale[n - 1])
         try:
-            prof = plan_stroke(s.spline, lim, solver=solver, smoothing=smoothing, jerk_max=jerk_max, grid=grid)
+            prof = plan_stroke(s.spline, lim, solver=solver, smoothing=smoothing, jerk_max=jerk_max, grid=grid,
+                               jerk_period=machine.delta_time)
         except PlanError as e:
             raise PlanError(f"stroke {n} of {len(strokes)}: {e}") from None
         return replace(s, profile=prof), check_profile(s.spline, prof, limits)
@@ -143,7 +147,7 @@ def plan_job(drawing: Drawing, machine: Machine, solver: str = "reach", plugin_d
         actuators keep their limits along the sampled ramps."""
         smp = sample_stroke(s, machine.delta_time, limits, steps, follow=jerk is not None)
         for attempt in range(RAMP_REPLANS + 1 if nonlinear else 0):
-            ra, rv = ramp_ratios(smp, kin, limits.vmax, limits.amax)
+            ra, rv = ramp_ratios(written_samples(smp, steps), kin, limits.vmax, limits.amax)
             ramps[n - 1] = max(ra, rv)
             r = max(ra, rv * rv)  # a slower plan: accelerations scale with the square of speeds
             if r <= 1.0:
@@ -155,7 +159,7 @@ def plan_job(drawing: Drawing, machine: Machine, solver: str = "reach", plugin_d
             s, ratios[n - 1] = plan_one(n, strokes[n - 1], jerk_max, s.profile.u)
             planned[n - 1] = s
             smp = sample_stroke(s, machine.delta_time, limits, steps, follow=jerk is not None)
-        return smp, path_deviation(s.spline, smp)
+        return smp, path_deviation(s.spline, written_samples(smp, steps))  # what the machine draws
 
     t0 = time.perf_counter()
     planned, ratios = map(list, zip(*(plan_one(n, s, jerk) for n, s in enumerate(strokes, 1)))) if strokes else ([], [])
