@@ -77,7 +77,8 @@ def trace(path: Path, settings: Settings) -> Drawing:
 
 
 REPLANS = 10  # at most this many re-plans of a stroke still off the curve between samples
-RAMP_REPLANS = 3  # ... and of one whose ramps pass a (nonlinear) actuator's limit
+RAMP_REPLANS = 6  # ... and of one whose ramps pass a (nonlinear) actuator's limit
+RAMP_GAIN = 1.25  # the share of a limit drops by this times the excess measured on the ramps
 
 
 def plan_job(drawing: Drawing, machine: Machine, solver: str = "reach", plugin_dirs=(), order: dict | None = None,
@@ -125,15 +126,21 @@ def plan_job(drawing: Drawing, machine: Machine, solver: str = "reach", plugin_d
     plan_limits = whole_step_limits(limits, steps, machine.delta_time)
 
     # Nonlinear kinematics: the samples are pen motion, and the cranks follow its
-    # constant-acceleration periods with varying acceleration that can pass their
-    # limit by a few per cent. Such a stroke is planned again within lower limits.
+    # constant-acceleration periods with varying acceleration. The sampler keeps the
+    # cranks' velocity at the instants and their mean acceleration over each period
+    # within shares of the limits (sample._crank_rows); the variation inside a period
+    # comes on top. Where the executed ramps still pass a limit by e, the share drops
+    # by RAMP_GAIN e and the stroke is planned within the same shares: the variation
+    # is bounded by the kinematics' second derivatives times the motion, which only
+    # slows, so the new peak is at most share - RAMP_GAIN e + (1 + e - share) < 1.
     nonlinear = limits.M is None
-    scale = [1.0] * len(strokes)  # per stroke: the share of the actuator limits planned with
+    scale = [(1.0, 1.0)] * len(strokes)  # per stroke: shares (velocity, acceleration) of the actuator limits
     ramps = [0.0] * len(strokes)  # per stroke: worst actuator ratio along the sampled ramps (nonlinear)
 
     def plan_one(n: int, s: Stroke, jerk_max, grid=None):
-        lim = plan_limits if scale[n - 1] == 1.0 else replace(plan_limits, vmax=plan_limits.vmax * np.sqrt(scale[n - 1]),
-                                                              amax=plan_limits.amax * scale[n - 1])
+        sv, sa = scale[n - 1]
+        lim = plan_limits if sv == sa == 1.0 else replace(plan_limits, vmax=plan_limits.vmax * sv,
+                                                          amax=plan_limits.amax * sa)
         try:
             prof = plan_stroke(s.spline, lim, solver=solver, smoothing=smoothing, jerk_max=jerk_max, grid=grid,
                                jerk_period=machine.delta_time)
@@ -141,24 +148,29 @@ def plan_job(drawing: Drawing, machine: Machine, solver: str = "reach", plugin_d
             raise PlanError(f"stroke {n} of {len(strokes)}: {e}") from None
         return replace(s, profile=prof), check_profile(s.spline, prof, limits)
 
+    def sample(s: Stroke, n: int):
+        return sample_stroke(s, machine.delta_time, limits, steps, follow=jerk is not None,
+                             crank_share=scale[n - 1] if nonlinear else None)
+
     def sample_one(s: Stroke, n: int, jerk_max):
         """Samples and the per-period path deviation of stroke n (planned as s);
         for nonlinear kinematics re-plans it (into planned[n - 1]) until the
         actuators keep their limits along the sampled ramps."""
-        smp = sample_stroke(s, machine.delta_time, limits, steps, follow=jerk is not None)
+        smp = sample(s, n)
         for attempt in range(RAMP_REPLANS + 1 if nonlinear else 0):
             ra, rv = ramp_ratios(written_samples(smp, steps), kin, limits.vmax, limits.amax)
             ramps[n - 1] = max(ra, rv)
-            r = max(ra, rv * rv)  # a slower plan: accelerations scale with the square of speeds
-            if r <= 1.0:
+            if ra <= 1.0 and rv <= 1.0:
                 break
             if attempt == RAMP_REPLANS:
                 raise PlanError(f"stroke {n} of {len(strokes)}: velocity samples every {machine.delta_time * 1000:g} ms "
                                 "cannot keep the actuators within their limits; use a shorter [sampling] delta_time")
-            scale[n - 1] *= 0.98 / r
+            sv, sa = scale[n - 1]
+            step = lambda e: 0.0 if e <= 0 else max(RAMP_GAIN * e, 1e-3)  # noqa: E731
+            scale[n - 1] = (max(sv - step(rv - 1.0), 0.1), max(sa - step(ra - 1.0), 0.1))
             s, ratios[n - 1] = plan_one(n, strokes[n - 1], jerk_max, s.profile.u)
             planned[n - 1] = s
-            smp = sample_stroke(s, machine.delta_time, limits, steps, follow=jerk is not None)
+            smp = sample(s, n)
         return smp, path_deviation(s.spline, written_samples(smp, steps))  # what the machine draws
 
     t0 = time.perf_counter()
@@ -198,7 +210,7 @@ def plan_job(drawing: Drawing, machine: Machine, solver: str = "reach", plugin_d
         "max_between_samples_mm": between,
         "path_tolerance_mm": path_tol,
         "strokes_replanned": replanned,
-        "strokes_slowed_for_ramps": sum(1 for c in scale if c < 1.0),
+        "strokes_slowed_for_ramps": sum(1 for c in scale if min(c) < 1.0),
         "worst_ramp_ratio": max(ramps, default=0.0) if nonlinear else None,
         "control_points": sum(len(s.spline.control) for s in planned),
         "timings": timings,

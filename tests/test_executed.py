@@ -143,7 +143,7 @@ def fivebar_drawings():
     letters = (np.array([[60, 40], [80, 120], [100, 40]], float), np.array([[70, 80], [90, 80]], float),
                np.array([[120, 40], [120, 120], [150, 110], [150, 90], [120, 80], [155, 65], [150, 45], [120, 40]], float),
                _circle((200, 80), 30, 60)[:50])
-    return {"circle": (_circle((140, 90), 70),), "cross": cross, "zigzag": (zig,)}  # text: next commit
+    return {"circle": (_circle((140, 90), 70),), "cross": cross, "zigzag": (zig,), "text": letters}
 
 
 @pytest.mark.parametrize("name", sorted(fivebar_drawings()))
@@ -161,3 +161,13 @@ def test_degree_2_keeps_every_limit(tmp_path):
     r = executed_ratios((tmp_path / "horse.plc").read_bytes(), res.job, machine.path_tolerance)
     _check(r, machine.path_tolerance)
     assert res.job.meta["worst_acceleration_ratio"] <= RATIO
+
+
+@pytest.mark.parametrize("picture", ["text.png", "coins.png"])
+def test_fivebar_converts_sample_pictures_at_40_ms_within_every_limit(tmp_path, picture):
+    machine = load_machine("fivebar")
+    assert machine.delta_time == 0.04
+    res = convert(IMAGES / picture, tmp_path, Settings(machine=machine, posts=("plc",)))
+    r = executed_ratios((tmp_path / (Path(picture).stem + ".plc")).read_bytes(), res.job, machine.path_tolerance)
+    _check(r, machine.path_tolerance)
+    assert r["crank_acc"] > 0.9  # the cranks' limits bind: the check had work to do

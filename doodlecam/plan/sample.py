@@ -77,10 +77,10 @@ class _Coo:
                              shape=(self.n, self.ncols))
 
 
-def _clarabel(P, q, A, b, n_eq, n_soc=0):
+def _clarabel(P, q, A, b, n_eq, n_soc=0, n_tail=0):
     """min 1/2 z'Pz + q'z s.t. the first ``n_eq`` rows of A z = b, the last
-    3 ``n_soc`` rows b - A z in second-order cones of dimension 3, the rest
-    <= b (P upper triangular, CSC). Clarabel directly: qpsolvers' checks and
+    3 ``n_soc`` rows before the last ``n_tail`` ones b - A z in second-order
+    cones of dimension 3, the rest <= b (P upper triangular, CSC). Clarabel directly: qpsolvers' checks and
     re-stacking cost more than the solve."""
     import clarabel
 
@@ -89,8 +89,10 @@ def _clarabel(P, q, A, b, n_eq, n_soc=0):
     # refinement buys residuals of 3e-10 instead of 1e-8 (mm, mm/s) at a quarter of the
     # time; the limit rows keep a 1e-6 relative margin and positions are checked after
     settings.iterative_refinement_enable = False
-    cones = [clarabel.ZeroConeT(n_eq), clarabel.NonnegativeConeT(A.shape[0] - n_eq - 3 * n_soc)]
+    cones = [clarabel.ZeroConeT(n_eq), clarabel.NonnegativeConeT(A.shape[0] - n_eq - 3 * n_soc - n_tail)]
     cones += [clarabel.SecondOrderConeT(3)] * n_soc
+    if n_tail:
+        cones.append(clarabel.NonnegativeConeT(n_tail))
     res = clarabel.DefaultSolver(P, q, A, b, cones, settings).solve()
     return np.asarray(res.x) if res.status == clarabel.SolverStatus.Solved else None
 
@@ -212,13 +214,40 @@ def _pattern(m: int, dt: float, M: tuple | None, trust: bool, pen: bool = False)
     return csc, n_eq, tagged, signs, inst, axes
 
 
-def _qp(p, tang, v_plan, end, dt, tol, limits, L, nrm=None, trust=None):
+def _crank_rows(J: np.ndarray, dt: float, vcap: np.ndarray, acap: np.ndarray):
+    """Rows (CSC over the QP's unknowns) and bounds keeping nonlinear actuators
+    within ``vcap``, ``acap`` at the instants, linearised: J (m, n_act, 2) is
+    d theta / d xy at the points aimed at, instants 1..m. Velocity J_j v_j;
+    a period's mean acceleration (J_j v_j - J_j-1 v_j-1) / dT (v_0 = v_m = 0,
+    exact for theta' at the instants). How far the acceleration strays from
+    that mean inside a period is left to the caller's margin (pipeline)."""
+    m, na, _ = J.shape
+    n = m - 1
+    N = 2 * n + 3 * m
+    A = _Coo(N)
+    jn = np.arange(n)
+    for sign in (1.0, -1.0):
+        for i in range(na):
+            for a in range(2):  # mean accelerations of periods 1..m: +J_p v_p, -J_p-1 v_p-1
+                A.add(jn, a * n + jn, sign * J[:n, i, a])
+                A.add(jn + 1, a * n + jn, -sign * J[:n, i, a])
+            A.close(m)
+            for a in range(2):
+                A.add(jn, a * n + jn, sign * J[:n, i, a])
+            A.close(n)
+    rhs = np.concatenate([np.concatenate([np.full(m, acap[i] * dt), np.full(n, vcap[i])])
+                          for _ in (1.0, -1.0) for i in range(na)])
+    return A.csc(), rhs
+
+
+def _qp(p, tang, v_plan, end, dt, tol, limits, L, nrm=None, trust=None, crank=None):
     """One linearised QP. p: (m, 3) curve points relative to the start and
     their u, tang: (m, 2) tangents per mm of shift, end: (2,). Returns (v, x, d) or None.
 
     ``nrm`` (m, 2): unit normals of the curve at the instants; the targets'
     components along them are penalised with NORMAL_WEIGHT.
     ``trust``: (m,) bounds on |d|, so the linearisation holds.
+    ``crank``: (rows, bounds) of _crank_rows, appended last.
     """
     m = len(p)
     n = m - 1
@@ -259,7 +288,13 @@ def _qp(p, tang, v_plan, end, dt, tol, limits, L, nrm=None, trust=None):
         cone = np.zeros((n, 3))
         cone[:, 0] = limits.pen_speed * (1 - 1e-6)
         rhs.append(cone.ravel())
-    z = _clarabel(P, q, A, np.concatenate(rhs), n_eq, n if pen else 0)
+    b = np.concatenate(rhs)
+    n_tail = 0
+    if crank is not None:
+        import scipy.sparse as sp
+
+        A, b, n_tail = sp.vstack([A, crank[0]], format="csc"), np.concatenate([b, crank[1]]), len(crank[1])
+    z = _clarabel(P, q, A, b, n_eq, n if pen else 0, n_tail)
     if z is None:
         return None
     v = np.column_stack([z[:n], z[n:nv]])
@@ -297,7 +332,7 @@ def whole_step_limits(limits, steps_per_mm, dt: float):
 
 
 def sample_stroke(stroke: Stroke, dt: float, limits, steps_per_mm=(80.0, 80.0), tracking_steps: float = TRACKING_STEPS,
-                  max_extra: float = 1.0, follow: bool = False) -> StrokeSamples:
+                  max_extra: float = 1.0, follow: bool = False, crank_share: tuple[float, float] | None = None) -> StrokeSamples:
     """Velocity targets (mm/s) for one planned stroke at t = dT, 2 dT, ...
 
     The stroke starts and ends on whole machine steps (``steps_per_mm``), so a
@@ -308,6 +343,10 @@ def sample_stroke(stroke: Stroke, dt: float, limits, steps_per_mm=(80.0, 80.0), 
     ``follow``: also keep the pen moving along the curve at the instants, so it
     stays near the curve between them (see the module doc; up to 5 linearised
     solves instead of 3).
+    ``crank_share`` (velocity, acceleration), nonlinear kinematics: keep the
+    actuators' velocity at the instants and mean acceleration per period
+    within these shares of their limits (_crank_rows; the pipeline lowers the
+    shares by what a period's variation adds, measured on the executed ramps).
     """
     prof, spline = stroke.profile, stroke.spline
     k = np.asarray(steps_per_mm, float)
@@ -344,8 +383,15 @@ def sample_stroke(stroke: Stroke, dt: float, limits, steps_per_mm=(80.0, 80.0), 
                 speed = np.maximum(np.linalg.norm(d1, axis=1), 1e-12)
                 nrm = np.column_stack([-d1[:, 1], d1[:, 0]]) / speed[:, None]
                 trust = TRUST_MM * L / speed  # ~TRUST_MM of arc
+            crank = None
+            if crank_share is not None and limits.M is None:
+                J = _jacobians(limits.kinematics, spline(u))
+                # whole steps/s add up to 1 (velocity) and 2 (a period's change) steps/s per axis
+                absJ = np.abs(J).max(axis=0)
+                crank = _crank_rows(J, dt, limits.vmax * crank_share[0] * (1 - 1e-6) - absJ @ (1.0 / k),
+                                    limits.amax * crank_share[1] * (1 - 1e-6) - absJ @ (2.0 / (k * dt)))
             # the box is 3/4 of the tolerance: the rest absorbs the linearisation error
-            res = _qp(np.column_stack([p, u]), tang, v_plan, end, dt, 0.75 * tol, limits, L, nrm, trust)
+            res = _qp(np.column_stack([p, u]), tang, v_plan, end, dt, 0.75 * tol, limits, L, nrm, trust, crank)
             if res is None:
                 break
             v, x, d = res
@@ -363,6 +409,13 @@ def sample_stroke(stroke: Stroke, dt: float, limits, steps_per_mm=(80.0, 80.0), 
         m += max(1, m0 // 20)
     raise PlanError("cannot follow the stroke within the limits with velocity samples every "
                     f"{dt * 1000:g} ms; use a shorter [sampling] delta_time")
+
+
+def _jacobians(kinematics, xy: np.ndarray) -> np.ndarray:
+    """d theta / d xy (len(xy), n_act, 2) from the kinematics' derivatives."""
+    zero = np.zeros_like(xy)
+    cols = [kinematics.derivatives(xy, np.broadcast_to(e, xy.shape), zero)[1] for e in ((1.0, 0.0), (0.0, 1.0))]
+    return np.stack(cols, axis=2)
 
 
 def written_samples(samples: StrokeSamples, steps_per_mm) -> StrokeSamples:
