@@ -77,6 +77,8 @@ def trace(path: Path, settings: Settings) -> Drawing:
 
 
 REPLANS = 10  # at most this many re-plans of a stroke still off the curve between samples
+LOCAL_REPLANS = 3  # ... the first ones lower the jerk bound where it strays, the rest also everywhere
+GLOBAL_JERK_STEP = 0.7
 RAMP_REPLANS = 6  # ... and of one whose ramps pass a (nonlinear) actuator's limit
 RAMP_GAIN = 1.25  # the share of a limit drops by this times the excess measured on the ramps
 
@@ -182,10 +184,15 @@ def plan_job(drawing: Drawing, machine: Machine, solver: str = "reach", plugin_d
     replanned = 0
     for i in range(len(planned)):
         bound = jerk
-        for _ in range(REPLANS if jerk is not None else 0):  # still off: lower the bound where it strays
+        for attempt in range(REPLANS if jerk is not None else 0):  # still off: lower the bound where it strays
             if devs[i].max(initial=0.0) <= path_tol:
                 break
             bound = bound.tightened(samples[i], devs[i], path_tol)
+            if attempt >= LOCAL_REPLANS:
+                # the sampler solves for the whole stroke, so a long one can stray somewhere
+                # new after each local change; the swing grows with the jerk everywhere, so
+                # lowering the whole bound geometrically ends it
+                bound = replace(bound, base=bound.base * GLOBAL_JERK_STEP)
             planned[i], ratios[i] = plan_one(i + 1, strokes[i], bound, planned[i].profile.u)
             samples[i], devs[i] = sample_one(planned[i], i + 1, bound)
             replanned += 1

@@ -143,7 +143,22 @@ def fivebar_drawings():
     letters = (np.array([[60, 40], [80, 120], [100, 40]], float), np.array([[70, 80], [90, 80]], float),
                np.array([[120, 40], [120, 120], [150, 110], [150, 90], [120, 80], [155, 65], [150, 45], [120, 40]], float),
                _circle((200, 80), 30, 60)[:50])
-    return {"circle": (_circle((140, 90), 70),), "cross": cross, "zigzag": (zig,), "text": letters}
+    return {"circle": (_circle((140, 90), 70),), "cross": cross, "zigzag": (zig,), "text": letters, "walk": (_walk(),)}
+
+
+def _walk():
+    """A 300-point random walk inside the five-bar's sheet: one long stroke the
+    sampler solves as a whole, so local re-plans alone kept moving where it strays."""
+    rng = np.random.default_rng(1)
+    rng.uniform(size=(20, 2))
+    return np.clip(140 + np.cumsum(rng.normal(0, 2, (300, 2)), axis=0) * [1, 0.6], [5, 5], [275, 175])
+
+
+def test_cartesian_random_walk_stays_within_the_path_tolerance():
+    machine = load_machine("doodlebot")
+    job = plan_job(Drawing(polylines=(_walk(),), units="mm"), machine)
+    r = executed_ratios(_plc(job), job, machine.path_tolerance)
+    _check(r, machine.path_tolerance)
 
 
 @pytest.mark.parametrize("name", sorted(fivebar_drawings()))
