@@ -143,11 +143,12 @@ def fivebar_drawings():
     letters = (np.array([[60, 40], [80, 120], [100, 40]], float), np.array([[70, 80], [90, 80]], float),
                np.array([[120, 40], [120, 120], [150, 110], [150, 90], [120, 80], [155, 65], [150, 45], [120, 40]], float),
                _circle((200, 80), 30, 60)[:50])
-    return {"circle": (_circle((140, 90), 70),), "cross": cross, "zigzag": (zig,), "text": letters, "walk": (_walk(),)}
+    # (the random walk below also converts on the five-bar within every limit, in ~30 s: left to the Cartesian test)
+    return {"circle": (_circle((140, 90), 70),), "cross": cross, "zigzag": (zig,), "text": letters}
 
 
 def _walk():
-    """A 300-point random walk inside the five-bar's sheet: one long stroke the
+    """A 300-point random walk inside both machines' sheets: one long stroke the
     sampler solves as a whole, so local re-plans alone kept moving where it strays."""
     rng = np.random.default_rng(1)
     rng.uniform(size=(20, 2))
