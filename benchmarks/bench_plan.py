@@ -7,11 +7,13 @@ Set up (toppra is a peer, never a doodlecam dependency):
     /tmp/benchvenv/bin/python benchmarks/bench_plan.py
 
 Paths: the report's kind of 8-control-point curve, a circle, a 60-control-point
-signature-like curve, a spiral where the velocity limit binds. Limits: 2000
+signature-like curve, a spiral where the velocity limit binds, a random walk
+of 300 control points, a ~1 mm stroke and a near-cusp. Limits: 2000
 mm/s^2 and 150 mm/s per axis. Reference optimum: doodlecam's exact solver on
 the collocation grid at N = 200 000. "overshoot" is the worst relative excess
 over any limit on a grid 20x finer than the one solved on (0 = within limits).
-Times are medians of repeated runs in this process; quote the ratios.
+Times are medians of repeated runs in this process, in CPU time
+(time.process_time); quote the ratios.
 """
 
 from __future__ import annotations
@@ -45,16 +47,22 @@ def paths() -> dict[str, Spline]:
     tt = np.linspace(0, 6 * np.pi, 1500)
     r = 20 + 12 * tt
     spiral, _ = fit_polyline(np.c_[150 + r * np.cos(tt), 150 + r * np.sin(tt)], 3, 0.01)
-    return {"report-8": report, "circle": circle, "signature-60": signature, "spiral": spiral}
+    rng = np.random.default_rng(14)
+    walk = Spline(3, 100 + np.cumsum(rng.normal(0.0, 3.0, (300, 2)), axis=0))  # 300 control points
+    tiny = Spline(3, [[50.0, 50.0], [50.3, 50.2], [50.6, 50.7], [51.0, 50.8]])  # a ~1 mm stroke
+    # a near-cusp: the curve almost stops and turns back (|q'| ~ 1e-3 of its mean)
+    cusp = Spline(3, [[0.0, 0.0], [40.0, 0.0], [60.0, 0.02], [40.0, 0.04], [0.0, 0.1]])
+    return {"report-8": report, "circle": circle, "signature-60": signature, "spiral": spiral,
+            "walk-300": walk, "tiny-1mm": tiny, "near-cusp": cusp}
 
 
 def timed(fn, repeat):
     fn()  # warm (numba compile, imports)
     times = []
     for _ in range(repeat):
-        t0 = time.perf_counter()
+        t0 = time.process_time()  # CPU time: ratios survive a loaded machine better than wall time
         out = fn()
-        times.append(time.perf_counter() - t0)
+        times.append(time.process_time() - t0)
     return out, statistics.median(times)
 
 

@@ -76,8 +76,11 @@ def trace(path: Path, settings: Settings) -> Drawing:
     return drawing
 
 
-REPLANS = 4  # at most this many re-plans of a stroke still off the curve between samples
-RAMP_REPLANS = 3  # ... and of one whose ramps pass a (nonlinear) actuator's limit
+REPLANS = 10  # at most this many re-plans of a stroke still off the curve between samples
+LOCAL_REPLANS = 3  # ... the first ones lower the jerk bound where it strays, the rest also everywhere
+GLOBAL_JERK_STEP = 0.7
+RAMP_REPLANS = 6  # ... and of one whose ramps pass a (nonlinear) actuator's limit
+RAMP_GAIN = 1.25  # the share of a limit drops by this times the excess measured on the ramps
 
 
 def plan_job(drawing: Drawing, machine: Machine, solver: str = "reach", plugin_dirs=(), order: dict | None = None,
@@ -90,7 +93,7 @@ def plan_job(drawing: Drawing, machine: Machine, solver: str = "reach", plugin_d
     from doodlecam.geometry.order import order_strokes
     from doodlecam.plan.follow import JerkBound, jerk_limit, path_deviation, ramp_ratios
     from doodlecam.plan.planner import Limits, check_profile, check_solver, plan_stroke
-    from doodlecam.plan.sample import sample_stroke
+    from doodlecam.plan.sample import sample_stroke, whole_step_limits, written_samples
     from doodlecam.plan.travel import machine_law, make_travel, travel_time_by_law
     from doodlecam.options import order_options
 
@@ -120,42 +123,57 @@ def plan_job(drawing: Drawing, machine: Machine, solver: str = "reach", plugin_d
     path_tol = machine.path_tolerance
     jerk = JerkBound(jerk_limit(path_tol, machine.delta_time)) if path_tol > 0 else None
     steps = (machine.x.steps_per_mm, machine.y.steps_per_mm)
+    # planned within what whole-step rounding leaves, so the samples (which keep
+    # that, sample.whole_step_limits) need no extra periods to follow the plan
+    plan_limits = whole_step_limits(limits, steps, machine.delta_time)
 
     # Nonlinear kinematics: the samples are pen motion, and the cranks follow its
-    # constant-acceleration periods with varying acceleration that can pass their
-    # limit by a few per cent. Such a stroke is planned again within lower limits.
+    # constant-acceleration periods with varying acceleration. The sampler keeps the
+    # cranks' velocity at the instants and their mean acceleration over each period
+    # within shares of the limits (sample._crank_rows); the variation inside a period
+    # comes on top. Where the executed ramps still pass a limit by e, the share drops
+    # by RAMP_GAIN e and the stroke is planned within the same shares: the variation
+    # is bounded by the kinematics' second derivatives times the motion, which only
+    # slows, so the new peak is at most share - RAMP_GAIN e + (1 + e - share) < 1.
     nonlinear = limits.M is None
-    scale = [1.0] * len(strokes)  # per stroke: the share of the actuator limits planned with
+    scale = [(1.0, 1.0)] * len(strokes)  # per stroke: shares (velocity, acceleration) of the actuator limits
     ramps = [0.0] * len(strokes)  # per stroke: worst actuator ratio along the sampled ramps (nonlinear)
 
     def plan_one(n: int, s: Stroke, jerk_max, grid=None):
-        lim = limits if scale[n - 1] == 1.0 else replace(limits, vmax=limits.vmax * np.sqrt(scale[n - 1]),
-                                                         amax=limits.amax * scale[n - 1])
+        sv, sa = scale[n - 1]
+        lim = plan_limits if sv == sa == 1.0 else replace(plan_limits, vmax=plan_limits.vmax * sv,
+                                                          amax=plan_limits.amax * sa)
         try:
-            prof = plan_stroke(s.spline, lim, solver=solver, smoothing=smoothing, jerk_max=jerk_max, grid=grid)
+            prof = plan_stroke(s.spline, lim, solver=solver, smoothing=smoothing, jerk_max=jerk_max, grid=grid,
+                               jerk_period=machine.delta_time)
         except PlanError as e:
             raise PlanError(f"stroke {n} of {len(strokes)}: {e}") from None
         return replace(s, profile=prof), check_profile(s.spline, prof, limits)
+
+    def sample(s: Stroke, n: int):
+        return sample_stroke(s, machine.delta_time, limits, steps, follow=jerk is not None,
+                             crank_share=scale[n - 1] if nonlinear else None)
 
     def sample_one(s: Stroke, n: int, jerk_max):
         """Samples and the per-period path deviation of stroke n (planned as s);
         for nonlinear kinematics re-plans it (into planned[n - 1]) until the
         actuators keep their limits along the sampled ramps."""
-        smp = sample_stroke(s, machine.delta_time, limits, steps, follow=jerk is not None)
+        smp = sample(s, n)
         for attempt in range(RAMP_REPLANS + 1 if nonlinear else 0):
-            ra, rv = ramp_ratios(smp, kin, limits.vmax, limits.amax)
+            ra, rv = ramp_ratios(written_samples(smp, steps), kin, limits.vmax, limits.amax)
             ramps[n - 1] = max(ra, rv)
-            r = max(ra, rv * rv)  # a slower plan: accelerations scale with the square of speeds
-            if r <= 1.0:
+            if ra <= 1.0 and rv <= 1.0:
                 break
             if attempt == RAMP_REPLANS:
                 raise PlanError(f"stroke {n} of {len(strokes)}: velocity samples every {machine.delta_time * 1000:g} ms "
                                 "cannot keep the actuators within their limits; use a shorter [sampling] delta_time")
-            scale[n - 1] *= 0.98 / r
+            sv, sa = scale[n - 1]
+            step = lambda e: 0.0 if e <= 0 else max(RAMP_GAIN * e, 1e-3)  # noqa: E731
+            scale[n - 1] = (max(sv - step(rv - 1.0), 0.1), max(sa - step(ra - 1.0), 0.1))
             s, ratios[n - 1] = plan_one(n, strokes[n - 1], jerk_max, s.profile.u)
             planned[n - 1] = s
-            smp = sample_stroke(s, machine.delta_time, limits, steps, follow=jerk is not None)
-        return smp, path_deviation(s.spline, smp)
+            smp = sample(s, n)
+        return smp, path_deviation(s.spline, written_samples(smp, steps))  # what the machine draws
 
     t0 = time.perf_counter()
     planned, ratios = map(list, zip(*(plan_one(n, s, jerk) for n, s in enumerate(strokes, 1)))) if strokes else ([], [])
@@ -166,10 +184,15 @@ def plan_job(drawing: Drawing, machine: Machine, solver: str = "reach", plugin_d
     replanned = 0
     for i in range(len(planned)):
         bound = jerk
-        for _ in range(REPLANS if jerk is not None else 0):  # still off: lower the bound where it strays
+        for attempt in range(REPLANS if jerk is not None else 0):  # still off: lower the bound where it strays
             if devs[i].max(initial=0.0) <= path_tol:
                 break
             bound = bound.tightened(samples[i], devs[i], path_tol)
+            if attempt >= LOCAL_REPLANS:
+                # the sampler solves for the whole stroke, so a long one can stray somewhere
+                # new after each local change; the swing grows with the jerk everywhere, so
+                # lowering the whole bound geometrically ends it
+                bound = replace(bound, base=bound.base * GLOBAL_JERK_STEP)
             planned[i], ratios[i] = plan_one(i + 1, strokes[i], bound, planned[i].profile.u)
             samples[i], devs[i] = sample_one(planned[i], i + 1, bound)
             replanned += 1
@@ -194,7 +217,7 @@ def plan_job(drawing: Drawing, machine: Machine, solver: str = "reach", plugin_d
         "max_between_samples_mm": between,
         "path_tolerance_mm": path_tol,
         "strokes_replanned": replanned,
-        "strokes_slowed_for_ramps": sum(1 for c in scale if c < 1.0),
+        "strokes_slowed_for_ramps": sum(1 for c in scale if min(c) < 1.0),
         "worst_ramp_ratio": max(ramps, default=0.0) if nonlinear else None,
         "control_points": sum(len(s.spline.control) for s in planned),
         "timings": timings,

@@ -233,7 +233,7 @@ def test_the_cranks_follow_the_sampled_ramps_within_their_limits(tmp_path):
     machine = load_machine("fivebar")
     horse = Path(__file__).resolve().parent.parent / "samples" / "images" / "horse.png"
     res = convert(horse, tmp_path, Settings(machine=machine, posts=("plc",)))
-    assert res.summary()["strokes_slowed_for_ramps"] >= 1  # the check had work to do on this picture
+    assert res.summary()["worst_ramp_ratio"] > 0.8  # the cranks run near their limits on this picture
     kin = kinematics_for(machine)
     vmax, amax = kin.actuator_limits()
     header, runs = plc_strokes(tmp_path / "horse.plc")

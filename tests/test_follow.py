@@ -70,7 +70,8 @@ def test_jerk_bound_holds_and_only_slows_the_pen(limits):
     u, b, a = prof.u, prof.b, prof.a
     worst = 0.0
     for tau in (0.0, 0.5, 1.0):
-        uu = u[:-1] + tau * np.diff(u)
+        # the interval's own side of a knot, where q''' jumps (a is the interval's)
+        uu = u[:-1] + tau * np.diff(u) if tau < 1 else np.nextafter(u[1:], -np.inf)
         bb = b[:-1] * (1 - tau) + b[1:] * tau
         d1, d2, d3 = spline(uu, 1), spline(uu, 2), spline(uu, 3)
         normal = np.column_stack([-d1[:, 1], d1[:, 0]]) / np.linalg.norm(d1, axis=1)[:, None]

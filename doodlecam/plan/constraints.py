@@ -117,7 +117,7 @@ def sampled_rows(spline: Spline, u: np.ndarray, kinematics, vmax, amax, pen_spee
     h = np.diff(u)
     parts = []
     for tau in taus:
-        uu = u[:-1] + tau * h
+        uu = u[:-1] + tau * h if tau < 1 else np.nextafter(u[1:], -np.inf)  # the interval's side of a knot
         q, dq, ddq = spline(uu), spline(uu, 1), spline(uu, 2)
         _, t1, t2 = kinematics.derivatives(q, dq, ddq)
         # theta' a_k + theta'' (b_k + tau (b_k+1 - b_k)):  tot = theta''
@@ -136,7 +136,9 @@ def jerk_coefficients(spline: Spline, u: np.ndarray, taus=(0.0, 0.5, 1.0)):
     """Per tau in ``taus``: (tau, u there, c1, c2) on every interval of the grid u,
     the pen's jerk across the path being sqrt(b) (c1 a + c2 b) (see jerk_rows)."""
     h = np.diff(u)
-    uu = (u[:-1, None] + np.asarray(taus)[None, :] * h[:, None]).T  # (len(taus), K): all at once
+    taus = np.asarray(taus, float)
+    uu = (u[:-1, None] + taus[None, :] * h[:, None]).T  # (len(taus), K): all at once
+    uu[taus >= 1] = np.nextafter(u[1:], -np.inf)  # the interval's own side of a knot (degree 2)
     d1, d2, d3 = spline(uu, 1), spline(uu, 2), spline(uu, 3)
     sp = np.maximum(np.linalg.norm(d1, axis=-1), 1e-12)
     c12 = d1[..., 0] * d2[..., 1] - d1[..., 1] * d2[..., 0]

@@ -19,6 +19,7 @@ Bernstein bound is loose (``adaptive``), instead of everywhere.
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 from typing import Any
 
@@ -130,8 +131,10 @@ def interval_ratios(spline: Spline, u: np.ndarray, b: np.ndarray, limits: Limits
 
     h = np.diff(u)
     tau = np.linspace(0.0, 1.0, refine + 1)
-    uu = (u[:-1, None] + tau[None, :] * h[:, None]).ravel()
-    t1, t2, sp = limits.derivatives(spline, uu)
+    uu = u[:-1, None] + tau[None, :] * h[:, None]
+    # the right end as the interval's own limit: at a knot q'' (degree 2) or q' (degree 1) jumps
+    uu[:, -1] = np.nextafter(u[1:], -np.inf)
+    t1, t2, sp = limits.derivatives(spline, uu.ravel())
     return interval_worst(np.asarray(b, float), h, t1, t2, sp, limits.amax, limits.vmax,
                           float(limits.pen_speed or 0.0), refine)
 
@@ -158,6 +161,90 @@ def _split(u: np.ndarray, which: np.ndarray) -> np.ndarray:
     return np.sort(np.concatenate([u, mid]))
 
 
+def _finite(x) -> bool:
+    return bool(np.all(np.isfinite(np.asarray(x, float))))
+
+
+def check_inputs(spline: Spline, limits: Limits, v_start: float = 0.0, v_end: float = 0.0) -> None:
+    """Raise a one-line PlanError unless the stroke and the limits can be planned:
+    finite control points of a stroke with length, degree >= 1, positive finite
+    limits (and pen cap), non-negative finite end speeds."""
+    if not isinstance(spline, Spline):
+        raise PlanError(f"expected a Spline to plan, got {type(spline).__name__}")
+    if spline.degree < 1:
+        raise PlanError(f"a degree-{spline.degree} spline has no velocity; fit the stroke with degree 1 or more")
+    c = np.asarray(spline.control, float)
+    if not _finite(c):
+        raise PlanError("the stroke has non-finite control points (NaN or infinity); fix the drawing")
+    if float(np.ptp(c, axis=0).max()) <= 1e-9 * max(1.0, float(np.abs(c).max())):
+        raise PlanError("the stroke has zero length (all control points equal); drop it or draw a dot")
+    legs = np.linalg.norm(np.diff(c, axis=0), axis=1)
+    if spline.degree == 1 and (legs <= 1e-9 * max(1.0, float(np.abs(c).max()))).any():
+        raise PlanError("the degree-1 stroke repeats a control point (a span without length); remove repeated points")
+    for name, x in (("velocity", limits.vmax), ("acceleration", limits.amax)):
+        x = np.atleast_1d(np.asarray(x, float))
+        if x.size == 0 or not _finite(x) or (x <= 0).any():
+            raise PlanError(f"every actuator {name} limit must be a positive finite number, got {x.tolist()}; fix the machine profile")
+    if limits.M is not None:
+        M = np.asarray(limits.M, float)
+        if M.ndim != 2 or M.shape != (len(np.atleast_1d(limits.vmax)), 2) or not _finite(M) or not M.any(axis=1).all():
+            raise PlanError("the kinematics' linear map must be a finite (actuators x 2) matrix with a non-zero row per actuator; fix the kinematics")
+        if len(np.atleast_1d(limits.amax)) != M.shape[0]:
+            raise PlanError("the kinematics give different numbers of velocity and acceleration limits; fix the kinematics")
+    elif limits.kinematics is None:
+        raise PlanError("nonlinear limits need the kinematics (Limits.kinematics); build them with Limits.from_machine")
+    if limits.pen_speed is not None and not (math.isfinite(limits.pen_speed) and limits.pen_speed > 0):
+        raise PlanError(f"the pen-speed cap must be a positive finite number, got {limits.pen_speed!r}; fix [pen] max_speed")
+    for name, v in (("start", v_start), ("end", v_end)):
+        if not (math.isfinite(v) and v >= 0):
+            raise PlanError(f"the {name} speed must be a non-negative finite number of mm/s, got {v!r}")
+
+
+def knot_caps(spline: Spline, u: np.ndarray, jerk_max=None, period: float | None = None) -> np.ndarray:
+    """Upper bounds on b = u-dot^2 at the grid nodes u (inf where free).
+
+    Where q' changes direction at a knot (degree 1: a corner) the pen must stop
+    there: its velocity would jump. Where the curvature jumps at a knot (degree
+    2) the pen's acceleration across the path jumps by v^2 |dkappa|; with
+    ``jerk_max`` (mm/s^3) and the sample ``period`` (s), that jump counts as a
+    jerk spread over one period, v^2 |dkappa| / period <= jerk_max, so the
+    PLC's constant-acceleration periods can follow it as they follow the
+    jerk-bounded rest of the curve (docs/sampling.md)."""
+    cap = np.full(len(u), np.inf)
+    bp = spline.breakpoints[1:-1]
+    if spline.degree > 2 or len(bp) == 0:
+        return cap
+    at = np.flatnonzero(np.isin(u, bp))
+    if len(at) == 0:
+        return cap
+    uk = u[at]
+    left, right = np.nextafter(uk, -np.inf), uk
+    d1l, d1r = spline(left, 1), spline(right, 1)
+    if spline.degree == 1:
+        cross = d1l[:, 0] * d1r[:, 1] - d1l[:, 1] * d1r[:, 0]
+        corner = (np.abs(cross) > 1e-9 * np.linalg.norm(d1l, axis=1) * np.linalg.norm(d1r, axis=1)) | ((d1l * d1r).sum(axis=1) < 0)
+        cap[at[corner]] = 0.0
+        return cap
+    if not jerk_max or not period:
+        return cap
+
+    def kappa(d1, d2):
+        return (d1[:, 0] * d2[:, 1] - d1[:, 1] * d2[:, 0]) / np.maximum(np.linalg.norm(d1, axis=1), 1e-300) ** 3
+
+    jump = np.abs(kappa(d1l, spline(left, 2)) - kappa(d1r, spline(right, 2)))
+    jm = jerk_max(uk) if callable(jerk_max) else np.full(len(uk), float(jerk_max))
+    sp2 = np.maximum((d1r ** 2).sum(axis=1), 1e-300)
+    with np.errstate(divide="ignore"):
+        cap[at] = np.where(jump > 0, jm * period / (jump * sp2), np.inf)
+    return cap
+
+
+def _capped(rows: constraints.Rows, cap: np.ndarray) -> constraints.Rows:
+    if np.isinf(cap).all():
+        return rows
+    return constraints.Rows(rows.tot, rows.beta, rows.gamma, np.minimum(rows.ub, cap))
+
+
 def check_solver(solver: str) -> None:
     if solver not in SOLVERS:
         raise PlanError(f"unknown solver '{solver}'; choose one of {', '.join(SOLVERS)}")
@@ -166,7 +253,8 @@ def check_solver(solver: str) -> None:
 def plan_stroke(spline: Spline, limits: Limits, solver: str = "reach", spacing: float = 0.5,
                 n_points: int | None = None, adaptive: bool = True, smoothing: float = 0.0,
                 v_start: float = 0.0, v_end: float = 0.0, mode: str = "bernstein",
-                max_rounds: int = 6, jerk_max=None, grid: np.ndarray | None = None) -> Profile:
+                max_rounds: int = 6, jerk_max=None, grid: np.ndarray | None = None,
+                jerk_period: float | None = None) -> Profile:
     """Time-optimal profile along ``spline``; v_start / v_end are pen speeds (mm/s).
 
     ``jerk_max`` (mm/s^3, a number or a function of u such as
@@ -175,11 +263,26 @@ def plan_stroke(spline: Spline, limits: Limits, solver: str = "reach", spacing: 
     fast; two more solves on the final grid (``JERK_GROW``).
     ``grid``: plan on these u instead of making (and refining) a grid, e.g. the
     grid of an earlier plan of the same stroke.
+    ``jerk_period`` (s, the sample period): with ``jerk_max``, a curvature jump
+    at a knot (degree 2) is bounded as that jerk over one period (knot_caps).
+    Degree 1: the pen stops at every corner.
+
+    Raises PlanError (one line) on inputs that cannot be planned (check_inputs).
     """
     check_solver(solver)
+    check_inputs(spline, limits, v_start, v_end)
+    if not (math.isfinite(spacing) and spacing > 0):
+        raise PlanError(f"the grid spacing must be a positive number of mm, got {spacing!r}")
+    if n_points is not None and n_points < 2:
+        raise PlanError(f"a grid needs at least 2 points, got n_points = {n_points}")
+    if grid is not None:
+        g = np.asarray(grid, float)
+        if g.ndim != 1 or len(g) < 2 or not _finite(g) or g[0] != 0.0 or g[-1] != 1.0 or (np.diff(g) <= 0).any():
+            raise PlanError("a planning grid must rise strictly from 0 to 1; pass the u of an earlier plan")
     speed_ends = np.linalg.norm(spline(np.array([0.0, 1.0]), 1), axis=1)
     b0 = (v_start / max(speed_ends[0], 1e-300)) ** 2
     bN = (v_end / max(speed_ends[1], 1e-300)) ** 2
+    period = jerk_period if jerk_max else None
     if solver == "reach" and mode == "bernstein" and grid is None and n_points is None and _straight(spline, limits):
         return _trapezoid(spline, limits, b0, bN)
     if grid is not None:
@@ -190,7 +293,7 @@ def plan_stroke(spline: Spline, limits: Limits, solver: str = "reach", spacing: 
     nonlinear = limits.M is None and mode != "collocation"
     best_t = np.inf
     for round_ in range(max_rounds):
-        rows = build_rows(spline, u, limits, mode)
+        rows = _capped(build_rows(spline, u, limits, mode), knot_caps(spline, u, jerk_max, period))
         b = _solve(rows, u, base, b0, bN)
         if mode == "collocation" or not (adaptive or nonlinear):
             break

@@ -77,9 +77,10 @@ class _Coo:
                              shape=(self.n, self.ncols))
 
 
-def _clarabel(P, q, A, b, n_eq):
-    """min 1/2 z'Pz + q'z s.t. the first ``n_eq`` rows of A z = b, the rest <= b
-    (P upper triangular, CSC). Clarabel directly: qpsolvers' checks and
+def _clarabel(P, q, A, b, n_eq, n_soc=0, n_tail=0):
+    """min 1/2 z'Pz + q'z s.t. the first ``n_eq`` rows of A z = b, the last
+    3 ``n_soc`` rows before the last ``n_tail`` ones b - A z in second-order
+    cones of dimension 3, the rest <= b (P upper triangular, CSC). Clarabel directly: qpsolvers' checks and
     re-stacking cost more than the solve."""
     import clarabel
 
@@ -88,7 +89,10 @@ def _clarabel(P, q, A, b, n_eq):
     # refinement buys residuals of 3e-10 instead of 1e-8 (mm, mm/s) at a quarter of the
     # time; the limit rows keep a 1e-6 relative margin and positions are checked after
     settings.iterative_refinement_enable = False
-    cones = [clarabel.ZeroConeT(n_eq), clarabel.NonnegativeConeT(A.shape[0] - n_eq)]
+    cones = [clarabel.ZeroConeT(n_eq), clarabel.NonnegativeConeT(A.shape[0] - n_eq - 3 * n_soc - n_tail)]
+    cones += [clarabel.SecondOrderConeT(3)] * n_soc
+    if n_tail:
+        cones.append(clarabel.NonnegativeConeT(n_tail))
     res = clarabel.DefaultSolver(P, q, A, b, cones, settings).solve()
     return np.asarray(res.x) if res.status == clarabel.SolverStatus.Solved else None
 
@@ -135,7 +139,7 @@ def _working(key, template):
 
 
 @functools.lru_cache(maxsize=256)
-def _pattern(m: int, dt: float, M: tuple | None, trust: bool):
+def _pattern(m: int, dt: float, M: tuple | None, trust: bool, pen: bool = False):
     """The constraint matrix for m instants, built once per (m, dT, kinematics):
     only the tangent coefficients of the tracking rows change between solves
     (assembling the rest every time cost as much as the solve). Returns the CSC
@@ -147,7 +151,8 @@ def _pattern(m: int, dt: float, M: tuple | None, trust: bool):
     (v_0 = v_m = 0), positions x_1..x_m from the start, shifts d in mm along the
     tangent. Rows: ramps and end point (equalities); tracking boxes at instants
     1..m-1; monotone shifted parameter; per actuator |M dv| <= A dT and |M v| <= V;
-    with ``trust``, |d| <= a trust radius.
+    with ``trust``, |d| <= a trust radius; with ``pen``, last, one second-order
+    cone (cap, v_j) per target: |v_j| <= the pen-speed cap.
     """
     n = m - 1
     nv, nx = 2 * n, 2 * m
@@ -195,6 +200,10 @@ def _pattern(m: int, dt: float, M: tuple | None, trust: bool):
         for sign in (1.0, -1.0):
             A.add(j, D(j), sign)
             A.close(m)
+    if pen:  # s = (cap, v_x, v_y) = b - A z: rows (0; -1 at vx_j; -1 at vy_j)
+        A.add(3 * jn + 1, V(0, jn), -1.0)
+        A.add(3 * jn + 2, V(1, jn), -1.0)
+        A.close(3 * n)
     csc = A.csc()
     tagged = np.flatnonzero(csc.data <= -_TAG)
     idx = (-csc.data[tagged] - _TAG).astype(np.int64)  # 0 .. 4 (m-1) - 1
@@ -205,19 +214,47 @@ def _pattern(m: int, dt: float, M: tuple | None, trust: bool):
     return csc, n_eq, tagged, signs, inst, axes
 
 
-def _qp(p, tang, v_plan, end, dt, tol, limits, L, nrm=None, trust=None):
+def _crank_rows(J: np.ndarray, dt: float, vcap: np.ndarray, acap: np.ndarray):
+    """Rows (CSC over the QP's unknowns) and bounds keeping nonlinear actuators
+    within ``vcap``, ``acap`` at the instants, linearised: J (m, n_act, 2) is
+    d theta / d xy at the points aimed at, instants 1..m. Velocity J_j v_j;
+    a period's mean acceleration (J_j v_j - J_j-1 v_j-1) / dT (v_0 = v_m = 0,
+    exact for theta' at the instants). How far the acceleration strays from
+    that mean inside a period is left to the caller's margin (pipeline)."""
+    m, na, _ = J.shape
+    n = m - 1
+    N = 2 * n + 3 * m
+    A = _Coo(N)
+    jn = np.arange(n)
+    for sign in (1.0, -1.0):
+        for i in range(na):
+            for a in range(2):  # mean accelerations of periods 1..m: +J_p v_p, -J_p-1 v_p-1
+                A.add(jn, a * n + jn, sign * J[:n, i, a])
+                A.add(jn + 1, a * n + jn, -sign * J[:n, i, a])
+            A.close(m)
+            for a in range(2):
+                A.add(jn, a * n + jn, sign * J[:n, i, a])
+            A.close(n)
+    rhs = np.concatenate([np.concatenate([np.full(m, acap[i] * dt), np.full(n, vcap[i])])
+                          for _ in (1.0, -1.0) for i in range(na)])
+    return A.csc(), rhs
+
+
+def _qp(p, tang, v_plan, end, dt, tol, limits, L, nrm=None, trust=None, crank=None):
     """One linearised QP. p: (m, 3) curve points relative to the start and
     their u, tang: (m, 2) tangents per mm of shift, end: (2,). Returns (v, x, d) or None.
 
     ``nrm`` (m, 2): unit normals of the curve at the instants; the targets'
     components along them are penalised with NORMAL_WEIGHT.
     ``trust``: (m,) bounds on |d|, so the linearisation holds.
+    ``crank``: (rows, bounds) of _crank_rows, appended last.
     """
     m = len(p)
     n = m - 1
     nv, nx = 2 * n, 2 * m
     M = None if limits.M is None else tuple(np.asarray(limits.M, float).ravel())
-    key = (m, float(dt), M, trust is not None)
+    pen = limits.pen_speed is not None
+    key = (m, float(dt), M, trust is not None, pen)
     base, n_eq, tagged, signs, inst, axes = _pattern(*key)
     A = _working(key, base)
     A.data[tagged] = -signs * tang[inst, axes]
@@ -247,7 +284,17 @@ def _qp(p, tang, v_plan, end, dt, tol, limits, L, nrm=None, trust=None):
                 rhs += [np.full(m, limits.amax[i] * dt * (1 - 1e-6)), np.full(n, limits.vmax[i] * (1 - 1e-6))]
     if trust is not None:
         rhs += [trust, trust]
-    z = _clarabel(P, q, A, np.concatenate(rhs), n_eq)
+    if pen:  # the velocity is linear on a period, so |v| <= cap at both ends holds throughout
+        cone = np.zeros((n, 3))
+        cone[:, 0] = limits.pen_speed * (1 - 1e-6)
+        rhs.append(cone.ravel())
+    b = np.concatenate(rhs)
+    n_tail = 0
+    if crank is not None:
+        import scipy.sparse as sp
+
+        A, b, n_tail = sp.vstack([A, crank[0]], format="csc"), np.concatenate([b, crank[1]]), len(crank[1])
+    z = _clarabel(P, q, A, b, n_eq, n if pen else 0, n_tail)
     if z is None:
         return None
     v = np.column_stack([z[:n], z[n:nv]])
@@ -255,18 +302,64 @@ def _qp(p, tang, v_plan, end, dt, tol, limits, L, nrm=None, trust=None):
     return v, x, z[nv + nx : nv + nx + m]
 
 
+def whole_step_limits(limits, steps_per_mm, dt: float):
+    """``limits`` lowered by what writing the targets in whole steps/s can add.
+
+    The PLC post rounds the running sum of the targets (steps/s) to integers
+    and writes the differences (link/plc/packetfile.commands_array): with
+    S_j = k (v_1 + ... + v_j) and e_j = round(S_j) - S_j in [-1/2, 1/2], e_0 = 0,
+    the written target is k v_j + e_j - e_j-1 (off by at most 1 step/s) and a
+    period's change k (v_j - v_j-1) + e_j - 2 e_j-1 + e_j-2 (by at most 2). The
+    header's max_accel is the limit rounded down, up to 1 step/s^2 lower, so
+    a period's change may use A k dT - dT of it. Hence, per actuator i of
+    theta = M xy: acceleration lower by sum_a |M_ia| (2 + dT) / (k_a dT), velocity
+    by sum_a |M_ia| / k_a, and the pen-speed cap by |(1/k_x, 1/k_y)|. Planned
+    and sampled within these, the written file keeps the profile's limits and
+    its own header (tests/test_executed.py reads it back). Nonlinear kinematics:
+    only the pen cap (the cranks are checked along the executed ramps).
+    """
+    from dataclasses import replace
+
+    k = np.asarray(steps_per_mm, float)
+    pen = limits.pen_speed
+    if pen is not None:
+        pen = float(pen) - float(np.hypot(*(1.0 / k)))
+    if limits.M is None:
+        return replace(limits, pen_speed=pen)
+    absM = np.abs(np.asarray(limits.M, float))
+    return replace(limits, vmax=limits.vmax - absM @ (1.0 / k), amax=limits.amax - absM @ ((2.0 + dt) / (k * dt)),
+                   pen_speed=pen)
+
+
 def sample_stroke(stroke: Stroke, dt: float, limits, steps_per_mm=(80.0, 80.0), tracking_steps: float = TRACKING_STEPS,
-                  max_extra: float = 1.0, follow: bool = False) -> StrokeSamples:
+                  max_extra: float = 1.0, follow: bool = False, crank_share: tuple[float, float] | None = None) -> StrokeSamples:
     """Velocity targets (mm/s) for one planned stroke at t = dT, 2 dT, ...
 
     The stroke starts and ends on whole machine steps (``steps_per_mm``), so a
-    post that writes whole steps lands exactly on every stroke's end.
+    post that writes whole steps lands exactly on every stroke's end; the
+    targets keep ``limits`` lowered by ``whole_step_limits``, so they still keep
+    ``limits`` once written in whole steps/s (plan the stroke within the
+    lowered limits too, or the sampler may need extra periods).
     ``follow``: also keep the pen moving along the curve at the instants, so it
     stays near the curve between them (see the module doc; up to 5 linearised
     solves instead of 3).
+    ``crank_share`` (velocity, acceleration), nonlinear kinematics: keep the
+    actuators' velocity at the instants and mean acceleration per period
+    within these shares of their limits (_crank_rows; the pipeline lowers the
+    shares by what a period's variation adds, measured on the executed ramps).
     """
     prof, spline = stroke.profile, stroke.spline
     k = np.asarray(steps_per_mm, float)
+    if prof is None:
+        raise PlanError("the stroke has no profile; plan it (plan_stroke) before sampling")
+    if not (np.isfinite(dt) and dt > 0):
+        raise PlanError(f"delta_time must be a positive number of seconds, got {dt!r}; fix [sampling] delta_time")
+    if k.shape != (2,) or not np.all(np.isfinite(k)) or (k <= 0).any():
+        raise PlanError(f"steps_per_mm must be two positive numbers, got {k.tolist()}; fix the machine profile")
+    limits = whole_step_limits(limits, k, dt)
+    if (limits.M is not None and ((limits.vmax <= 0).any() or (limits.amax <= 0).any())) or \
+            (limits.pen_speed is not None and limits.pen_speed <= 0):
+        raise PlanError("the limits are below one machine step per sample period; raise them or steps_per_mm")
     start = np.round(spline.start * k) / k
     end = np.round(spline.end * k) / k - start
     tol = tracking_steps / k.max()
@@ -290,8 +383,15 @@ def sample_stroke(stroke: Stroke, dt: float, limits, steps_per_mm=(80.0, 80.0), 
                 speed = np.maximum(np.linalg.norm(d1, axis=1), 1e-12)
                 nrm = np.column_stack([-d1[:, 1], d1[:, 0]]) / speed[:, None]
                 trust = TRUST_MM * L / speed  # ~TRUST_MM of arc
+            crank = None
+            if crank_share is not None and limits.M is None:
+                J = _jacobians(limits.kinematics, spline(u))
+                # whole steps/s add up to 1 (velocity) and 2 (a period's change) steps/s per axis
+                absJ = np.abs(J).max(axis=0)
+                crank = _crank_rows(J, dt, limits.vmax * crank_share[0] * (1 - 1e-6) - absJ @ (1.0 / k),
+                                    limits.amax * crank_share[1] * (1 - 1e-6) - absJ @ (2.0 / (k * dt)))
             # the box is 3/4 of the tolerance: the rest absorbs the linearisation error
-            res = _qp(np.column_stack([p, u]), tang, v_plan, end, dt, 0.75 * tol, limits, L, nrm, trust)
+            res = _qp(np.column_stack([p, u]), tang, v_plan, end, dt, 0.75 * tol, limits, L, nrm, trust, crank)
             if res is None:
                 break
             v, x, d = res
@@ -309,6 +409,24 @@ def sample_stroke(stroke: Stroke, dt: float, limits, steps_per_mm=(80.0, 80.0), 
         m += max(1, m0 // 20)
     raise PlanError("cannot follow the stroke within the limits with velocity samples every "
                     f"{dt * 1000:g} ms; use a shorter [sampling] delta_time")
+
+
+def _jacobians(kinematics, xy: np.ndarray) -> np.ndarray:
+    """d theta / d xy (len(xy), n_act, 2) from the kinematics' derivatives."""
+    zero = np.zeros_like(xy)
+    cols = [kinematics.derivatives(xy, np.broadcast_to(e, xy.shape), zero)[1] for e in ((1.0, 0.0), (0.0, 1.0))]
+    return np.stack(cols, axis=2)
+
+
+def written_samples(samples: StrokeSamples, steps_per_mm) -> StrokeSamples:
+    """The samples as the PLC post writes them (whole steps/s) and the machine
+    executes them, in mm/s: what the executed-path checks should read."""
+    from dataclasses import replace
+
+    from doodlecam.link.plc.packetfile import whole_step_targets
+
+    k = np.asarray(steps_per_mm, float)
+    return replace(samples, velocity=whole_step_targets(samples.velocity, k) / k)
 
 
 def reference_positions(stroke: Stroke, samples: StrokeSamples) -> np.ndarray:

@@ -95,6 +95,19 @@ def _floor_rate(value: float) -> int:
     return max(1, min(int(_I32.max), int(math.floor(value * (1 + 1e-12)))))
 
 
+def whole_step_targets(velocity, steps_per_mm) -> np.ndarray:
+    """DRAW targets (steps/s, whole numbers as floats) of velocity targets (M, 2) in mm/s.
+
+    Rounds the running sum, not each sample: the ramp model's position is
+    dT * (sum of targets), so this keeps the drawn position within a fraction
+    of a step of the plan instead of a random walk of rounding errors, while
+    every target stays within 1 step/s of the exact value and every change
+    between two within 2 (plan.sample.whole_step_limits plans for that).
+    """
+    cum = np.round(np.cumsum(np.asarray(velocity, float) * np.asarray(steps_per_mm, float), axis=0))
+    return np.diff(np.vstack([np.zeros((1, 2)), cum]), axis=0)
+
+
 def commands_array(job) -> tuple[PlcHeader, np.ndarray]:
     """Like :func:`commands_from_job`, as a RECORD_DTYPE array (fast path)."""
     m = job.machine
@@ -110,13 +123,7 @@ def commands_array(job) -> tuple[PlcHeader, np.ndarray]:
     blocks = []
     for s in job.samples:
         move = np.round(np.asarray(s.start) * spm)[None]
-        # Round the running sum, not each sample: the ramp model's position is
-        # dT * (sum of targets), so this keeps the drawn position within a
-        # fraction of a step of the plan instead of a random walk of rounding
-        # errors, while every target stays within 1 step/s of the exact value.
-        cum = np.round(np.cumsum(np.asarray(s.velocity) * spm, axis=0))
-        draws = np.diff(np.vstack([np.zeros((1, 2)), cum]), axis=0)
-        blocks.append((move, draws))
+        blocks.append((move, whole_step_targets(s.velocity, spm)))
     n = sum(1 + len(d) for _, d in blocks) + 1
     out = np.zeros(n, RECORD_DTYPE)
     xy = np.empty((n, 2))
