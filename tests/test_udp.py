@@ -114,7 +114,7 @@ def sim_factory():
 
 # ---------------------------------------------------------------- wire format
 
-status_st = st.builds(P.Status, state=st.integers(0, 4), fault=st.integers(0, 6), pen=st.integers(0, 1),
+status_st = st.builds(P.Status, state=st.integers(0, 4), fault=st.integers(0, 7), pen=st.integers(0, 1),
                       flags=st.integers(0, 1), buffer_size=st.integers(1, 2**32 - 1),
                       executed=st.integers(0, 2**32 - 1), buffered=st.integers(0, 2**32 - 1),
                       fault_command=st.integers(0, 2**32 - 1), x=st.integers(-2**31, 2**31 - 1),
@@ -123,7 +123,8 @@ status_st = st.builds(P.Status, state=st.integers(0, 4), fault=st.integers(0, 6)
 
 
 @settings(max_examples=60, deadline=None)
-@given(status=status_st, ranges=st.lists(st.tuples(st.integers(1, 2**32 - 1), st.integers(1, 2**32 - 1)), max_size=16),
+@given(status=status_st, ranges=st.lists(st.integers(1, 2**32 - 1).flatmap(
+           lambda f: st.tuples(st.just(f), st.integers(1, 2**32 - f))), max_size=16),
        origin=st.integers(0, 2**64 - 1), seq=st.integers(0, 2**32 - 1), job=st.integers(0, 2**32 - 1),
        flip=st.integers(0, 10**6))
 def test_plc_messages_round_trip_and_any_bit_flip_is_rejected(status, ranges, origin, seq, job, flip):
@@ -157,7 +158,7 @@ def test_data_round_trip_keeps_numbering(first, count, seed):
         body = bytearray(P.data(5, 6, 7, recs2))
         import zlib
 
-        body[20:24] = int(first).to_bytes(4, "little")
+        body[P.COMMON.size:P.COMMON.size + 4] = int(first).to_bytes(4, "little")
         body[-4:] = zlib.crc32(bytes(body[:-4])).to_bytes(4, "little")
         with pytest.raises(P.ProtocolError):
             P.decode(bytes(body))
@@ -355,14 +356,18 @@ def test_finished_job_is_never_run_again_by_a_late_header(sim_factory):
 def test_cancel_forgets_a_held_job(sim_factory, tmp_path):
     data = synth_job(n_strokes=3, samples=200, seed=5)
     sim = sim_factory(starve_timeout=0.2)
-    s = _GiveUpSender(*sim.address, data, timeout=5.0)
+    s = _GiveUpSender(*sim.address, data, state_file=tmp_path / "c.json", timeout=5.0)
     s.limit = 250
     with pytest.raises(_GaveUp):
         bounded(s.run)  # leaves once the PLC holds the job
     wait_for(lambda: sim.held is not None, 5, "a held job")
     held_id = sim.held.id
+    # Without the record of starting it (its owner token), nobody else can cancel it.
+    with pytest.raises(LinkError, match="only the computer that started a job can cancel it"):
+        bounded(UdpSender(*sim.address, data, state_file=tmp_path / "other.json", timeout=3.0).cancel)
+    assert sim.held is not None
     assert bounded(UdpSender(*sim.address, data, state_file=tmp_path / "c.json", timeout=3.0).cancel) == held_id
-    assert sim.held is None and sim.finished[held_id] == Fault.CANCELLED
+    assert sim.held is None and sim.finished[held_id][0] == Fault.CANCELLED
 
 
 # ---------------------------------------------------------------- errors a user sees
