@@ -139,7 +139,7 @@ class PlcSimulator:
         self.seq = 0
         self.state = State.POWER_ON
         self.peer: tuple | None = None  # where periodic messages go: the bound session's address
-        self.session: tuple[str, int] | None = None  # (IP, nonce) of the PC run that drives the job
+        self.session: tuple[tuple, int] | None = None  # ((IP, port), nonce) of the PC run that drives the job
         self.owner: str = ""  # IP of the PC that started the running job (with its token)
         self.window = P.ReplayWindow()  # the bound session's seq numbers: each accepted once
         self.job: _Job | None = None
@@ -382,14 +382,14 @@ class PlcSimulator:
             self.log(f"internal error on {m.type.name} from {addr[0]}:{addr[1]}: {e!r}")
 
     def _dispatch(self, m: P.Message, addr, now: float) -> None:
-        mine = self.session is not None and (addr[0], m.origin) == self.session
+        mine = self.session is not None and (tuple(addr[:2]), m.origin) == self.session
         if mine and not self.window.accept(m.seq):
             self.stats["dropped_replayed"] += 1  # a duplicate or a replay of the bound session
             return
         self.stats[f"recv_{m.type.name}"] += 1
         if m.type == Msg.HELLO:
             if mine or (self.job is None and self.held is None):
-                self.peer = addr  # the session's PC (its port may change) or, idle, whoever asks
+                self.peer = addr  # the session's PC or, idle, whoever asks
                 self._send(Msg.STATUS if self.job else Msg.READY, now)
             elif self.job is not None:
                 self._busy(m, addr, now)
@@ -444,7 +444,7 @@ class PlcSimulator:
 
     def _bind(self, m: P.Message, addr) -> None:
         """The sending PC run becomes the session: its address and nonce; a fresh replay window."""
-        self.session, self.peer = (addr[0], m.origin), addr
+        self.session, self.peer = (tuple(addr[:2]), m.origin), addr
         self.window = P.ReplayWindow()
         self.window.accept(m.seq)
 
