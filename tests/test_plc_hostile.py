@@ -7,7 +7,9 @@ the real sender. Every test checks what the PLC *executed* against the file:
 each command once, in order, ending where the plan says.
 """
 
+import dataclasses
 import hmac
+import time
 import math
 import struct
 import zlib
@@ -270,3 +272,224 @@ def test_fuzzed_crc_correct_datagrams_never_crash_or_execute_anything_foreign(se
     assert_drawn_as_planned(b.sim, b.data, b.job_id)
     assert {j for j, _ in b.sim.executed_log} == {b.job_id}
     b.close()
+
+
+# ---------------------------------------------------------------- scenarios on loopback sockets
+
+class RecordingSim(PlcSimulator):
+    """Keeps every datagram it receives, with its source: a captured session to replay."""
+
+    def __init__(self, *a, **kw):
+        super().__init__(*a, **kw)
+        self.captured: list[tuple[bytes, tuple]] = []
+
+    def _handle(self, data, addr, now):
+        self.captured.append((data, addr))
+        super()._handle(data, addr, now)
+
+
+@pytest.fixture
+def sims():
+    made = []
+
+    def make(cls=PlcSimulator, **kw):
+        sim = cls(PlcConfig(**kw)).start()
+        made.append(sim)
+        return sim
+
+    yield make
+    for s in made:
+        s.stop()
+
+
+def _forger(sim: PlcSimulator, stop, seed: int) -> int:
+    """A second UDP socket on 127.0.0.1 forging DATA / STOP / CANCEL / HEADER for the running job id."""
+    import socket as so
+
+    rng = np.random.default_rng(seed)
+    sent = 0
+    with so.socket(so.AF_INET, so.SOCK_DGRAM) as s:
+        while not stop.is_set():
+            job = sim.job
+            if job is None:
+                stop.wait(0.002)
+                continue
+            recs = np.zeros(64, RECORD_DTYPE)
+            first = job.executed + 1
+            recs["command_no"] = np.arange(first, first + 64)
+            recs["type"] = rng.integers(0, 2, 64)
+            recs["x"], recs["y"] = rng.integers(0, 20000, (2, 64))
+            nonce = sim.session[1] if sim.session else 1  # even the sniffed nonce, from another address
+            forged = dataclasses.replace(job.h, token=int(rng.integers(1, 2**63)))  # the token is not sniffed
+            for d in (P.data(nonce, sent + 1, job.id, recs), P.stop(nonce, sent + 2, job.id, True),
+                      P.cancel(nonce, sent + 3, job.id, 12345), P.header(nonce, sent + 4, job.id, forged)):
+                s.sendto(d, sim.address)
+                sent += 1
+            stop.wait(0.002)
+    return sent
+
+
+def test_forged_stream_from_another_socket_executes_nothing(sims):
+    import threading
+
+    data = synth_job(n_strokes=25, samples=98, seed=11)
+    sim = sims(speed=40.0)  # ~2.5 s of wall time under fire
+    stop = threading.Event()
+    box = {}
+    t = threading.Thread(target=lambda: box.update(sent=_forger(sim, stop, 1)), daemon=True)
+    t.start()
+    try:
+        r = bounded(lambda: UdpSender(*sim.address, data, timeout=5.0, rto=0.05).run(), 120)
+    finally:
+        stop.set()
+        t.join(5)
+    assert box["sent"] > 100 and sim.stats["dropped_foreign"] > 0
+    assert sim.stats["handler_errors"] == 0
+    assert_drawn_as_planned(sim, data, r.job_id)
+
+
+def test_second_sender_is_told_busy_and_the_first_is_undisturbed(sims, tmp_path):
+    import threading
+
+    data = synth_job(n_strokes=40, samples=98, seed=12)
+    sim = sims(speed=40.0)  # ~4 s of wall time: long enough for a second sender to try
+    first = UdpSender(*sim.address, data, state_file=tmp_path / "a.json", timeout=5.0, rto=0.05)
+    box = {}
+    t = threading.Thread(target=lambda: box.update(r=first.run()), daemon=True)
+    t.start()
+    wait_for(lambda: sim.state == State.D_OPERATING, 10, "the first job running")
+    port = first.sock.getsockname()[1]
+    for other in (synth_job(n_strokes=2, seed=99), data):  # another job, and the same file without its record
+        with pytest.raises(LinkError, match=rf"busy: job {sim.job.id} from 127\.0\.0\.1:{port} is running"):
+            bounded(lambda: UdpSender(*sim.address, other, state_file=tmp_path / "b.json", timeout=3.0).run(), 20)
+    with pytest.raises(LinkError, match="only the computer that started a job can stop or cancel it"):
+        bounded(lambda: UdpSender(*sim.address, data, state_file=tmp_path / "b.json", timeout=3.0).cancel(), 20)
+    t.join(120)
+    assert "r" in box, "the first sender did not finish"
+    assert sim.peer[1] == port and sim.stats["refused_busy"] >= 2
+    assert_drawn_as_planned(sim, data, box["r"].job_id)
+
+
+def test_replayed_session_and_a_finished_job_never_run_again_even_after_a_restart(sims, tmp_path):
+    import socket as so
+
+    data = synth_job(n_strokes=5, samples=98, seed=13)
+    nv = tmp_path / "plc.nv"
+    sim = sims(RecordingSim, state_file=nv)
+    r = bounded(lambda: UdpSender(*sim.address, data, state_file=tmp_path / "j.json", timeout=5.0).run())
+    assert_drawn_as_planned(sim, data, r.job_id)
+    n = len(sim.executed_log)
+
+    def replay(target):
+        with so.socket(so.AF_INET, so.SOCK_DGRAM) as s:
+            for d, _ in list(sim.captured):
+                s.sendto(d, target.address)
+        time.sleep(0.5)
+
+    replay(sim)
+    assert len(sim.executed_log) == n
+    # The same file again (its record was deleted on success): refused, saying when it finished.
+    with pytest.raises(LinkError, match=r"already finished .* on \d{4}-\d\d-\d\d .*add --again"):
+        bounded(lambda: UdpSender(*sim.address, data, state_file=tmp_path / "k.json", timeout=3.0).run())
+    sim.stop()  # a power cycle: a new PLC on the same non-volatile memory
+    sim2 = sims(state_file=nv)
+    sim.address = sim2.address
+    replay(sim2)
+    assert len(sim2.executed_log) == 0 and sim2.stats["sent_NAK"] >= 1
+    with pytest.raises(LinkError, match="already finished"):
+        bounded(lambda: UdpSender(*sim2.address, data, state_file=tmp_path / "k.json", timeout=3.0).run())
+    r2 = bounded(lambda: UdpSender(*sim2.address, data, state_file=tmp_path / "k.json", timeout=5.0,
+                                   again=True).run())
+    assert r2.job_id != r.job_id
+    assert_drawn_as_planned(sim2, data, r2.job_id)
+
+
+def test_power_cycle_mid_job_is_reported_and_the_resume_repeats_nothing(sims, tmp_path):
+    import threading
+
+    data = synth_job(n_strokes=30, samples=98, seed=14)
+    nv, rec = tmp_path / "plc.nv", tmp_path / "job.json"
+    sim = sims(state_file=nv, speed=25.0)
+    box = {}
+
+    def run():
+        try:
+            UdpSender(*sim.address, data, state_file=rec, timeout=5.0, rto=0.05).run()
+        except LinkError as e:
+            box["error"] = str(e)
+
+    t = threading.Thread(target=run, daemon=True)
+    t.start()
+    wait_for(lambda: len(sim.executed_log) > 500, 30, "half the job")
+    port = sim.address[1]
+    sim.stop()
+    sim2 = sims(state_file=nv, port=port, speed=25.0)
+    t.join(30)
+    assert "the PLC at" in box["error"] and "restarted during the job" in box["error"]
+    assert sim2.held is not None and sim2.held.reason == Fault.POWER_LOST
+    r = bounded(lambda: UdpSender(*sim2.address, data, state_file=rec, timeout=5.0, rto=0.05).run(), 120)
+    header, arr = read_plc_array(data)
+    executed = np.concatenate([sim.executed(r.job_id), sim2.executed(r.job_id)])
+    np.testing.assert_array_equal(executed, np.arange(1, len(arr) + 1))  # every command exactly once
+    assert r.start_at == len(sim.executed(r.job_id)) + 1
+    # From the resume on, every command ends on the plan (the re-entry is a checked MOVE).
+    tr = sim2.trajectory()
+    tr = tr[tr["type"] >= 0]
+    pos, _ = P.planned_states(arr, header.delta_time)
+    np.testing.assert_allclose(np.column_stack([tr["x"], tr["y"]]), pos[r.start_at - 1:], atol=1e-6)
+
+
+def test_hmac_session_and_key_mismatches(sims, tmp_path):
+    data = synth_job(n_strokes=3, samples=98, seed=15)
+    sim = sims(key=KEY)
+    with pytest.raises(LinkError, match="requires a key"):
+        bounded(lambda: UdpSender(*sim.address, data, timeout=1.0).run())
+    with pytest.raises(LinkError, match="answers, but not with this key"):
+        bounded(lambda: UdpSender(*sim.address, data, timeout=1.0, key=b"wrong").run())
+    assert sim.stats["dropped_unauthenticated"] > 0 and len(sim.executed_log) == 0
+    r = bounded(lambda: UdpSender(*sim.address, data, timeout=5.0, key=KEY).run())
+    assert_drawn_as_planned(sim, data, r.job_id)
+
+
+def test_old_protocol_version_is_declined_clearly(sims):
+    import socket as so
+
+    sim = sims()
+    v1 = bytearray(P.hello(1, 1))
+    v1[2] = 1
+    with so.socket(so.AF_INET, so.SOCK_DGRAM) as s:
+        s.sendto(reframe(v1, None), sim.address)
+    wait_for(lambda: sim.stats["dropped_old_version"] == 1, 5, "the v1 datagram counted")
+    with pytest.raises(P.OldVersion, match="protocol version 1"):
+        P.decode(reframe(v1, None))
+
+
+class _Deaf(UdpSender):
+    """Hears nothing from the PLC for ``deaf`` s once the job runs (a network blackout one way)."""
+
+    deaf, deaf_from, after = 0.0, None, 300
+
+    def _recv(self, wait):
+        m = super()._recv(wait)
+        now = time.monotonic()
+        if self.deaf_from is None and self.executed > self.after:
+            self.deaf_from = now
+        if self.deaf_from is not None and now - self.deaf_from < self.deaf:
+            self.last_heard = min(self.last_heard, self.deaf_from)
+            return None
+        return m
+
+
+def test_time_out_follows_the_buffer_not_just_the_timeout(sims):
+    data = synth_job(n_strokes=20, samples=98, seed=16)
+    sim = sims(speed=4.0, buffer_size=256)  # 256 commands x 40 ms = 10 s simulated = 2.5 s of wall time
+    s = _Deaf(*sim.address, data, timeout=0.5, rto=0.05)
+    s.deaf = 1.5  # three times --timeout, shorter than the PLC's buffer
+    r = bounded(s.run, 120)
+    assert s.deaf_from is not None
+    assert_drawn_as_planned(sim, data, r.job_id)
+    # The patience is --timeout plus the planned time of the buffered commands.
+    st = P.Status(State.D_OPERATING, 0, 1, 0, 256, 100, 356, 0, 0, 0, 0, 0)
+    s.last_status = st
+    d = P.command_durations(s.records, s.plc_header)
+    assert s._patience() == pytest.approx(0.5 + d[100:356].sum())

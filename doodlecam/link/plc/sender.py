@@ -109,6 +109,7 @@ class UdpSender:
         self._saved_at = 0.0
         self._saved_executed = -1
         self.sock: socket.socket | None = None
+        self._serving = False  # the job is under way: an unreachable port is a pause, not a wrong address
         self.interrupts = Interrupts()
 
     # ------------------------------------------------------------ plumbing
@@ -134,6 +135,8 @@ class UdpSender:
         try:
             self.sock.send(datagram)
         except ConnectionRefusedError:
+            if self._serving:  # mid-job, a PLC rebooting: silence, judged by the patience of _serve
+                return
             raise self._refused() from None
         except OSError as e:
             raise LinkError(f"cannot send to the PLC at {self.where} ({e.strerror}); check the network") from None
@@ -156,6 +159,8 @@ class UdpSender:
         except (socket.timeout, BlockingIOError):
             return None
         except ConnectionRefusedError:
+            if self._serving:
+                return None
             raise self._refused() from None
         except OSError as e:
             raise LinkError(f"lost the link to the PLC at {self.where} ({e.strerror})") from None
@@ -215,6 +220,9 @@ class UdpSender:
             m = got
             if m.type == Msg.NAK and m.reason == Nak.BUSY and m.detail != self.job_id:
                 raise self._busy(m)
+            if m.type == Msg.NAK and m.reason == Nak.AUTH_REQUIRED:
+                raise LinkError(f"the PLC at {self.where} requires a key: give the same one with --transport-opt "
+                                "key=... or the machine profile's [transport.udp] key")
             if m.status.state not in (State.POWER_ON, State.A_INIT):
                 return m
         if m is not None:
@@ -351,6 +359,7 @@ class UdpSender:
         """Answer requests until the job is done (or held, when stopping)."""
         last_progress = next_hello = 0.0
         moved_at, mark = time.monotonic(), None
+        self._serving = True
         while True:
             m = self._recv(0.1)
             now = time.monotonic()

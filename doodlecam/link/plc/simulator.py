@@ -168,6 +168,7 @@ class PlcSimulator:
         self._timer = 0.0
         self._next_ready = 0.0
         self._next_status = 0.0
+        self._next_auth_nak = 0.0
         self._stop = threading.Event()
         self._thread: threading.Thread | None = None
 
@@ -368,6 +369,12 @@ class PlcSimulator:
             return
         except P.AuthError:
             self.stats["dropped_unauthenticated"] += 1
+            if data[3:4] == bytes([Msg.HELLO]) and now >= self._next_auth_nak:
+                # Say why, unauthenticated and with an empty status (nothing to learn); at most 10 per s.
+                self._next_auth_nak = now + 0.1
+                self.seq += 1
+                self._outbound.schedule(now, P.plc_message(Msg.NAK, self.boot_id, self.seq, 0, P.Status(),
+                                                           reason=Nak.AUTH_REQUIRED), addr)
             return
         except P.ProtocolError:
             self.stats["dropped_invalid"] += 1
