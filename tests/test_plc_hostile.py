@@ -25,7 +25,7 @@ from doodlecam.link.plc.protocol import Fault, Msg, Nak, State
 from doodlecam.link.plc.simulator import PlcConfig, PlcSimulator
 from doodlecam.link.plc.sender import UdpSender
 from doodlecam.link.session import LinkError
-from test_udp import assert_drawn_as_planned, bounded, synth_job, wait_for
+from test_udp import assert_drawn_as_planned, bounded, sim_factory as sims, synth_job, wait_for  # noqa: F401
 
 LEGIT = ("127.0.0.1", 40000)
 KEY = b"shared secret of the shop"
@@ -286,20 +286,6 @@ class RecordingSim(PlcSimulator):
     def _handle(self, data, addr, now):
         self.captured.append((data, addr))
         super()._handle(data, addr, now)
-
-
-@pytest.fixture
-def sims():
-    made = []
-
-    def make(cls=PlcSimulator, **kw):
-        sim = cls(PlcConfig(**kw)).start()
-        made.append(sim)
-        return sim
-
-    yield make
-    for s in made:
-        s.stop()
 
 
 def _forger(sim: PlcSimulator, stop, seed: int) -> int:

@@ -102,8 +102,8 @@ def bounded(fn, timeout=60.0):
 def sim_factory():
     sims = []
 
-    def make(**kw):
-        sim = PlcSimulator(PlcConfig(**kw)).start()
+    def make(cls=PlcSimulator, **kw):
+        sim = cls(PlcConfig(**kw)).start()
         sims.append(sim)
         return sim
 
