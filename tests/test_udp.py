@@ -409,15 +409,23 @@ def test_cli_sim_plc_with_impairments_and_recorded_trajectory(tmp_path):
     rec = tmp_path / "trace.csv"
     sim = subprocess.Popen([sys.executable, "-m", "doodlecam", "sim", "plc", "--port", "0", "--loss", "0.1", "--dup",
                             "0.1", "--reorder", "0.1", "--corrupt", "0.02", "--seed", "3", "--rto", "0.02",
-                            "--record", str(rec)], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
-                           env=ENV, cwd=ROOT)
+                            "--record", str(rec), "--state-file", str(tmp_path / "plc.nv"), "--key", "s3cret-of-the-shop"],
+                           stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=ENV, cwd=ROOT)
     try:
         first = sim.stdout.readline()
         port = int(first.split(" on ")[1].split()[0].rsplit(":", 1)[1])
-        r = subprocess.run([sys.executable, "-m", "doodlecam", "send", str(job), "--udp", f"127.0.0.1:{port}",
-                            "--no-progress"], capture_output=True, text=True, env=ENV, cwd=ROOT, timeout=60)
+
+        def send(*extra):
+            return subprocess.run([sys.executable, "-m", "doodlecam", "send", str(job), "--udp", f"127.0.0.1:{port}",
+                                   "--no-progress", "--transport-opt", "key=s3cret-of-the-shop", *extra],
+                                  capture_output=True, text=True, env=ENV, cwd=ROOT, timeout=60)
+
+        r = send()
         assert r.returncode == 0, r.stderr
         assert f"{read_plc_array(data)[0].no_commands} commands executed" in r.stdout
+        again = send()  # the PLC remembers the content: a one-line refusal that says what to do
+        assert again.returncode != 0 and "already finished" in again.stderr and "--again" in again.stderr
+        assert "Traceback" not in again.stderr and len(again.stderr.strip().splitlines()) == 1
     finally:
         sim.send_signal(signal.SIGINT)
         sim.communicate(timeout=10)
