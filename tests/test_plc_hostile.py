@@ -479,3 +479,25 @@ def test_time_out_follows_the_buffer_not_just_the_timeout(sims):
     s.last_status = st
     d = P.command_durations(s.records, s.plc_header)
     assert s._patience() == pytest.approx(0.5 + d[100:356].sum())
+
+
+def test_sender_declines_a_version_1_plc_with_one_clear_line():
+    import socket as so
+    import threading
+
+    data = synth_job(n_strokes=1, samples=20, seed=17)
+    with so.socket(so.AF_INET, so.SOCK_DGRAM) as plc:
+        plc.bind(("127.0.0.1", 0))
+        plc.settimeout(5)
+
+        def answer_like_v1():
+            _, addr = plc.recvfrom(2048)
+            v1 = bytearray(P.plc_message(Msg.READY, 7, 1, 0, P.Status(state=State.B_READY)))
+            v1[2] = 1
+            plc.sendto(reframe(v1, None), addr)
+
+        t = threading.Thread(target=answer_like_v1, daemon=True)
+        t.start()
+        with pytest.raises(LinkError, match="speaks protocol version 1, this doodlecam speaks 2; update the PLC"):
+            bounded(lambda: UdpSender(*plc.getsockname(), data, timeout=3.0).run())
+        t.join(5)
