@@ -16,7 +16,13 @@ corruption and delay:
   nor misorder a command;
 * the PLC drives retransmission: it re-requests what has not arrived within
   its retransmission timeout; the PC only answers requests (stateless, so a
-  duplicate or late REQUEST costs bandwidth, never correctness).
+  duplicate or late REQUEST costs bandwidth, never correctness);
+* version 2 (this one) adds, for shared networks: every field range-checked
+  in ``decode``; a random session nonce per PC run in ``origin`` and a job
+  owner token in HEADER / CANCEL (the PLC binds a job to them); an optional
+  HMAC-SHA256 tag with a pre-shared key and ``ReplayWindow`` over ``seq``;
+  NAK reasons that name the busy job's owner and when a content finished.
+  Version 1 datagrams are recognised (``OldVersion``) and declined.
 
 Pure encoding and decoding here; the PLC simulator is ``simulator``, the PC side
 ``sender``. Also the PLC command semantics both need: the planned position

@@ -7,11 +7,14 @@ retransmission state of its own: the PLC re-requests what it lacks, so
 answering a duplicate or late REQUEST costs bandwidth, never correctness.
 
 Resuming: the PLC's count of executed commands is the truth. The sender
-stores the job id and the last count it heard in a small state file next to
-the job (written atomically), so a restarted sender re-attaches to a job
-the PLC is still running, resumes one the PLC holds (after Ctrl-C, an
-underrun, or a killed sender), and only falls back on its own record when
-the PLC no longer remembers the job (it was restarted).
+stores the job id, the job's secret owner token and the last count it heard
+in a small state file next to the job (written atomically, mode 0600), so a
+restarted sender re-attaches to a job the PLC is still running, resumes one
+the PLC holds (after Ctrl-C, an underrun, a killed sender or a power cycle),
+and only falls back on its own record when the PLC no longer remembers the
+job. Each run has its own random session nonce; with a key every datagram is
+HMAC-tagged. Silence is judged against the PLC's buffer: the sender waits
+``timeout`` plus the planned time of the commands the PLC still holds.
 """
 
 from __future__ import annotations

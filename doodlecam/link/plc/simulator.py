@@ -1,7 +1,7 @@
 """A DoodleBot PLC simulator on a real UDP socket (``doodlecam sim plc``).
 
 It runs the report's programs (section 3.4) against the wire format of
-``plcproto``:
+``protocol`` (version 2, docs/protocol.md):
 
 * Governor: POWER_ON -> A_Init (home) -> B_ready (READY every
   ``ready_interval``) -> C_buffer (request commands until the buffer is full
@@ -14,9 +14,18 @@ It runs the report's programs (section 3.4) against the wire format of
 * motorControl: DRAW ramps the velocity linearly to its target over
   delta_time; MOVE is a rest-to-rest trapezoid per axis at move_speed /
   max_accel; the pen follows the command type with its delays.
-* checkLimitSwitch: commands that would leave the work area stop the machine
-  before they run (soft boundaries); limit switches just outside it stop it
-  at once if anything gets there anyway.
+* checkLimitSwitch: commands — and the re-entry move of a resumed job — that
+  would leave the work area stop the machine before they run (soft
+  boundaries); limit switches just outside it stop it at once if anything
+  gets there anyway.
+* A hostile network: every datagram is range-checked by ``protocol.decode``
+  and counted when dropped; a running job is bound to the address and nonce
+  of the PC that drives it and owned by its IP and token; an optional key
+  requires an HMAC tag on every datagram, with a replay window per session.
+* Non-volatile memory (``nvram``): the ended jobs with their content CRC, the
+  current job and its command counter survive a restart (a new simulator on
+  the same ``state_file``), so a finished job never runs again and a resume
+  never repeats a command.
 
 Time is simulated (as fast as the network allows; for tests) or real time,
 optionally sped up. Every executed command is recorded (command_no, end time,
