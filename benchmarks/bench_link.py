@@ -42,12 +42,14 @@ def udp_rows(n_strokes: int, repeats: int):
     planned, _ = P.planned_states(arr, header.delta_time)
     n = len(arr)
     bad = ["--loss", "0.2", "--dup", "0.1", "--reorder", "0.1", "--corrupt", "0.01"]
-    cases = [("clean", []), ("5 % loss", ["--loss", "0.05"]),
-             ("20 % loss + 10 % dup + 10 % reorder + 1 % corrupt", bad),
-             ("as above + 1-3 ms delay", bad + ["--delay", "0.001", "--jitter", "0.002"])]
+    key = "bench key, shared by both sides"
+    cases = [("clean", [], None), ("5 % loss", ["--loss", "0.05"], None),
+             ("20 % loss + 10 % dup + 10 % reorder + 1 % corrupt", bad, None),
+             ("as above + 1-3 ms delay", bad + ["--delay", "0.001", "--jitter", "0.002"], None),
+             ("20 % loss + ..., HMAC-SHA256 key", bad + ["--key", key], key)]
     with tempfile.TemporaryDirectory() as tmp:
-        for name, flags in cases:
-            times, sent = [], []
+        for name, flags, k in cases:
+            times, sent, cpu = [], [], []
             for r in range(repeats):
                 rec = Path(tmp) / f"trace{r}.csv"
                 sim = subprocess.Popen([sys.executable, "-m", "doodlecam", "sim", "plc", "--port", "0", "--rto", "0.02",
@@ -55,9 +57,11 @@ def udp_rows(n_strokes: int, repeats: int):
                                        stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
                 try:
                     port = int(sim.stdout.readline().split(" on ")[1].split()[0].rsplit(":", 1)[1])
-                    t0 = time.perf_counter()
-                    res = UdpSender("127.0.0.1", port, data, timeout=5.0, rto=0.03).run()
+                    t0, c0 = time.perf_counter(), time.process_time()
+                    res = UdpSender("127.0.0.1", port, data, timeout=5.0, rto=0.03,
+                                    key=k.encode() if k else None).run()
                     times.append(time.perf_counter() - t0)
+                    cpu.append(time.process_time() - c0)
                     sent.append(res.stats["commands_sent"] / n)
                 finally:
                     sim.send_signal(signal.SIGINT)
@@ -67,7 +71,7 @@ def udp_rows(n_strokes: int, repeats: int):
                 assert np.array_equal(rows[:, 0], np.arange(1, n + 1)), "a command was lost, repeated or reordered"
                 assert np.abs(rows[:, 3:5] - planned).max() < 1e-3, "the trajectory left the plan"
             t = float(np.median(times))
-            yield name, n, t, n / t, float(np.mean(sent))
+            yield name, n, t, n / t, float(np.mean(sent)), float(np.median(cpu))
 
 
 def grbl_rows(n_strokes: int):
@@ -106,10 +110,10 @@ def main() -> None:
     args = ap.parse_args()
     strokes, reps, gstrokes = (30, 1, 20) if args.quick else (101, 3, 80)
     print("UDP link, PLC simulator (own process) in simulated time, median of", reps, "runs:\n")
-    print("| network | commands | wall s | commands/s | commands sent per command |")
-    print("|---|---|---|---|---|")
-    for name, n, t, rate, sent in udp_rows(strokes, reps):
-        print(f"| {name} | {n} | {t:.2f} | {rate:,.0f} | {sent:.2f} |")
+    print("| network | commands | wall s | commands/s | commands sent per command | sender CPU s |")
+    print("|---|---|---|---|---|---|")
+    for name, n, t, rate, sent, cpu in udp_rows(strokes, reps):
+        print(f"| {name} | {n} | {t:.2f} | {rate:,.0f} | {sent:.2f} | {cpu:.2f} |")
     print("\nGRBL over a pseudo-terminal, emulator motion 400x real time:\n")
     print("| streaming | lines | wall s | lines/s |")
     print("|---|---|---|---|")

@@ -21,10 +21,11 @@ class UdpTransport(Transport):
     options = (
         Option("timeout", float, 5.0, "seconds without an answer from the PLC before giving up"),
         Option("rto", float, 0.1, "seconds before an unanswered header or stop is sent again"),
+        Option("key", str, "", "pre-shared key: sign every datagram with HMAC-SHA256 (the PLC must have the same key)"),
     )
 
     def send(self, path: Path, target: str, options: dict[str, Any], *, restart: bool = False, cancel: bool = False,
-             progress: Callable | None = None, log: Callable[[str], None] | None = None) -> dict:
+             again: bool = False, progress: Callable | None = None, log: Callable[[str], None] | None = None) -> dict:
         """Send (or cancel) the job at ``path`` to ``target`` = HOST:PORT; return a summary dict."""
         from doodlecam.errors import InputError
         from doodlecam.link.plc.sender import UdpSender, parse_target
@@ -36,8 +37,8 @@ class UdpTransport(Transport):
         except OSError as e:
             raise InputError(f"{path}: cannot read ({e.strerror}); check the path") from None
         sender = UdpSender(host, port, data, str(path), state_file=state_file_for(Path(path)),
-                           timeout=options["timeout"], rto=options["rto"], restart=restart,
-                           progress=progress, log=log)
+                           timeout=options["timeout"], rto=options["rto"], restart=restart, again=again,
+                           key=options["key"].encode() or None, progress=progress, log=log)
         if cancel:
             return {"cancelled_job": sender.cancel(), "plc": f"{host}:{port}"}
         r = sender.run()

@@ -102,8 +102,8 @@ def bounded(fn, timeout=60.0):
 def sim_factory():
     sims = []
 
-    def make(**kw):
-        sim = PlcSimulator(PlcConfig(**kw)).start()
+    def make(cls=PlcSimulator, **kw):
+        sim = cls(PlcConfig(**kw)).start()
         sims.append(sim)
         return sim
 
@@ -114,7 +114,7 @@ def sim_factory():
 
 # ---------------------------------------------------------------- wire format
 
-status_st = st.builds(P.Status, state=st.integers(0, 4), fault=st.integers(0, 6), pen=st.integers(0, 1),
+status_st = st.builds(P.Status, state=st.integers(0, 4), fault=st.integers(0, 7), pen=st.integers(0, 1),
                       flags=st.integers(0, 1), buffer_size=st.integers(1, 2**32 - 1),
                       executed=st.integers(0, 2**32 - 1), buffered=st.integers(0, 2**32 - 1),
                       fault_command=st.integers(0, 2**32 - 1), x=st.integers(-2**31, 2**31 - 1),
@@ -123,7 +123,8 @@ status_st = st.builds(P.Status, state=st.integers(0, 4), fault=st.integers(0, 6)
 
 
 @settings(max_examples=60, deadline=None)
-@given(status=status_st, ranges=st.lists(st.tuples(st.integers(1, 2**32 - 1), st.integers(1, 2**32 - 1)), max_size=16),
+@given(status=status_st, ranges=st.lists(st.integers(1, 2**32 - 1).flatmap(
+           lambda f: st.tuples(st.just(f), st.integers(1, 2**32 - f))), max_size=16),
        origin=st.integers(0, 2**64 - 1), seq=st.integers(0, 2**32 - 1), job=st.integers(0, 2**32 - 1),
        flip=st.integers(0, 10**6))
 def test_plc_messages_round_trip_and_any_bit_flip_is_rejected(status, ranges, origin, seq, job, flip):
@@ -157,7 +158,7 @@ def test_data_round_trip_keeps_numbering(first, count, seed):
         body = bytearray(P.data(5, 6, 7, recs2))
         import zlib
 
-        body[20:24] = int(first).to_bytes(4, "little")
+        body[P.COMMON.size:P.COMMON.size + 4] = int(first).to_bytes(4, "little")
         body[-4:] = zlib.crc32(bytes(body[:-4])).to_bytes(4, "little")
         with pytest.raises(P.ProtocolError):
             P.decode(bytes(body))
@@ -355,14 +356,18 @@ def test_finished_job_is_never_run_again_by_a_late_header(sim_factory):
 def test_cancel_forgets_a_held_job(sim_factory, tmp_path):
     data = synth_job(n_strokes=3, samples=200, seed=5)
     sim = sim_factory(starve_timeout=0.2)
-    s = _GiveUpSender(*sim.address, data, timeout=5.0)
+    s = _GiveUpSender(*sim.address, data, state_file=tmp_path / "c.json", timeout=5.0)
     s.limit = 250
     with pytest.raises(_GaveUp):
         bounded(s.run)  # leaves once the PLC holds the job
     wait_for(lambda: sim.held is not None, 5, "a held job")
     held_id = sim.held.id
+    # Without the record of starting it (its owner token), nobody else can cancel it.
+    with pytest.raises(LinkError, match="only the computer that started a job can cancel it"):
+        bounded(UdpSender(*sim.address, data, state_file=tmp_path / "other.json", timeout=3.0).cancel)
+    assert sim.held is not None
     assert bounded(UdpSender(*sim.address, data, state_file=tmp_path / "c.json", timeout=3.0).cancel) == held_id
-    assert sim.held is None and sim.finished[held_id] == Fault.CANCELLED
+    assert sim.held is None and sim.finished[held_id][0] == Fault.CANCELLED
 
 
 # ---------------------------------------------------------------- errors a user sees
@@ -404,15 +409,23 @@ def test_cli_sim_plc_with_impairments_and_recorded_trajectory(tmp_path):
     rec = tmp_path / "trace.csv"
     sim = subprocess.Popen([sys.executable, "-m", "doodlecam", "sim", "plc", "--port", "0", "--loss", "0.1", "--dup",
                             "0.1", "--reorder", "0.1", "--corrupt", "0.02", "--seed", "3", "--rto", "0.02",
-                            "--record", str(rec)], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
-                           env=ENV, cwd=ROOT)
+                            "--record", str(rec), "--state-file", str(tmp_path / "plc.nv"), "--key", "s3cret-of-the-shop"],
+                           stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=ENV, cwd=ROOT)
     try:
         first = sim.stdout.readline()
         port = int(first.split(" on ")[1].split()[0].rsplit(":", 1)[1])
-        r = subprocess.run([sys.executable, "-m", "doodlecam", "send", str(job), "--udp", f"127.0.0.1:{port}",
-                            "--no-progress"], capture_output=True, text=True, env=ENV, cwd=ROOT, timeout=60)
+
+        def send(*extra):
+            return subprocess.run([sys.executable, "-m", "doodlecam", "send", str(job), "--udp", f"127.0.0.1:{port}",
+                                   "--no-progress", "--transport-opt", "key=s3cret-of-the-shop", *extra],
+                                  capture_output=True, text=True, env=ENV, cwd=ROOT, timeout=60)
+
+        r = send()
         assert r.returncode == 0, r.stderr
         assert f"{read_plc_array(data)[0].no_commands} commands executed" in r.stdout
+        again = send()  # the PLC remembers the content: a one-line refusal that says what to do
+        assert again.returncode != 0 and "already finished" in again.stderr and "--again" in again.stderr
+        assert "Traceback" not in again.stderr and len(again.stderr.strip().splitlines()) == 1
     finally:
         sim.send_signal(signal.SIGINT)
         sim.communicate(timeout=10)

@@ -77,11 +77,15 @@ class _Progress:
 @click.option("--check", is_flag=True, help="GRBL: dry run in check mode ($C): parse every line, move nothing.")
 @click.option("--restart", is_flag=True, help="Start from the first command even if an earlier run was interrupted.")
 @click.option("--cancel", is_flag=True, help="PLC: cancel the job it is running or holding, and forget the resume point.")
+@click.option("--again", is_flag=True, help="PLC: draw a job the PLC has already finished once more.")
+@click.option("-m", "--machine", help="Machine profile whose [transport.udp] / [transport.serial] table sets options "
+              "(e.g. the PLC's pre-shared key).")
 @click.option("--from-line", type=int, metavar="N", help="GRBL: start at line N of the file (after a stop you checked).")
 @click.option("--timeout", type=float, help="Seconds without an answer before giving up (default 5).")
 @click.option("--transport-opt", multiple=True, metavar="KEY=VALUE", help="Transport plugin option (repeatable).")
 @click.option("--no-progress", is_flag=True, help="No progress bar.")
-def send(job, udp, serial_port, baud, check, restart, cancel, from_line, timeout, transport_opt, no_progress):
+def send(job, udp, serial_port, baud, check, restart, cancel, again, machine, from_line, timeout, transport_opt,
+         no_progress):
     """Send JOB to a machine: a .plc file to the PLC (--udp), G-code to GRBL (--serial).
 
     \b
@@ -99,8 +103,8 @@ def send(job, udp, serial_port, baud, check, restart, cancel, from_line, timeout
     kind = "udp" if udp else "serial"
     if kind == "udp" and (check or from_line or baud):
         raise click.UsageError("--check, --from-line and --baud are for --serial (GRBL)")
-    if kind == "serial" and cancel:
-        raise click.UsageError("--cancel is for --udp (a GRBL job stops with Ctrl-C)")
+    if kind == "serial" and (cancel or again):
+        raise click.UsageError("--cancel and --again are for --udp (a GRBL job stops with Ctrl-C)")
     if not job.is_file():
         raise click.BadParameter(f"{job} does not exist", param_hint="JOB")
     ext = job.suffix.lower()
@@ -116,7 +120,12 @@ def send(job, udp, serial_port, baud, check, restart, cancel, from_line, timeout
         cli_opts["timeout"] = timeout
     if baud is not None:
         cli_opts["baud"] = baud
-    options = cls.resolve_options(cli_opts)
+    profile_opts = {}
+    if machine:
+        from doodlecam.machine import load_machine
+
+        profile_opts = load_machine(machine).plugin_options.get(f"transport.{kind}", {})
+    options = cls.resolve_options(profile_opts, cli_opts)
     transport = cls()
 
     if kind == "udp":
@@ -129,7 +138,8 @@ def send(job, udp, serial_port, baud, check, restart, cancel, from_line, timeout
 
     try:
         if kind == "udp":
-            result = transport.send(job, udp, options, restart=restart, cancel=cancel, progress=bar, log=bar.log)
+            result = transport.send(job, udp, options, restart=restart, cancel=cancel, again=again, progress=bar,
+                                    log=bar.log)
         else:
             result = transport.send(job, serial_port, options, restart=restart, check=check, from_line=from_line,
                                     progress=bar, log=bar.log)
@@ -225,9 +235,13 @@ def sim():
 @click.option("--rto", type=float, default=0.05, show_default=True, help="Seconds before missing commands are re-requested.")
 @click.option("--no-boundaries", is_flag=True, help="Do not check commands against the work area (limit switches still trip).")
 @click.option("--record", type=click.Path(path_type=Path), help="Write the executed trajectory to this CSV at exit.")
+@click.option("--state-file", type=click.Path(path_type=Path),
+              help="The PLC's non-volatile memory (ended jobs, current job); kept across restarts.")
+@click.option("--key", help="Pre-shared key: accept only HMAC-authenticated datagrams (default: the profile's "
+              "[transport.udp] key, if any).")
 @click.option("--quiet", is_flag=True, help="Do not log state changes.")
 def sim_plc(host, port, machine, buffer_size, realtime, speed, loss, dup, reorder, corrupt, delay, jitter, seed, rto,
-            no_boundaries, record, quiet):
+            no_boundaries, record, state_file, key, quiet):
     """Simulate the DoodleBot PLC on UDP (Governor, command buffer, limit switches)."""
     import math
 
@@ -242,9 +256,11 @@ def sim_plc(host, port, machine, buffer_size, realtime, speed, loss, dup, reorde
         imp.check()
     except ValueError as e:
         raise click.BadParameter(str(e)) from None
-    cfg = PlcConfig.from_machine(load_machine(machine), host=host, port=port, buffer_size=buffer_size, rto=rto,
+    profile = load_machine(machine)
+    key = key if key is not None else profile.plugin_options.get("transport.udp", {}).get("key", "")
+    cfg = PlcConfig.from_machine(profile, host=host, port=port, buffer_size=buffer_size, rto=rto,
                                  speed=1.0 if realtime else (speed or math.inf), soft_limits=not no_boundaries,
-                                 impair=imp)
+                                 impair=imp, key=str(key).encode() or None, state_file=state_file)
     t0 = time.monotonic()
 
     def log(msg: str) -> None:
@@ -257,7 +273,7 @@ def sim_plc(host, port, machine, buffer_size, realtime, speed, loss, dup, reorde
         raise DoodleError(f"cannot listen on {host}:{port} ({e.strerror}); pick another --port") from None
     mode = "real time" if realtime else (f"{speed:g}x real time" if speed else "simulated time")
     click.echo(f"PLC simulator on {plc.address[0]}:{plc.address[1]} ({mode}, buffer {buffer_size}, machine "
-               f"{machine}); Ctrl-C stops", err=False)
+               f"{machine}{', HMAC key' if cfg.key else ''}); Ctrl-C stops", err=False)
     sys.stdout.flush()
     _stop_on_sigterm()
     try:
@@ -266,12 +282,15 @@ def sim_plc(host, port, machine, buffer_size, realtime, speed, loss, dup, reorde
         pass
     finally:
         plc.sock.close()
+        plc.nv.close()
         if record:
             plc.write_trace_csv(record)
         net = plc._inbound.stats + plc._outbound.stats
+        refused = {k: plc.stats[k] for k in ("dropped_foreign", "dropped_replayed", "dropped_unauthenticated",
+                                             "dropped_old_version", "refused_busy", "handler_errors") if plc.stats[k]}
         click.echo(f"PLC simulator stopped: {len(plc.executed_log)} commands executed, "
-                   f"{plc.stats['dropped_invalid']} corrupt datagrams dropped, impairments {dict(net) or 'none'}",
-                   err=True)
+                   f"{plc.stats['dropped_invalid']} corrupt datagrams dropped, impairments {dict(net) or 'none'}"
+                   + (f", refused {refused}" if refused else ""), err=True)
 
 
 @sim.command("grbl")

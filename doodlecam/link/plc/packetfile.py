@@ -198,7 +198,7 @@ def read_plc(data: bytes, name: str = "PLC data") -> tuple[PlcHeader, list[PlcCo
 
 def read_plc_array(data: bytes, name: str = "PLC data") -> tuple[PlcHeader, np.ndarray]:
     """Like :func:`read_plc`, with the commands as a read-only RECORD_DTYPE array."""
-    def fail(why: str, todo: str = "re-export it with 'doodlecam post'") -> InputError:
+    def fail(why: str, todo: str = "re-export it with 'doodlecam convert --post plc'") -> InputError:
         return InputError(f"{name}: {why}; {todo}")
 
     data = bytes(data)

@@ -16,7 +16,13 @@ corruption and delay:
   nor misorder a command;
 * the PLC drives retransmission: it re-requests what has not arrived within
   its retransmission timeout; the PC only answers requests (stateless, so a
-  duplicate or late REQUEST costs bandwidth, never correctness).
+  duplicate or late REQUEST costs bandwidth, never correctness);
+* version 2 (this one) adds, for shared networks: every field range-checked
+  in ``decode``; a random session nonce per PC run in ``origin`` and a job
+  owner token in HEADER / CANCEL (the PLC binds a job to them); an optional
+  HMAC-SHA256 tag with a pre-shared key and ``ReplayWindow`` over ``seq``;
+  NAK reasons that name the busy job's owner and when a content finished.
+  Version 1 datagrams are recognised (``OldVersion``) and declined.
 
 Pure encoding and decoding here; the PLC simulator is ``simulator``, the PC side
 ``sender``. Also the PLC command semantics both need: the planned position
@@ -25,8 +31,12 @@ and velocity after every command (``planned_states``).
 
 from __future__ import annotations
 
+import hmac
+import ipaddress
+import math
 import struct
 import zlib
+from hashlib import sha256
 from dataclasses import dataclass
 from enum import IntEnum
 
@@ -35,12 +45,18 @@ import numpy as np
 from doodlecam.link.plc.packetfile import DRAW, MOVE, RECORD_DTYPE, PlcHeader
 
 MAGIC = b"DP"
-VERSION = 1
-COMMON = struct.Struct("<2sBBIQI")  # magic, version, type, job_id, origin, seq
+VERSION = 2
+OLD_VERSIONS = (1,)  # recognised, and declined with a clear message
+COMMON = struct.Struct("<2sBBIQIB3x")  # magic, version, type, job_id, origin, seq, flags
 CRC = struct.Struct("<I")
+TAG_SIZE = 32  # HMAC-SHA256 tag before the CRC when the AUTH flag is set
+AUTH = 0x01  # COMMON flags: the datagram carries an HMAC-SHA256 tag
 MAX_DATAGRAM = 1472  # one Ethernet frame (1500 - IP 20 - UDP 8): no IP fragmentation
-MAX_PER_DATA = 64  # 64 x 16-byte records + 32 bytes of framing = 1056 bytes
+MAX_PER_DATA = 64  # 64 x 16-byte records + 24 + 8 + 32 + 4 bytes of framing = 1092 bytes
 MAX_RANGES = 16  # ranges per REQUEST
+MAX_COMMAND = 0xFFFFFFFF  # command numbers are uint32, from 1
+AGAIN = 0x01  # HEADER flags: run this content even though the PLC finished it before
+MAX_DELTA_TIME = 1.0  # s; the report samples every 40 ms
 
 
 class Msg(IntEnum):
@@ -77,6 +93,7 @@ class Fault(IntEnum):
     STOPPED = 4  # the PC asked to stop (pause): job held for resume
     CANCELLED = 5  # the PC cancelled the job
     BAD_COMMAND = 6  # a command the PLC cannot execute (unknown type)
+    POWER_LOST = 7  # the PLC restarted during the job: held, resumes at its next command
 
 
 class Nak(IntEnum):
@@ -85,6 +102,8 @@ class Nak(IntEnum):
     START_MISMATCH = 3  # resume point differs from the held job's; detail = the PLC's next command
     BAD_HEADER = 4  # header values the PLC cannot use
     NOT_READY = 5  # PLC is not in B_ready (not initialised); detail = State
+    ALREADY_DONE = 6  # this content (job_crc) ran to its end; detail = that job id, when = its end (Unix s)
+    AUTH_REQUIRED = 7  # the PLC has a key and the datagram had no valid tag
 
 
 FAULT_TEXT = {
@@ -95,22 +114,60 @@ FAULT_TEXT = {
     Fault.STOPPED: "stopped on request",
     Fault.CANCELLED: "job cancelled",
     Fault.BAD_COMMAND: "a command has an unknown type",
+    Fault.POWER_LOST: "the PLC restarted during the job",
 }
 
 # flags in the status block
 HELD = 0x01  # the PLC holds a suspended job (job_id / job_crc / executed say which and where)
 
 _STATUS = struct.Struct("<BBBBIIIIiiII")  # state fault pen flags buffer_size executed buffered fault_cmd x y last_done job_crc
-_HEADER = struct.Struct("<IIIIdddiiiiddii")
+_HEADER = struct.Struct("<IIIIdddiiiiddiiQ")
+_CANCEL = struct.Struct("<Q")  # the job's owner token
 _DATA = struct.Struct("<IHxx")
 _STOP = struct.Struct("<B3x")
 _NREQ = struct.Struct("<Hxx")
 _RANGE = struct.Struct("<II")
-_NAK = struct.Struct("<HxxI")
+_NAK = struct.Struct("<HHIII")  # reason, owner_port, detail, owner_ip (IPv4), when (Unix s)
 
 
 class ProtocolError(ValueError):
     """A datagram that is not a valid message (dropped by the receiver)."""
+
+
+class OldVersion(ProtocolError):
+    """A well-formed datagram of an earlier protocol version (declined, not interpreted)."""
+
+    def __init__(self, version: int):
+        super().__init__(f"protocol version {version}, this side speaks {VERSION}")
+        self.version = version
+
+
+class AuthError(ProtocolError):
+    """A datagram without a valid HMAC tag where a key is set (or with a tag where none is)."""
+
+
+class ReplayWindow:
+    """Anti-replay window over a session's ``seq`` (as IPsec's, RFC 4303 section 3.4.3).
+
+    Accepts each sequence number at most once: anything above the highest seen,
+    or within ``size`` below it and not seen yet (so reordering costs nothing);
+    older or repeated numbers are refused.
+    """
+
+    def __init__(self, size: int = 64):
+        self.size, self.top, self.bits = size, 0, 0
+
+    def accept(self, seq: int) -> bool:
+        if seq > self.top:
+            shift = seq - self.top
+            self.bits = ((self.bits << shift) | 1) & ((1 << self.size) - 1) if shift < self.size else 1
+            self.top = seq
+            return True
+        back = self.top - seq
+        if seq == 0 or back >= self.size or self.bits >> back & 1:
+            return False
+        self.bits |= 1 << back
+        return True
 
 
 @dataclass(frozen=True)
@@ -137,24 +194,42 @@ class JobHeader:
     resume_vx: int = 0
     resume_vy: int = 0
     flags: int = 0
+    token: int = 0  # the job's owner token: random, chosen by the PC that starts the job (docs/protocol.md 1.5)
 
     @classmethod
-    def from_plc(cls, h: PlcHeader, job_crc: int, start_at: int = 1, resume=((0.0, 0.0), (0, 0))) -> "JobHeader":
+    def from_plc(cls, h: PlcHeader, job_crc: int, start_at: int = 1, resume=((0.0, 0.0), (0, 0)), *,
+                 token: int = 0, flags: int = 0) -> "JobHeader":
         (rx, ry), (rvx, rvy) = resume
         return cls(job_crc, h.no_commands, start_at, h.delta_time, h.steps_per_mm_x, h.steps_per_mm_y,
                    h.max_accel_x, h.max_accel_y, h.move_speed_x, h.move_speed_y,
-                   float(rx), float(ry), int(rvx), int(rvy))
+                   float(rx), float(ry), int(rvx), int(rvy), flags, token)
+
+    def problem(self) -> str | None:
+        """Why a PLC cannot run this header (field ranges of docs/protocol.md 1.3), or None."""
+        floats = (self.delta_time, self.steps_per_mm_x, self.steps_per_mm_y, self.resume_x, self.resume_y)
+        if not all(math.isfinite(v) for v in floats):
+            return "a value is not finite"
+        if not 1 <= self.start_at <= self.no_commands:
+            return "start_at outside 1..no_commands"
+        if not 0.0 < self.delta_time <= MAX_DELTA_TIME:
+            return f"delta_time outside (0, {MAX_DELTA_TIME:g}] s"
+        if min(self.steps_per_mm_x, self.steps_per_mm_y, self.max_accel_x, self.max_accel_y,
+               self.move_speed_x, self.move_speed_y) <= 0:
+            return "a scale, acceleration or speed is not positive"
+        if self.flags & ~AGAIN:
+            return f"unknown flags 0x{self.flags:x}"
+        return None
 
     def pack(self) -> bytes:
         return _HEADER.pack(self.job_crc, self.no_commands, self.start_at, self.flags, self.delta_time,
                             self.steps_per_mm_x, self.steps_per_mm_y, self.max_accel_x, self.max_accel_y,
                             self.move_speed_x, self.move_speed_y, self.resume_x, self.resume_y,
-                            self.resume_vx, self.resume_vy)
+                            self.resume_vx, self.resume_vy, self.token)
 
     @classmethod
     def unpack(cls, body: bytes) -> "JobHeader":
-        (crc, n, start, flags, dt, sx, sy, ax, ay, vx, vy, rx, ry, rvx, rvy) = _HEADER.unpack(body)
-        return cls(crc, n, start, dt, sx, sy, ax, ay, vx, vy, rx, ry, rvx, rvy, flags)
+        (crc, n, start, flags, dt, sx, sy, ax, ay, vx, vy, rx, ry, rvx, rvy, token) = _HEADER.unpack(body)
+        return cls(crc, n, start, dt, sx, sy, ax, ay, vx, vy, rx, ry, rvx, rvy, flags, token)
 
 
 @dataclass(frozen=True)
@@ -201,91 +276,150 @@ class Message:
     records: np.ndarray | None = None  # DATA: RECORD_DTYPE array
     ranges: tuple[tuple[int, int], ...] = ()  # REQUEST: (first command_no, count)
     mode: int = 0  # STOP: 0 = at the end of the current stroke, 1 = now
+    token: int = 0  # CANCEL: the owner token of the job to cancel
     reason: int = 0  # NAK
     detail: int = 0  # NAK
+    owner: tuple[str, int] | None = None  # NAK BUSY: the address of the sender whose job runs
+    when: int = 0  # NAK ALREADY_DONE: Unix s the content finished
+    authenticated: bool = False  # carried a valid HMAC tag
 
 
 # ---------------------------------------------------------------- encoding
 
-def _frame(kind: Msg, job_id: int, origin: int, seq: int, body: bytes = b"") -> bytes:
-    head = COMMON.pack(MAGIC, VERSION, kind, job_id & 0xFFFFFFFF, origin & 0xFFFFFFFFFFFFFFFF, seq & 0xFFFFFFFF)
+def _tag(key: bytes, msg) -> bytes:
+    return hmac.new(key, msg, sha256).digest()
+
+
+def frame(kind: int, job_id: int, origin: int, seq: int, body: bytes = b"", key: bytes | None = None) -> bytes:
+    """One datagram: common header, body, HMAC-SHA256 tag (when ``key``), CRC-32."""
+    head = COMMON.pack(MAGIC, VERSION, kind, job_id & 0xFFFFFFFF, origin & 0xFFFFFFFFFFFFFFFF, seq & 0xFFFFFFFF,
+                       AUTH if key else 0)
     msg = head + body
+    if key:
+        msg += _tag(key, msg)
     return msg + CRC.pack(zlib.crc32(msg))
 
 
-def hello(origin: int, seq: int, job_id: int = 0) -> bytes:
-    return _frame(Msg.HELLO, job_id, origin, seq)
+def hello(origin: int, seq: int, job_id: int = 0, key: bytes | None = None) -> bytes:
+    return frame(Msg.HELLO, job_id, origin, seq, key=key)
 
 
-def header(origin: int, seq: int, job_id: int, h: JobHeader) -> bytes:
-    return _frame(Msg.HEADER, job_id, origin, seq, h.pack())
+def header(origin: int, seq: int, job_id: int, h: JobHeader, key: bytes | None = None) -> bytes:
+    return frame(Msg.HEADER, job_id, origin, seq, h.pack(), key)
 
 
-def data(origin: int, seq: int, job_id: int, records: np.ndarray) -> bytes:
+def data(origin: int, seq: int, job_id: int, records: np.ndarray, key: bytes | None = None) -> bytes:
     """DATA with consecutive records (RECORD_DTYPE, at most MAX_PER_DATA)."""
     if not 0 < len(records) <= MAX_PER_DATA:
         raise ValueError(f"DATA carries 1..{MAX_PER_DATA} records, got {len(records)}")
-    return _frame(Msg.DATA, job_id, origin, seq,
-                  _DATA.pack(int(records["command_no"][0]), len(records)) + records.astype(RECORD_DTYPE, copy=False).tobytes())
+    return frame(Msg.DATA, job_id, origin, seq,
+                 _DATA.pack(int(records["command_no"][0]), len(records)) + records.astype(RECORD_DTYPE, copy=False).tobytes(),
+                 key)
 
 
-def stop(origin: int, seq: int, job_id: int, now: bool = False) -> bytes:
-    return _frame(Msg.STOP, job_id, origin, seq, _STOP.pack(1 if now else 0))
+def stop(origin: int, seq: int, job_id: int, now: bool = False, key: bytes | None = None) -> bytes:
+    return frame(Msg.STOP, job_id, origin, seq, _STOP.pack(1 if now else 0), key)
 
 
-def cancel(origin: int, seq: int, job_id: int) -> bytes:
-    return _frame(Msg.CANCEL, job_id, origin, seq)
+def cancel(origin: int, seq: int, job_id: int, token: int, key: bytes | None = None) -> bytes:
+    return frame(Msg.CANCEL, job_id, origin, seq, _CANCEL.pack(token), key)
+
+
+def _ipv4(addr: str) -> int:
+    try:
+        return int(ipaddress.IPv4Address(addr))
+    except ValueError:
+        return 0  # not IPv4: the owner is named by port only
 
 
 def plc_message(kind: Msg, origin: int, seq: int, job_id: int, status: Status, *,
-                ranges=(), reason: int = 0, detail: int = 0) -> bytes:
+                ranges=(), reason: int = 0, detail: int = 0, owner: tuple[str, int] | None = None, when: int = 0,
+                key: bytes | None = None) -> bytes:
     """READY, STATUS, DONE, FAULT (status only), REQUEST (+ ranges) or NAK (+ reason)."""
     body = status.pack()
     if kind == Msg.REQUEST:
         ranges = list(ranges)[:MAX_RANGES]
         body += _NREQ.pack(len(ranges)) + b"".join(_RANGE.pack(int(f), int(c)) for f, c in ranges)
     elif kind == Msg.NAK:
-        body += _NAK.pack(reason, detail)
-    return _frame(kind, job_id, origin, seq, body)
+        ip, port = (_ipv4(owner[0]), owner[1]) if owner else (0, 0)
+        body += _NAK.pack(reason, port, detail & 0xFFFFFFFF, ip, max(0, min(int(when), 0xFFFFFFFF)))
+    return frame(kind, job_id, origin, seq, body, key)
 
 
 # ---------------------------------------------------------------- decoding
 
-_FIXED = {Msg.HELLO: 0, Msg.HEADER: _HEADER.size, Msg.STOP: _STOP.size, Msg.CANCEL: 0,
+_FIXED = {Msg.HELLO: 0, Msg.HEADER: _HEADER.size, Msg.STOP: _STOP.size, Msg.CANCEL: _CANCEL.size,
           Msg.READY: _STATUS.size, Msg.STATUS: _STATUS.size, Msg.DONE: _STATUS.size, Msg.FAULT: _STATUS.size,
           Msg.NAK: _STATUS.size + _NAK.size}
 
 
-def decode(datagram: bytes) -> Message:
-    """Check and parse one datagram; raise ProtocolError for anything invalid."""
+def _status(body: bytes) -> Status:
+    s = Status.unpack(body[:_STATUS.size])
+    if s.state > State.D_OPERATING or s.fault > max(Fault) or s.pen > 1 or s.flags & ~HELD:
+        raise ProtocolError("status field out of range")
+    return s
+
+
+def decode(datagram: bytes, key: bytes | None = None) -> Message:
+    """Check and parse one datagram; raise ProtocolError for anything invalid.
+
+    With ``key`` every datagram must carry a valid HMAC-SHA256 tag (AuthError
+    otherwise); without, a tagged datagram is refused too (AuthError: the
+    sides disagree about the key). Every field is range-checked here except
+    the header's values, which the PLC refuses with NAK BAD_HEADER
+    (``JobHeader.problem``).
+    """
     n = len(datagram)
     if n < COMMON.size + CRC.size:
         raise ProtocolError(f"short datagram ({n} bytes)")
     (crc,) = CRC.unpack_from(datagram, n - CRC.size)
     if zlib.crc32(memoryview(datagram)[:n - CRC.size]) != crc:
         raise ProtocolError("CRC mismatch")
-    magic, version, kind, job_id, origin, seq = COMMON.unpack_from(datagram)
-    if magic != MAGIC or version != VERSION:
-        raise ProtocolError(f"bad magic/version {magic!r}/{version}")
+    if datagram[:2] != MAGIC:
+        raise ProtocolError("bad magic")
+    if datagram[2] != VERSION:
+        raise OldVersion(datagram[2]) if datagram[2] in OLD_VERSIONS else ProtocolError(f"unknown version {datagram[2]}")
+    magic, version, kind, job_id, origin, seq, flags = COMMON.unpack_from(datagram)
+    if flags & ~AUTH:
+        raise ProtocolError(f"unknown flags 0x{flags:x}")
+    end = n - CRC.size
+    if flags & AUTH:
+        end -= TAG_SIZE
+        if end < COMMON.size:
+            raise ProtocolError("short authenticated datagram")
+        if not key:
+            raise AuthError("authenticated datagram, but no key is set")
+        if not hmac.compare_digest(_tag(key, memoryview(datagram)[:end]), bytes(datagram[end:end + TAG_SIZE])):
+            raise AuthError("HMAC tag mismatch")
+    elif key:
+        raise AuthError("datagram without HMAC tag")
     try:
         kind = Msg(kind)
     except ValueError:
         raise ProtocolError(f"unknown message type {kind}") from None
-    body = bytes(datagram[COMMON.size:n - CRC.size])
-    base = dict(type=kind, job_id=job_id, origin=origin, seq=seq)
+    body = bytes(datagram[COMMON.size:end])
+    base = dict(type=kind, job_id=job_id, origin=origin, seq=seq, authenticated=bool(flags & AUTH))
     if kind in _FIXED:
         if len(body) != _FIXED[kind]:
             raise ProtocolError(f"{kind.name} body is {len(body)} bytes, expected {_FIXED[kind]}")
         if kind == Msg.HEADER:
             return Message(**base, header=JobHeader.unpack(body))
         if kind == Msg.STOP:
-            return Message(**base, mode=_STOP.unpack(body)[0])
-        if kind in (Msg.HELLO, Msg.CANCEL):
+            mode = _STOP.unpack(body)[0]
+            if mode > 1:
+                raise ProtocolError(f"STOP mode {mode} is not 0 or 1")
+            return Message(**base, mode=mode)
+        if kind == Msg.CANCEL:
+            return Message(**base, token=_CANCEL.unpack(body)[0])
+        if kind == Msg.HELLO:
             return Message(**base)
-        status = Status.unpack(body[:_STATUS.size])
+        status = _status(body)
         if kind == Msg.NAK:
-            reason, detail = _NAK.unpack_from(body, _STATUS.size)
-            return Message(**base, status=status, reason=reason, detail=detail)
+            reason, port, detail, ip, when = _NAK.unpack_from(body, _STATUS.size)
+            if reason not in Nak._value2member_map_:
+                raise ProtocolError(f"unknown NAK reason {reason}")
+            owner = (str(ipaddress.IPv4Address(ip)), port) if reason == Nak.BUSY else None
+            return Message(**base, status=status, reason=reason, detail=detail, owner=owner, when=when)
         return Message(**base, status=status)
     if kind == Msg.DATA:
         if len(body) < _DATA.size:
@@ -293,20 +427,26 @@ def decode(datagram: bytes) -> Message:
         first, count = _DATA.unpack_from(body)
         if not 0 < count <= MAX_PER_DATA or len(body) != _DATA.size + count * RECORD_DTYPE.itemsize:
             raise ProtocolError(f"DATA length does not match its count {count}")
+        if first < 1 or first + count - 1 > MAX_COMMAND:
+            raise ProtocolError(f"DATA command numbers {first}+{count} outside 1..{MAX_COMMAND}")
         recs = np.frombuffer(body, RECORD_DTYPE, count=count, offset=_DATA.size)
         # The records must be exactly first, first+1, ...: a sender bug must not reorder commands.
-        if not np.array_equal(recs["command_no"], np.arange(first, first + count, dtype=np.uint32)):
+        if not np.array_equal(recs["command_no"], np.arange(first, first + count, dtype=np.int64)):
             raise ProtocolError("DATA records are not numbered consecutively from 'first'")
+        if np.any(recs["type"] > MOVE):
+            raise ProtocolError("DATA record type is neither DRAW (0) nor MOVE (1)")
         return Message(**base, first=first, records=recs)
     # REQUEST
     if len(body) < _STATUS.size + _NREQ.size:
         raise ProtocolError("short REQUEST")
-    status = Status.unpack(body[:_STATUS.size])
+    status = _status(body)
     (count,) = _NREQ.unpack_from(body, _STATUS.size)
     off = _STATUS.size + _NREQ.size
     if count > MAX_RANGES or len(body) != off + count * _RANGE.size:
         raise ProtocolError("REQUEST length does not match its range count")
     ranges = tuple(_RANGE.unpack_from(body, off + i * _RANGE.size) for i in range(count))
+    if any(f < 1 or c < 1 or f + c - 1 > MAX_COMMAND for f, c in ranges):
+        raise ProtocolError("REQUEST range outside 1..2^32-1")
     return Message(**base, status=status, ranges=ranges)
 
 
@@ -367,7 +507,8 @@ def command_durations(records: np.ndarray, header: PlcHeader, home=(0.0, 0.0)) -
 
 
 __all__ = [
-    "MAGIC", "VERSION", "MAX_PER_DATA", "MAX_RANGES", "Msg", "State", "Fault", "Nak", "FAULT_TEXT", "HELD",
-    "JobHeader", "Status", "Message", "ProtocolError", "hello", "header", "data", "stop", "cancel",
+    "MAGIC", "VERSION", "OLD_VERSIONS", "MAX_PER_DATA", "MAX_RANGES", "MAX_COMMAND", "AGAIN", "AUTH", "Msg", "State",
+    "Fault", "Nak", "FAULT_TEXT", "HELD", "JobHeader", "Status", "Message", "ProtocolError", "OldVersion", "AuthError",
+    "ReplayWindow", "frame", "hello", "header", "data", "stop", "cancel",
     "plc_message", "decode", "job_crc", "planned_states", "resume_state", "command_durations", "DRAW", "MOVE",
 ]

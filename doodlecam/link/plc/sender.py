@@ -7,16 +7,19 @@ retransmission state of its own: the PLC re-requests what it lacks, so
 answering a duplicate or late REQUEST costs bandwidth, never correctness.
 
 Resuming: the PLC's count of executed commands is the truth. The sender
-stores the job id and the last count it heard in a small state file next to
-the job (written atomically), so a restarted sender re-attaches to a job
-the PLC is still running, resumes one the PLC holds (after Ctrl-C, an
-underrun, or a killed sender), and only falls back on its own record when
-the PLC no longer remembers the job (it was restarted).
+stores the job id, the job's secret owner token and the last count it heard
+in a small state file next to the job (written atomically, mode 0600), so a
+restarted sender re-attaches to a job the PLC is still running, resumes one
+the PLC holds (after Ctrl-C, an underrun, a killed sender or a power cycle),
+and only falls back on its own record when the PLC no longer remembers the
+job. Each run has its own random session nonce; with a key every datagram is
+HMAC-tagged. Silence is judged against the PLC's buffer: the sender waits
+``timeout`` plus the planned time of the commands the PLC still holds.
 """
 
 from __future__ import annotations
 
-import random
+import secrets
 import socket
 import time
 from dataclasses import dataclass, field
@@ -74,10 +77,13 @@ class UdpSender:
 
     def __init__(self, host: str, port: int, plc_bytes: bytes, name: str = "job.plc", *,
                  state_file: Path | None = None, timeout: float = 5.0, rto: float = 0.1,
-                 restart: bool = False, progress: Callable[[int, int, P.Status | None], None] | None = None,
+                 restart: bool = False, again: bool = False, key: bytes | None = None,
+                 progress: Callable[[int, int, P.Status | None], None] | None = None,
                  log: Callable[[str], None] | None = None):
         if timeout <= 0 or rto <= 0:
             raise ValueError("timeout and rto must be positive")
+        self.key = key or None
+        self.again = again
         self.host, self.port, self.name = host, port, name
         self.plc_header, self.records = read_plc_array(plc_bytes, name)
         self.n = len(self.records)
@@ -88,10 +94,11 @@ class UdpSender:
         self.restart = restart
         self.progress = progress or (lambda executed, total, status: None)
         self.log = log or (lambda msg: None)
-        # Sessions are ordered by this clock reading: the PLC ignores control messages from older ones.
-        self.session = time.time_ns() // 1000
+        # This run's session nonce: the PLC takes DATA / STOP only from this address with this nonce.
+        self.session = secrets.randbits(64) | 1
         self.seq = 0
         self.job_id: int | None = None
+        self.token = 0  # the job's owner token (random, in the record): proves the job is ours after a restart
         self.executed = 0
         self.start_at = 1
         self.boot: int | None = None
@@ -100,10 +107,12 @@ class UdpSender:
         self.last_status: P.Status | None = None
         self.underruns = 0
         self.stats = {"datagrams_sent": 0, "datagrams_received": 0, "invalid_received": 0,
-                      "stale_received": 0, "commands_sent": 0}
+                      "unauthenticated_received": 0, "stale_received": 0, "commands_sent": 0}
+        self._left = planned_time_left(self.records, self.plc_header)
         self._saved_at = 0.0
         self._saved_executed = -1
         self.sock: socket.socket | None = None
+        self._serving = False  # the job is under way: an unreachable port is a pause, not a wrong address
         self.interrupts = Interrupts()
 
     # ------------------------------------------------------------ plumbing
@@ -129,6 +138,8 @@ class UdpSender:
         try:
             self.sock.send(datagram)
         except ConnectionRefusedError:
+            if self._serving:  # mid-job, a PLC rebooting: silence, judged by the patience of _serve
+                return
             raise self._refused() from None
         except OSError as e:
             raise LinkError(f"cannot send to the PLC at {self.where} ({e.strerror}); check the network") from None
@@ -151,12 +162,20 @@ class UdpSender:
         except (socket.timeout, BlockingIOError):
             return None
         except ConnectionRefusedError:
+            if self._serving:
+                return None
             raise self._refused() from None
         except OSError as e:
             raise LinkError(f"lost the link to the PLC at {self.where} ({e.strerror})") from None
         self.stats["datagrams_received"] += 1
         try:
-            m = P.decode(data)
+            m = P.decode(data, self.key)
+        except P.OldVersion as e:
+            raise LinkError(f"the PLC at {self.where} speaks protocol version {e.version}, this doodlecam speaks "
+                            f"{P.VERSION}; update the PLC's program (docs/protocol.md)") from None
+        except P.AuthError:
+            self.stats["unauthenticated_received"] += 1
+            return None
         except P.ProtocolError:
             self.stats["invalid_received"] += 1
             return None
@@ -166,8 +185,9 @@ class UdpSender:
         if self.boot is not None and m.origin != self.boot:
             # A new boot id: the PLC restarted and lost its buffer and position.
             if self.job_id is not None and self.executed > 0:
+                self._save(force=True)
                 raise LinkError(f"the PLC at {self.where} restarted during the job (after command {self.executed} of "
-                                f"{self.n}); home it, then send the job again to resume")
+                                f"{self.n}); it keeps its place: once it is homed, send the job again to resume")
             self.last_seq = 0
         self.boot = m.origin
         if m.seq <= self.last_seq:  # a duplicate, or overtaken by a newer message: stale news
@@ -181,8 +201,9 @@ class UdpSender:
     def _save(self, force: bool = False) -> None:
         now = time.monotonic()
         if force or (self.executed != self._saved_executed and now - self._saved_at > 0.5):
-            save_state(self.state_file, {"job_crc": self.crc, "job_id": self.job_id, "executed": self.executed,
-                                         "total": self.n, "plc": self.where, "updated": time.time()})
+            save_state(self.state_file, {"job_crc": self.crc, "job_id": self.job_id, "token": self.token,
+                                         "executed": self.executed, "total": self.n, "plc": self.where,
+                                         "updated": time.time()})
             self._saved_at, self._saved_executed = now, self.executed
 
     # ------------------------------------------------------------ phases
@@ -194,33 +215,49 @@ class UdpSender:
         m = None
         while time.monotonic() < deadline:
             if time.monotonic() >= next_hello:
-                self._send(P.hello(self.session, self._next_seq(), self.job_id or 0))
+                self._send(P.hello(self.session, self._next_seq(), self.job_id or 0, self.key))
                 next_hello = time.monotonic() + min(0.25, self.timeout / 4)
             got = self._recv(min(next_hello, deadline) - time.monotonic())
             if got is None:
                 continue
             m = got
+            if m.type == Msg.NAK and m.reason == Nak.BUSY and m.detail != self.job_id:
+                raise self._busy(m)
+            if m.type == Msg.NAK and m.reason == Nak.AUTH_REQUIRED:
+                raise LinkError(f"the PLC at {self.where} requires a key: give the same one with --transport-opt "
+                                "key=... or the machine profile's [transport.udp] key")
             if m.status.state not in (State.POWER_ON, State.A_INIT):
                 return m
         if m is not None:
             raise LinkError(f"the PLC at {self.where} is not initialised (state {State(m.status.state).name}); "
                             "press a Y limit switch so it homes, then send the job again")
+        if self.stats["unauthenticated_received"]:
+            raise LinkError(f"the PLC at {self.where} answers, but not with this key: set the same key on both sides "
+                            "(--transport-opt key=... / the PLC's key), or none on both")
         raise LinkError(f"no answer from the PLC at {self.where} within {self.timeout:g} s; check that it is on, "
-                        f"connected and at that address (to try without hardware: doodlecam sim plc --port {self.port})")
+                        f"connected and at that address (to try without hardware: doodlecam sim plc --port {self.port}); "
+                        "if the PLC requires a key, give it with --transport-opt key=...")
+
+    def _busy(self, m: P.Message) -> LinkError:
+        who = f"{m.owner[0]}:{m.owner[1]}" if m.owner else "another computer"
+        return LinkError(f"busy: job {m.detail} from {who} is running on the PLC at {self.where}; wait for it to "
+                         "finish (only the computer that started a job can stop or cancel it)")
 
     def _decide(self, m: P.Message, saved: dict | None) -> int | None:
         """The first command to send, or None when the PLC already finished this job."""
         s = m.status
         mine = self.job_id
+        jid = m.detail if m.type == Msg.NAK else m.job_id  # NAK BUSY: the running job is in detail
         if s.state in (State.C_BUFFER, State.D_OPERATING):
-            if m.job_id == mine or (mine is None and s.job_crc == self.crc and not self.restart):
-                self.job_id = m.job_id
+            if jid == mine:
                 self.executed = s.executed
                 self.log(f"the PLC is running this job (at command {s.executed + 1}); re-attaching")
-                return 0  # attach: no header needed
-            raise LinkError(f"the PLC at {self.where} is running another job (id {m.job_id}); wait for it to finish "
-                            "or cancel it: doodlecam send JOB --udp HOST:PORT --cancel")
-        if s.held and not self.restart and s.job_crc == self.crc and mine in (None, m.job_id):
+                return s.executed + 1  # the header (with our token) re-binds the job to this run
+            raise LinkError(f"busy: job {jid} is running on the PLC at {self.where}; wait for it to finish")
+        if s.held and not self.restart and s.job_crc == self.crc and mine is None:
+            raise LinkError(f"the PLC at {self.where} holds this job (job {m.job_id}), but this computer has no record "
+                            f"of starting it, so it cannot resume it; add --restart to start over (that abandons it)")
+        if s.held and not self.restart and s.job_crc == self.crc and mine == m.job_id:
             self.job_id = m.job_id
             self.log(f"the PLC holds this job before command {s.executed + 1} ({P.FAULT_TEXT[Fault(s.fault)]}); resuming")
             return s.executed + 1
@@ -240,7 +277,8 @@ class UdpSender:
                 self.log(f"the PLC does not remember job {mine} (was it restarted?); resuming from this computer's "
                          f"record after command {k}: commands executed after that record was saved run again")
             return k + 1
-        self.job_id = random.getrandbits(32) or 1  # a fresh job id: a job id is used for one run only
+        self.job_id = secrets.randbits(32) or 1  # a fresh job id: a job id is used for one run only
+        self.token = secrets.randbits(64) | 1
         return 1
 
     def _start(self, start_at: int) -> None:
@@ -250,7 +288,8 @@ class UdpSender:
             self.executed = max(start_at - 1, 0)
             self._save(force=True)  # the job id is on disk before the PLC can start it
             resume = P.resume_state(self.records, self.plc_header.delta_time, start_at)
-            hdr = P.JobHeader.from_plc(self.plc_header, self.crc, start_at, resume)
+            hdr = P.JobHeader.from_plc(self.plc_header, self.crc, start_at, resume, token=self.token,
+                                       flags=P.AGAIN if self.again else 0)
             deadline = time.monotonic() + self.timeout
             next_send = 0.0
             while True:
@@ -259,7 +298,7 @@ class UdpSender:
                     raise LinkError(f"the PLC at {self.where} did not take the job header within {self.timeout:g} s; "
                                     "check that it is idle (B_ready) and the link is up")
                 if now >= next_send:
-                    self._send(P.header(self.session, self._next_seq(), self.job_id, hdr))
+                    self._send(P.header(self.session, self._next_seq(), self.job_id, hdr, self.key))
                     next_send = now + self.rto
                 m = self._recv(min(next_send, deadline) - time.monotonic())
                 if m is None:
@@ -277,8 +316,11 @@ class UdpSender:
                         raise LinkError(f"the PLC will not run job {self.job_id} again ({P.FAULT_TEXT[Fault(m.detail)]}); "
                                         "send it with --restart to start over")
                     if m.reason == Nak.BUSY:
-                        raise LinkError(f"the PLC at {self.where} is running another job (id {m.detail}); wait for it "
-                                        "or cancel it with --cancel")
+                        raise self._busy(m)
+                    if m.reason == Nak.ALREADY_DONE:
+                        when = time.strftime("%Y-%m-%d %H:%M:%S", time.localtime(m.when))
+                        raise LinkError(f"the PLC at {self.where} already finished {self.name} on {when} (job "
+                                        f"{m.detail}); to draw it again, add --again")
                     if m.reason == Nak.BAD_HEADER:
                         raise LinkError(f"the PLC at {self.where} rejected the header of {self.name}; re-export the job")
                     continue  # NOT_READY: keep trying until the deadline
@@ -291,7 +333,7 @@ class UdpSender:
         lo, hi = max(first, 1), min(first + count - 1, self.n)
         for a in range(lo, hi + 1, P.MAX_PER_DATA):
             b = min(a + P.MAX_PER_DATA - 1, hi)
-            self._send(P.data(self.session, self._next_seq(), self.job_id, self.records[a - 1:b]))
+            self._send(P.data(self.session, self._next_seq(), self.job_id, self.records[a - 1:b], self.key))
             self.stats["commands_sent"] += b - a + 1
 
     def _on_message(self, m: P.Message) -> str | None:
@@ -318,8 +360,9 @@ class UdpSender:
 
     def _serve(self, stopping: bool = False) -> str:
         """Answer requests until the job is done (or held, when stopping)."""
-        last_progress = 0.0
+        last_progress = next_hello = 0.0
         moved_at, mark = time.monotonic(), None
+        self._serving = True
         while True:
             m = self._recv(0.1)
             now = time.monotonic()
@@ -331,10 +374,14 @@ class UdpSender:
                 raise LinkError(f"the PLC at {self.where} answers but has made no progress for {self.stall_timeout:g} s "
                                 f"(after command {self.executed} of {self.n}); check the machine, then send again")
             if m is None:
-                if now - self.last_heard > self.timeout:
+                silent = now - self.last_heard
+                if silent > self._patience():
                     self._save(force=True)
-                    raise LinkError(f"the PLC at {self.where} stopped answering for {self.timeout:g} s after command "
+                    raise LinkError(f"the PLC at {self.where} stopped answering for {silent:.1f} s after command "
                                     f"{self.executed} of {self.n}; check it, then send the job again to resume")
+                if silent > 2 * self.rto and now >= next_hello:  # ask: a restarted PLC answers with its new boot id
+                    self._send(P.hello(self.session, self._next_seq(), self.job_id, self.key))
+                    next_hello = now + max(self.rto, 0.25)
                 continue
             outcome = self._on_message(m)
             if now - last_progress > 0.1 or outcome:
@@ -352,6 +399,14 @@ class UdpSender:
                 self._start(s.executed + 1)
             self._save()
 
+    def _patience(self) -> float:
+        """Seconds of silence to accept: ``timeout``, or longer while the PLC still has commands buffered."""
+        st = self.last_status
+        if st is None:
+            return self.timeout
+        lo, hi = (min(max(int(v), 0), self.n) for v in (st.executed, st.buffered))
+        return self.timeout + max(float(self._left[lo] - self._left[max(hi, lo)]), 0.0)
+
     def _pause(self) -> None:
         """Ctrl-C: stop at the end of the stroke (again: stop now), wait for the PLC to confirm."""
         mode = 0
@@ -359,7 +414,7 @@ class UdpSender:
         self.last_heard = time.monotonic()
         while True:
             try:
-                self._send(P.stop(self.session, self._next_seq(), self.job_id, now=bool(mode)))
+                self._send(P.stop(self.session, self._next_seq(), self.job_id, now=bool(mode), key=self.key))
                 end = time.monotonic() + self.rto * 3
                 while time.monotonic() < end:
                     m = self._recv(end - time.monotonic())
@@ -394,7 +449,7 @@ class UdpSender:
         t0 = time.monotonic()
         saved = None if self.restart else load_state(self.state_file, self.crc)
         if saved:
-            self.job_id = saved["job_id"]
+            self.job_id, self.token = saved["job_id"], int(saved.get("token") or 0)
         self._open()
         try:
             with self.interrupts:
@@ -426,6 +481,9 @@ class UdpSender:
 
     def cancel(self) -> int | None:
         """Cancel the job the PLC runs or holds; return its id (None if it had none)."""
+        saved = load_state(self.state_file, self.crc)
+        if saved:
+            self.job_id = saved["job_id"]
         self._open()
         try:
             m = self._hello()
@@ -434,17 +492,24 @@ class UdpSender:
             if not busy:
                 clear_state(self.state_file)
                 return None
-            victim = m.job_id
-            self.job_id = victim
+            victim = m.detail if m.type == Msg.NAK else m.job_id
+            saved = load_state(self.state_file, self.crc)
+            if not saved or saved["job_id"] != victim:
+                who = f" from {m.owner[0]}:{m.owner[1]}" if m.owner else ""
+                raise LinkError(f"the PLC at {self.where} has job {victim}{who}, which {self.name} did not start here; "
+                                "only the computer that started a job can cancel it")
+            self.job_id, self.token = victim, int(saved.get("token") or 0)
             deadline = time.monotonic() + self.timeout
             while time.monotonic() < deadline:
-                self._send(P.cancel(self.session, self._next_seq(), victim))
+                self._send(P.cancel(self.session, self._next_seq(), victim, self.token, self.key))
                 end = time.monotonic() + self.rto * 3
                 while time.monotonic() < end:
                     r = self._recv(end - time.monotonic())
                     if r is None:
                         continue
                     rs = r.status
+                    if r.type == Msg.NAK and r.reason == Nak.BUSY:
+                        raise self._busy(r)
                     if rs.state == State.B_READY and not (rs.held and r.job_id == victim):
                         clear_state(self.state_file)
                         return victim

@@ -1,7 +1,7 @@
 """A DoodleBot PLC simulator on a real UDP socket (``doodlecam sim plc``).
 
 It runs the report's programs (section 3.4) against the wire format of
-``plcproto``:
+``protocol`` (version 2, docs/protocol.md):
 
 * Governor: POWER_ON -> A_Init (home) -> B_ready (READY every
   ``ready_interval``) -> C_buffer (request commands until the buffer is full
@@ -14,9 +14,18 @@ It runs the report's programs (section 3.4) against the wire format of
 * motorControl: DRAW ramps the velocity linearly to its target over
   delta_time; MOVE is a rest-to-rest trapezoid per axis at move_speed /
   max_accel; the pen follows the command type with its delays.
-* checkLimitSwitch: commands that would leave the work area stop the machine
-  before they run (soft boundaries); limit switches just outside it stop it
-  at once if anything gets there anyway.
+* checkLimitSwitch: commands — and the re-entry move of a resumed job — that
+  would leave the work area stop the machine before they run (soft
+  boundaries); limit switches just outside it stop it at once if anything
+  gets there anyway.
+* A hostile network: every datagram is range-checked by ``protocol.decode``
+  and counted when dropped; a running job is bound to the address and nonce
+  of the PC that drives it and owned by its IP and token; an optional key
+  requires an HMAC tag on every datagram, with a replay window per session.
+* Non-volatile memory (``nvram``): the ended jobs with their content CRC, the
+  current job and its command counter survive a restart (a new simulator on
+  the same ``state_file``), so a finished job never runs again and a resume
+  never repeats a command.
 
 Time is simulated (as fast as the network allows; for tests) or real time,
 optionally sped up. Every executed command is recorded (command_no, end time,
@@ -34,13 +43,15 @@ import socket
 import threading
 import time
 from collections import Counter, OrderedDict
-from dataclasses import dataclass, field
+from dataclasses import astuple, dataclass, field
+from pathlib import Path
 from typing import Callable
 
 import numpy as np
 
 from doodlecam.link.plc import protocol as P
 from doodlecam.link.plc.network import Impairments, LossyNetwork
+from doodlecam.link.plc.nvram import NvRam
 from doodlecam.link.plc.packetfile import DRAW, MOVE, RECORD_DTYPE
 from doodlecam.link.plc.protocol import Fault, Msg, Nak, State
 
@@ -74,6 +85,8 @@ class PlcConfig:
     soft_limits: bool = True  # check commands against the boundaries before running them
     init_time: float = 0.0  # wall s spent in A_Init
     impair: Impairments = field(default_factory=Impairments)
+    key: bytes | None = None  # pre-shared key: every datagram must carry an HMAC-SHA256 tag
+    state_file: Path | None = None  # non-volatile memory (ended jobs, current job, progress); None = volatile
 
     @classmethod
     def from_machine(cls, machine, **overrides) -> "PlcConfig":
@@ -110,6 +123,10 @@ class _Held:
     h: P.JobHeader
     next: int  # first command not executed
     reason: Fault
+    owner: str = ""  # IP of the PC that started the job (with h.token: who may resume it)
+
+
+_INT32 = (-2**31, 2**31 - 1)
 
 
 
@@ -130,15 +147,20 @@ class PlcSimulator:
         self.boot_id = random.getrandbits(63) | 1
         self.seq = 0
         self.state = State.POWER_ON
-        self.peer: tuple | None = None
-        self.peer_session = -1
+        self.peer: tuple | None = None  # where periodic messages go: the bound session's address
+        self.session: tuple[tuple, int] | None = None  # ((IP, port), nonce) of the PC run that drives the job
+        self.owner: str = ""  # IP of the PC that started the running job (with its token)
+        self.window = P.ReplayWindow()  # the bound session's seq numbers: each accepted once
         self.job: _Job | None = None
         self.held: _Held | None = None
-        self.finished: OrderedDict[int, Fault] = OrderedDict()  # job ids never to run again
+        # job ids never to run again -> (how it ended, its content CRC, Unix s); kept in non-volatile memory
+        self.finished: OrderedDict[int, tuple[Fault, int, float]] = OrderedDict()
         self.last_done = 0
         self.last_job = 0  # the last job that ended (done, aborted or cancelled)
         self.fault = Fault.NONE
         self.fault_cmd = 0
+        self.nv = NvRam(cfg.state_file)
+        self._restore()
         # motorControl state: steps, steps/s, simulated s
         self.pos = np.array(cfg.home, float)
         self.vel = np.zeros(2)
@@ -155,6 +177,7 @@ class PlcSimulator:
         self._timer = 0.0
         self._next_ready = 0.0
         self._next_status = 0.0
+        self._next_auth_nak = 0.0
         self._stop = threading.Event()
         self._thread: threading.Thread | None = None
 
@@ -166,10 +189,55 @@ class PlcSimulator:
         return self
 
     def stop(self, timeout: float = 5.0) -> None:
+        """Switch off (a power cycle, when a new simulator starts on the same ``state_file``)."""
         self._stop.set()
         if self._thread is not None:
             self._thread.join(timeout)
         self.sock.close()
+        self.nv.close()
+
+    # ------------------------------------------------------------ non-volatile memory
+
+    def _restore(self) -> None:
+        """Power-up: the ended jobs, and the job that was running or held, from non-volatile memory."""
+        rec = self.nv.record
+        try:
+            for jid, why, crc, when in rec.get("finished", []):
+                self.finished[int(jid)] = (Fault(why), int(crc), float(when))
+            self.last_done, self.last_job = int(rec.get("last_done", 0)), int(rec.get("last_job", 0))
+            j = rec.get("job")
+            if j:
+                h = P.JobHeader(*j["header"])
+                nv_id, nv_exec = self.nv.executed
+                nxt = nv_exec + 1 if nv_id == j["id"] else int(j["next"])
+                why = Fault(j["held"]) if j.get("held") else Fault.POWER_LOST
+                self.held = _Held(int(j["id"]), h, nxt, why, j["owner"])
+                self.peer = (j["owner"], int(j["port"]))  # tell the PC that the PLC is back
+                self.fault, self.fault_cmd = why, nxt
+        except (KeyError, TypeError, ValueError):
+            self.finished.clear()
+            self.held = None
+
+    def _nv_save(self) -> None:
+        rec: dict = {"finished": [[k, int(f), c, w] for k, (f, c, w) in self.finished.items()],
+                     "last_done": self.last_done, "last_job": self.last_job}
+        if self.job is not None:
+            j = self.job
+            rec["job"] = {"id": j.id, "header": list(astuple(j.h)), "next": j.executed + 1, "held": 0,
+                          "owner": self.owner, "port": self.peer[1] if self.peer else 0}
+        elif self.held is not None:
+            hd = self.held
+            rec["job"] = {"id": hd.id, "header": list(astuple(hd.h)), "next": hd.next, "held": int(hd.reason),
+                          "owner": hd.owner, "port": self.peer[1] if self.peer else 0}
+        self.nv.record = rec
+        self.nv.save()
+
+    def _finished_content(self, crc: int) -> tuple[int, float] | None:
+        """(job id, Unix s) of the latest job with this content that ran to its end."""
+        for jid, (why, c, when) in reversed(self.finished.items()):
+            if c == crc and why == Fault.NONE:
+                return jid, when
+        return None
 
     def __enter__(self):
         return self.start()
@@ -240,20 +308,29 @@ class PlcSimulator:
         executed = job.executed if job else (held.next - 1 if held else 0)
         buffered = job.buffered if job else executed
         crc = job.h.job_crc if job else (held.h.job_crc if held else 0)
+        x, y = (int(np.clip(np.round(v), *_INT32)) for v in self.pos)
         return P.Status(int(self.state), int(self.fault), int(self.pen), P.HELD if held and not job else 0,
-                        self.cfg.buffer_size, executed, buffered, self.fault_cmd,
-                        int(round(self.pos[0])), int(round(self.pos[1])), self.last_done, crc)
+                        self.cfg.buffer_size, executed, buffered, self.fault_cmd, x, y, self.last_done, crc)
 
-    def _send(self, kind: Msg, now: float, **kw) -> None:
-        if self.peer is None:
+    def _send(self, kind: Msg, now: float, to: tuple | None = None, **kw) -> None:
+        """To ``to``, else to the bound session's address (the report's PC_IP)."""
+        dest = to or self.peer
+        if dest is None:
             return
         job_id = kw.pop("job_id", None)
         if job_id is None:
             job_id = self.job.id if self.job else (self.held.id if self.held else self.last_job)
         self.seq += 1
-        data = P.plc_message(kind, self.boot_id, self.seq, job_id, self._status(), **kw)
+        data = P.plc_message(kind, self.boot_id, self.seq, job_id, self._status(), key=self.cfg.key, **kw)
         self.stats[f"sent_{kind.name}"] += 1
-        self._outbound.schedule(now, data, self.peer)
+        self._outbound.schedule(now, data, dest)
+
+    def _busy(self, m: P.Message, addr, now: float) -> None:
+        """NAK BUSY to a PC that is not the job's: names the job and who drives it; changes nothing."""
+        jid = self.job.id if self.job else self.held.id
+        owner = self.peer if self.job else (self.held.owner, self.peer[1] if self.peer else 0)
+        self.stats["refused_busy"] += 1
+        self._send(Msg.NAK, now, to=addr, job_id=m.job_id, reason=Nak.BUSY, detail=jid, owner=owner)
 
     # ------------------------------------------------------------ Governor
 
@@ -291,24 +368,55 @@ class PlcSimulator:
     # ------------------------------------------------------------ receiving
 
     def _handle(self, data: bytes, addr, now: float) -> None:
+        """One datagram from ``addr``: checked, then acted on only if it is allowed (docs/protocol.md 1.5)."""
         try:
-            m = P.decode(data)
+            m = P.decode(data, self.cfg.key)
+        except P.OldVersion as e:
+            self.stats["dropped_old_version"] += 1
+            if self.stats["dropped_old_version"] == 1:
+                self.log(f"ignoring {addr[0]}:{addr[1]}: {e}")
+            return
+        except P.AuthError:
+            self.stats["dropped_unauthenticated"] += 1
+            if data[3:4] == bytes([Msg.HELLO]) and now >= self._next_auth_nak:
+                # Say why, unauthenticated and with an empty status (nothing to learn); at most 10 per s.
+                self._next_auth_nak = now + 0.1
+                self.seq += 1
+                self._outbound.schedule(now, P.plc_message(Msg.NAK, self.boot_id, self.seq, 0, P.Status(),
+                                                           reason=Nak.AUTH_REQUIRED), addr)
+            return
         except P.ProtocolError:
             self.stats["dropped_invalid"] += 1
             return
         if m.type >= 0x10:
             self.stats["dropped_invalid"] += 1
             return
-        self.stats[f"recv_{m.type.name}"] += 1
-        if m.origin < self.peer_session and m.type != Msg.DATA:
-            self.stats["dropped_stale_session"] += 1  # from a PC session that has been superseded
+        try:
+            self._dispatch(m, addr, now)
+        except Exception as e:  # noqa: BLE001 - one datagram must never stop the machine; tests assert none
+            self.stats["handler_errors"] += 1
+            self.log(f"internal error on {m.type.name} from {addr[0]}:{addr[1]}: {e!r}")
+
+    def _dispatch(self, m: P.Message, addr, now: float) -> None:
+        mine = self.session is not None and (tuple(addr[:2]), m.origin) == self.session
+        if mine and not self.window.accept(m.seq):
+            self.stats["dropped_replayed"] += 1  # a duplicate or a replay of the bound session
             return
+        self.stats[f"recv_{m.type.name}"] += 1
         if m.type == Msg.HELLO:
-            self.peer, self.peer_session = addr, m.origin
-            self._send(Msg.STATUS if self.job else Msg.READY, now)
+            if mine or (self.job is None and self.held is None):
+                self.peer = addr  # the session's PC or, idle, whoever asks
+                self._send(Msg.STATUS if self.job else Msg.READY, now)
+            elif self.job is not None:
+                self._busy(m, addr, now)
+            else:
+                self._send(Msg.READY, now, to=addr)  # a held job: the PC sees it, the owner keeps the PLC
         elif m.type == Msg.HEADER:
-            self.peer, self.peer_session = addr, m.origin
-            self._on_header(m, now)
+            self._on_header(m, addr, mine, now)
+        elif m.type == Msg.CANCEL:
+            self._on_cancel(m, addr, now)
+        elif not mine:
+            self.stats["dropped_foreign"] += 1  # DATA / STOP from another address or session: not ours
         elif m.type == Msg.DATA:
             self._on_data(m, now)
         elif m.type == Msg.STOP:
@@ -317,57 +425,93 @@ class PlcSimulator:
                 self.log(f"stop requested ({'now' if m.mode else 'at the end of the stroke'})")
                 self._operate(now)
             self._send(Msg.STATUS if self.job else Msg.READY, now)
-        elif m.type == Msg.CANCEL:
-            if self.job and m.job_id == self.job.id:
-                self._halt(now)
-                self._forget(self.job.id, Fault.CANCELLED)
-                self.job = None
-                self.fault = Fault.CANCELLED
-                self._enter(State.B_READY, now)
-            elif self.held and m.job_id == self.held.id:
-                self._forget(self.held.id, Fault.CANCELLED)
-                self.held = None
-                self.fault = Fault.CANCELLED
-            self.log(f"job {m.job_id} cancelled")
-            self._send(Msg.READY if not self.job else Msg.STATUS, now, job_id=m.job_id)
+
+    def _on_cancel(self, m: P.Message, addr, now: float) -> None:
+        """CANCEL carries the job's owner token: only the PC that started the job can end it."""
+        job, held = self.job, self.held
+        if job and m.job_id == job.id and (addr[0], m.token) == (self.owner, job.h.token):
+            self._halt(now)
+            self._forget(job.id, Fault.CANCELLED)
+            self.job = None
+            self.fault = Fault.CANCELLED
+            self._enter(State.B_READY, now)
+        elif held and m.job_id == held.id and (addr[0], m.token) == (held.owner, held.h.token):
+            self._forget(held.id, Fault.CANCELLED)
+            self.held = None
+            self.fault = Fault.CANCELLED
+        elif job or held:
+            self._busy(m, addr, now)
+            return
+        else:
+            self._send(Msg.READY, now, to=addr, job_id=m.job_id)
+            return
+        self.session = None
+        self.log(f"job {m.job_id} cancelled")
+        self._nv_save()
+        self._send(Msg.READY, now, to=addr, job_id=m.job_id)
 
     def _forget(self, job_id: int, why: Fault) -> None:
-        self.finished[job_id] = why
+        crc = (self.job.h.job_crc if self.job and self.job.id == job_id
+               else self.held.h.job_crc if self.held and self.held.id == job_id else 0)
+        self.finished[job_id] = (why, crc, time.time())
         self.last_job = job_id
         while len(self.finished) > 64:
             self.finished.popitem(last=False)
 
-    def _on_header(self, m: P.Message, now: float) -> None:
-        h, job = m.header, self.job
+    def _bind(self, m: P.Message, addr) -> None:
+        """The sending PC run becomes the session: its address and nonce; a fresh replay window."""
+        self.session, self.peer = (tuple(addr[:2]), m.origin), addr
+        self.window = P.ReplayWindow()
+        self.window.accept(m.seq)
+
+    def _on_header(self, m: P.Message, addr, mine: bool, now: float) -> None:
+        h, job, held = m.header, self.job, self.held
         if job is not None:
-            if m.job_id == job.id:
+            if m.job_id == job.id and (addr[0], h.token) == (self.owner, job.h.token):
+                if not mine:  # the job's PC restarted its sender: the new run drives the job
+                    self._bind(m, addr)
+                    self.log(f"job {job.id}: sender re-attached from {addr[0]}:{addr[1]}")
                 self._send(Msg.STATUS, now)  # a duplicate of the header we run: idempotent
             else:
-                self._send(Msg.NAK, now, reason=Nak.BUSY, detail=job.id)
+                self._busy(m, addr, now)
             return
         if m.job_id in self.finished:
-            self._send(Msg.NAK, now, job_id=m.job_id, reason=Nak.FINISHED, detail=int(self.finished[m.job_id]))
+            self._send(Msg.NAK, now, to=addr, job_id=m.job_id, reason=Nak.FINISHED,
+                       detail=int(self.finished[m.job_id][0]))
             return
         if self.state != State.B_READY:
-            self._send(Msg.NAK, now, job_id=m.job_id, reason=Nak.NOT_READY, detail=int(self.state))
+            self._send(Msg.NAK, now, to=addr, job_id=m.job_id, reason=Nak.NOT_READY, detail=int(self.state))
             return
-        ok = (m.job_id != 0 and h.no_commands >= 1 and 1 <= h.start_at <= h.no_commands and h.delta_time > 0
-              and math.isfinite(h.delta_time) and min(h.max_accel_x, h.max_accel_y, h.move_speed_x, h.move_speed_y) > 0)
-        if not ok:
-            self._send(Msg.NAK, now, job_id=m.job_id, reason=Nak.BAD_HEADER)
+        problem = "job id 0" if m.job_id == 0 else h.problem()
+        if problem:
+            self.stats["bad_headers"] += 1
+            self._send(Msg.NAK, now, to=addr, job_id=m.job_id, reason=Nak.BAD_HEADER)
             return
-        if self.held is not None:
-            if m.job_id == self.held.id:
-                if h.start_at != self.held.next or h.job_crc != self.held.h.job_crc:
-                    self._send(Msg.NAK, now, reason=Nak.START_MISMATCH, detail=self.held.next)
-                    return
-            else:  # a new job replaces the held one, which is abandoned
-                self._forget(self.held.id, Fault.CANCELLED)
-            self.held = None
+        resuming = held is not None and m.job_id == held.id
+        if resuming:
+            if (addr[0], h.token) != (held.owner, held.h.token):
+                self._busy(m, addr, now)
+                return
+            if h.start_at != held.next or h.job_crc != held.h.job_crc or h.no_commands != held.h.no_commands:
+                self._send(Msg.NAK, now, to=addr, job_id=m.job_id, reason=Nak.START_MISMATCH, detail=held.next)
+                return
+        else:
+            done = self._finished_content(h.job_crc)
+            if done and not h.flags & P.AGAIN:
+                self._send(Msg.NAK, now, to=addr, job_id=m.job_id, reason=Nak.ALREADY_DONE, detail=done[0],
+                           when=int(done[1]))
+                return
+            if held is not None:  # a new job replaces the held one, which is abandoned
+                self._forget(held.id, Fault.CANCELLED)
+        self.held = None
+        self._bind(m, addr)
+        self.owner = addr[0]
         self.job = _Job(m.job_id, h, self.cfg.buffer_size)
         self.fault, self.fault_cmd = Fault.NONE, 0
+        self.nv.progress(m.job_id, h.start_at - 1)
+        self._nv_save()
         what = f"resuming at command {h.start_at}" if h.start_at > 1 else "starting"
-        self.log(f"job {m.job_id}: {h.no_commands} commands, {what}")
+        self.log(f"job {m.job_id} from {addr[0]}:{addr[1]}: {h.no_commands} commands, {what}")
         self._enter(State.C_BUFFER, now)
         self._maybe_request(now, force=True)
 
@@ -472,6 +616,7 @@ class PlcSimulator:
             if not self._execute(job, c, int(rec["type"]), float(rec["x"]), float(rec["y"]), now):
                 return
             job.executed = c
+            self.nv.progress(job.id, c)  # retentive, as the command counter of a real PLC
             self.executed_log.append((job.id, c))
 
     def _next_is_move_or_rest(self, job: _Job, c: int) -> bool:
@@ -509,6 +654,9 @@ class PlcSimulator:
             job.reentry = False
             if kind == DRAW:  # resume mid-stroke: see docs/protocol.md, "Resuming"
                 target = np.array([h.resume_x, h.resume_y]) + 0.5 * h.delta_time * np.array([h.resume_vx, h.resume_vy])
+                if not (np.all(np.isfinite(target)) and self._inside(target, target)):
+                    self._abort(Fault.BOUNDARY, c, now)  # the re-entry move is a MOVE like any other
+                    return False
                 self._pen_to(False)
                 self.t += self._move_time(h, target - self.pos)
                 self.pos[:], self.vel[:] = target, 0.0
@@ -567,8 +715,9 @@ class PlcSimulator:
     def _suspend(self, why: Fault, now: float) -> None:
         job = self.job
         self._halt(now)
-        self.held = _Held(job.id, job.h, job.executed + 1, why)
+        self.held = _Held(job.id, job.h, job.executed + 1, why, self.owner)
         self.job = None
+        self._nv_save()
         self.fault, self.fault_cmd = why, job.executed + 1
         self.events.append((self.t, f"job {job.id} held at command {job.executed + 1}: {why.name}"))
         self.log(f"job {job.id} held before command {job.executed + 1} ({P.FAULT_TEXT[why]})")
@@ -585,6 +734,8 @@ class PlcSimulator:
         self.log(f"FAULT at command {c}: {P.FAULT_TEXT[why]}")
         self._send(Msg.FAULT, now)
         self.job = None
+        self.session = None
+        self._nv_save()
         self._enter(State.B_READY, now)
 
     def _trip(self, c: int, now: float) -> None:
@@ -602,6 +753,8 @@ class PlcSimulator:
         self.log(f"job {job.id} done: {job.n} commands, {self.t:.2f} s simulated")
         self._send(Msg.DONE, now)
         self.job = None
+        self.session = None
+        self._nv_save()
         self.fault, self.fault_cmd = Fault.NONE, 0
         self._enter(State.B_READY, now)
 
