@@ -21,6 +21,17 @@ def _pairs(values: tuple[str, ...], what: str) -> dict[str, str]:
 
 
 
+def post_options(post_opt: tuple[str, ...]) -> dict[str, dict[str, str]]:
+    """``--post-opt POST.KEY=VALUE`` values as {post: {key: value}}."""
+    out: dict[str, dict[str, str]] = {}
+    for key, val in _pairs(post_opt, "--post-opt").items():
+        name, dot, opt = key.partition(".")
+        if not dot:
+            raise click.BadParameter(f"'{key}' must be POST.KEY=VALUE, e.g. gcode.pen_up=M5", param_hint="--post-opt")
+        out.setdefault(name, {})[opt] = val
+    return out
+
+
 def job_options(f):
     """The options every job-making command shares (convert, batch, plot ...)."""
     opts = [
@@ -59,12 +70,7 @@ def job_kwargs(machine, tracer, tracer_opt, posts, post_opt, solver, smoothing, 
                margin, rotate, fit, keep_direction, plugin_dirs) -> dict:
     """The shared options, parsed: keyword arguments for pipeline.Settings
     (with ``machine`` still the profile's name or path)."""
-    post_opts: dict[str, dict[str, str]] = {}
-    for key, val in _pairs(post_opt, "--post-opt").items():
-        name, dot, opt = key.partition(".")
-        if not dot:
-            raise click.BadParameter(f"'{key}' must be POST.KEY=VALUE, e.g. gcode.pen_up=M5", param_hint="--post-opt")
-        post_opts.setdefault(name, {})[opt] = val
+    post_opts = post_options(post_opt)
     posts = tuple(posts) or ("plc", "gcode", "svg")
     if path_tolerance is not None and not path_tolerance >= 0:
         raise click.BadParameter(f"must be 0 (off) or a distance in mm, got {path_tolerance:g}", param_hint="--path-tolerance")
