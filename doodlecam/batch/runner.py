@@ -143,13 +143,15 @@ def run_batch(in_dir: str | os.PathLike, out_dir: str | os.PathLike, options: Ba
               recursive: bool = False, include: Iterable[str] = (), exclude: Iterable[str] = (),
               jobs: int | None = None, force: bool = False, scheduler: str | None = None,
               recycle_after: int = RECYCLE_AFTER, progress: bool | None = None,
-              on_result: Callable[[dict[str, Any]], None] | None = None) -> BatchResult:
+              on_result: Callable[[dict[str, Any]], None] | None = None,
+              before_work: Callable[[], None] | None = None) -> BatchResult:
     """Convert a folder. See the module docstring; ``doodlecam batch`` is the CLI.
 
     ``jobs``: worker processes (default ``os.cpu_count()``). ``recycle_after``: files per
     local worker before it is replaced by a fresh one (0 = never). ``scheduler``: a Dask
     distributed scheduler address; workers must see ``in_dir`` and ``out_dir`` at
-    the same paths. ``progress``: a tqdm bar (None = only on a terminal).
+    the same paths. ``progress``: a tqdm bar (None = only on a terminal). ``before_work``: called
+    once every check passed, just before files are converted (the CLI's first-run notice).
     Writes the manifest, ``report.json`` and ``index.html`` into ``out_dir``.
     """
     t_start = time.perf_counter()
@@ -220,6 +222,8 @@ def run_batch(in_dir: str | os.PathLike, out_dir: str | os.PathLike, options: Ba
 
         interrupted = False
         if todo:
+            if before_work is not None:
+                before_work()
             try:
                 if scheduler:
                     interrupted = _run_dask(todo, stems, options, key, in_dir, out_dir, scheduler, progress, finished)

@@ -40,6 +40,7 @@ def calibrate(machine, outdir, factors, posts, post_opt, plugin_dirs):
     """
     from doodlecam.calibration import calibration_job
     from doodlecam.checks import check_settings
+    from doodlecam.cli.firstrun import first_run_notice
     from doodlecam.machine import load_machine
     from doodlecam.pipeline import Settings, run_posts, write_outputs
 
@@ -47,6 +48,7 @@ def calibrate(machine, outdir, factors, posts, post_opt, plugin_dirs):
     settings = Settings(machine=profile, posts=tuple(posts) or ("plc", "gcode", "svg"), post_options=post_options(post_opt),
                         plugin_dirs=tuple(plugin_dirs))
     check_settings(settings, profile, (), outdir)  # before the planning
+    first_run_notice()
     job, rows = calibration_job(profile, factors, plugin_dirs=plugin_dirs)
     written = write_outputs(outdir, "calibrate", run_posts(job, settings))
     m = profile
