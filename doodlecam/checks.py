@@ -91,10 +91,22 @@ def check_scheduler(address: str, timeout: float = 3.0) -> None:
         raise DoodleError(f"--scheduler {address}: give the Dask scheduler's address as tcp://HOST:PORT "
                           "(e.g. tcp://10.0.0.5:8786)")
     try:
-        socket.create_connection((parts.hostname, port), timeout=timeout).close()
+        sock = socket.create_connection((parts.hostname, port), timeout=timeout)
     except OSError as e:
         raise DoodleError(f"--scheduler {address}: cannot reach it ({e.strerror or e}); start the scheduler "
                           "('dask scheduler') or check the address") from None
+    with sock:
+        # A Dask scheduler sends its handshake as soon as it accepts (distributed.comm); a peer that
+        # stays mute would make distributed.Client wait forever, whatever its timeout.
+        if parts.scheme == "tcp":
+            try:
+                sock.settimeout(timeout)
+                greeting = sock.recv(1)
+            except OSError:
+                greeting = b""
+            if not greeting:
+                raise DoodleError(f"--scheduler {address}: something listens there but no Dask scheduler answers "
+                                  f"within {timeout:g} s; check the address and port") from None
 
 
 def check_settings(options: ConvertOptions, machine: Machine, inputs: Iterable[Path] = (),

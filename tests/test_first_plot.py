@@ -196,7 +196,8 @@ def test_convert_mistakes_fail_before_work(tmp_path, capsys, big_picture, no_wor
     (["--scheduler", "tcp://127.0.0.1"], "give the Dask scheduler's address as tcp://HOST:PORT"),
     (["--scheduler", "nowhere:x"], "give the Dask scheduler's address as tcp://HOST:PORT"),
     (["--scheduler", "tcp://127.0.0.1:{free}"], "cannot reach it"),
-], ids=[str(m[0][0])[:20] for m in MISTAKES] + ["portless", "badport", "unreachable"])
+    (["--scheduler", "tcp://127.0.0.1:{mute}"], "no Dask scheduler answers"),
+], ids=[str(m[0][0])[:20] for m in MISTAKES] + ["portless", "badport", "unreachable", "mute"])
 def test_batch_mistakes_fail_before_work(tmp_path, capsys, big_picture, no_work, extra, message):
     src = tmp_path / "in"
     src.mkdir()
@@ -205,9 +206,13 @@ def test_batch_mistakes_fail_before_work(tmp_path, capsys, big_picture, no_work,
     with socket.socket() as s:  # a port nothing listens on
         s.bind(("127.0.0.1", 0))
         free = s.getsockname()[1]
-    args, out = _args(tmp_path, [a.format(free=free) if isinstance(a, str) else a for a in extra])
-    before = _files(tmp_path)
-    code, stdout, err = cli(capsys, "batch", src, out, "--no-progress", *args)
+    with socket.socket() as mute:  # a port that accepts connections and never says a word
+        mute.bind(("127.0.0.1", 0))
+        mute.listen(4)
+        args, out = _args(tmp_path, [a.format(free=free, mute=mute.getsockname()[1]) if isinstance(a, str) else a
+                                     for a in extra])
+        before = _files(tmp_path)
+        code, stdout, err = cli(capsys, "batch", src, out, "--no-progress", *args)
     assert code == 2 and err.startswith("doodlecam: error: ") and err.count("\n") == 1, err
     assert message in err, err
     assert _files(tmp_path) == before and not no_work  # no lock file, no manifest, nothing traced

@@ -78,6 +78,15 @@ def test_non_editable_install_from_an_empty_folder(tmp_path):
     r = doodlecam("convert", "camera.png", "-o", "out", "--post", "svg")
     assert r.returncode == 0 and "first run" not in r.stderr, r.stderr
 
+    # a batch: its index.html comes from a template shipped as package data
+    (empty / "pics").mkdir()
+    shutil.copy(picture, empty / "pics" / "camera.png")
+    r = doodlecam("batch", "pics", "batch-out", "-j", "1", "--post", "svg", "--no-progress")
+    assert r.returncode == 0, r.stderr
+    assert "camera.svg" in (empty / "batch-out" / "index.html").read_text()
+    shutil.rmtree(empty / "pics")
+    shutil.rmtree(empty / "batch-out")
+
     # a profile of one's own
     r = doodlecam("machines", "new", "mine", "--from", "grbl-z")
     assert r.returncode == 0, r.stderr
