@@ -260,3 +260,15 @@ def test_calibrate_pattern_follows_its_rows(tmp_path, capsys, user_dir):
     assert len(on_ruler) == 1 and np.ptp(on_ruler[0][:, 0]) > 199.0
     top = [max(rows[n]) for n in range(3)]
     assert top[0] < top[1] < top[2] and top[2] > m.x.max_velocity  # row 3 passes the profile, on purpose
+
+
+def test_an_invalid_user_profile_is_listed_not_fatal(user_dir, capsys):
+    user_dir.mkdir(parents=True)
+    (user_dir / "broken.toml").write_text("[machine]\nname = 'broken'\n")
+    code, out, _ = cli(capsys, "machines")
+    assert code == 0
+    line = next(l for l in out.splitlines() if l.split()[:1] == ["broken"])
+    assert "user" in line and "INVALID" in line and "missing table [work_area]" in line
+    assert re.search(r"^\s+doodlebot\s+built-in\s", out, re.M)  # the others still listed
+    code, _, err = cli(capsys, "machines", "check", "broken")
+    assert code == 2 and "missing table [work_area]" in err and err.count("\n") == 1
