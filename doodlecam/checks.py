@@ -147,6 +147,7 @@ def check_settings(options: ConvertOptions, machine: Machine, inputs: Iterable[P
 
 
 def check_input(path: Path) -> None:
+    """``path`` is a file that can be read (one conversion's input)."""
     if not path.exists():
         raise InputError(f"{path}: no such file; check the path")
     if path.is_dir():

@@ -272,3 +272,17 @@ def test_an_invalid_user_profile_is_listed_not_fatal(user_dir, capsys):
     assert re.search(r"^\s+doodlebot\s+built-in\s", out, re.M)  # the others still listed
     code, _, err = cli(capsys, "machines", "check", "broken")
     assert code == 2 and "missing table [work_area]" in err and err.count("\n") == 1
+
+
+@pytest.mark.parametrize("args, message", [
+    (["--tracer-opt", "sigm=3"], "tracer 'edges' has no option 'sigm' (did you mean 'sigma'?)"),
+    (["-o", "a-file/fig.png"], "a-file is a file, not a folder"),
+    (["--rotate", "90", "--scale", "1", "--width", "50"], "give a scale or a target width/height, not both"),
+])
+def test_plot_mistakes_fail_before_work(tmp_path, capsys, big_picture, no_work, monkeypatch, args, message):
+    monkeypatch.chdir(tmp_path)
+    (tmp_path / "a-file").write_text("not a folder")
+    before = _files(tmp_path)
+    code, _, err = cli(capsys, "plot", big_picture, *args)
+    assert code == 2 and message in err and err.count("\n") == 1, err
+    assert _files(tmp_path) == before and not no_work

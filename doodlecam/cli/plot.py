@@ -38,7 +38,7 @@ def plot(input, out, machine, strokes, tracer, tracer_opt, solver, plugin_dirs, 
     settings = Settings(machine=load_machine(machine), tracer=tracer, tracer_options=_pairs(tracer_opt, "--tracer-opt"),
                         posts=(), solver=solver, plugin_dirs=tuple(plugin_dirs), **layout_kwargs(**layout))
     check_input(Path(input))
-    check_settings(settings, settings.machine, [Path(input)])  # every mistake before the tracing
+    check_settings(settings, settings.machine, [Path(input)], out.parent)  # every mistake before the tracing
     first_run_notice()
     drawing = fit_to_work_area(trace(Path(input), settings), settings.machine, settings.layout)
     job = plan_job(drawing, settings.machine, settings.solver or settings.machine.solver, settings.plugin_dirs,
