@@ -1,6 +1,6 @@
 """doodlecam: pictures to time-optimal pen-plotter jobs.
 
-Data flows one way through small stages (see DESIGN.md):
+Data flows one way through small stages (README.md, "Layout"):
 trace -> layout -> fit -> order -> plan -> sample -> post.
 This package import stays light on purpose: heavy libraries are imported by
 the stage that needs them, so ``doodlecam --help`` answers fast.

@@ -17,9 +17,10 @@ from typing import Any, ClassVar
 
 import numpy as np
 
-from doodlecam.errors import PluginError
+from doodlecam.errors import PluginError, did_you_mean
 
 API_VERSION = 1
+
 
 _TRUE = {"1", "true", "yes", "on"}
 _FALSE = {"0", "false", "no", "off"}
@@ -77,8 +78,8 @@ class Plugin:
         for layer in layers:
             for key, value in layer.items():
                 if key not in known:
-                    names = ", ".join(known) or "none"
-                    raise PluginError(f"{cls.kind} '{cls.name}' has no option '{key}' (options: {names})")
+                    raise PluginError(f"{cls.kind} '{cls.name}' has no option '{key}'{did_you_mean(key, known)} "
+                                      f"(options: {', '.join(known) or 'none'})")
                 out[key] = known[key].coerce(value, f"{cls.kind} '{cls.name}'")
         return out
 

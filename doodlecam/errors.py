@@ -5,6 +5,15 @@ non-zero. Messages say what is wrong *and* what to do about it.
 """
 
 
+def did_you_mean(name: str, known, quotes: str = "''") -> str:
+    """`` (did you mean 'x'?)`` for the closest known name, or ``""``; ``quotes``: the
+    opening and closing characters around it (``"[]"`` for a TOML table)."""
+    import difflib
+
+    hint = difflib.get_close_matches(str(name), list(known), n=1, cutoff=0.6)
+    return f" (did you mean {quotes[0]}{hint[0]}{quotes[1]}?)" if hint else ""
+
+
 class DoodleError(Exception):
     """Base class: a problem the user can fix (bad input, bad profile, ...)."""
 

@@ -7,13 +7,12 @@ the key and say how to fix it.
 
 from __future__ import annotations
 
-import difflib
 import os
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
-from doodlecam.errors import MachineError
+from doodlecam.errors import MachineError, did_you_mean
 from doodlecam.options import TRAVEL_ALIASES, TRAVEL_LAWS, layout_options, order_options, travel_law_name
 
 try:  # Python 3.11+
@@ -100,21 +99,56 @@ _FREE_TABLES = ("kinematics", "trace", "post", "transport")  # plugin-defined co
 _NON_NEGATIVE = {"work_area.margin", "pen.up_delay", "pen.down_delay", "sampling.path_tolerance"}
 
 
-def _machine_dirs() -> list[Path]:
-    dirs = [Path(p) for p in os.environ.get("DOODLECAM_MACHINES", "").split(os.pathsep) if p]
-    dirs += [Path.cwd() / "machines", Path.cwd() / "samples" / "machines"]
-    dirs.append(Path(__file__).resolve().parent.parent / "samples" / "machines")  # source checkout
+MACHINES_ENV = "DOODLECAM_MACHINES"
+
+
+def user_machine_dir() -> Path:
+    """The user's profile folder, e.g. ~/.config/doodlecam/machines on Linux
+    (platformdirs: $XDG_CONFIG_HOME is honoured), where ``machines new`` writes."""
+    from platformdirs import user_config_dir
+
+    return Path(user_config_dir("doodlecam", appauthor=False)) / "machines"
+
+
+def builtin_machine_dir() -> Path:
+    """The profiles shipped inside the package (package data)."""
+    return Path(__file__).resolve().parent / "machines"
+
+
+def machine_dirs() -> list[tuple[Path, str]]:
+    """(folder, where-label) in search order: $DOODLECAM_MACHINES, the user folder,
+    ./machines, the built-ins. The first profile of a name wins."""
+    dirs = [(Path(p), f"${MACHINES_ENV}") for p in os.environ.get(MACHINES_ENV, "").split(os.pathsep) if p]
+    dirs += [(user_machine_dir(), "user"), (Path.cwd() / "machines", "./machines"), (builtin_machine_dir(), "built-in")]
     return dirs
+
+
+@dataclass(frozen=True)
+class ProfileEntry:
+    name: str
+    path: Path
+    origin: str  # "built-in", "user", "./machines" or "$DOODLECAM_MACHINES"
+    shadows: tuple[Path, ...] = ()  # profiles of the same name further down the search path
+
+
+def find_machines() -> dict[str, ProfileEntry]:
+    """Every profile on the search path by name (file stem), with where it comes from."""
+    found: dict[str, ProfileEntry] = {}
+    for d, origin in machine_dirs():
+        if not d.is_dir():
+            continue
+        for p in sorted(d.glob("*.toml")):
+            if p.stem in found:
+                e = found[p.stem]
+                found[p.stem] = replace(e, shadows=e.shadows + (p,))
+            else:
+                found[p.stem] = ProfileEntry(p.stem, p, origin)
+    return found
 
 
 def available_machines() -> dict[str, Path]:
     """Profile name (file stem) -> path, for every profile on the search path."""
-    found: dict[str, Path] = {}
-    for d in _machine_dirs():
-        if d.is_dir():
-            for p in sorted(d.glob("*.toml")):
-                found.setdefault(p.stem, p)
-    return found
+    return {name: e.path for name, e in find_machines().items()}
 
 
 def resolve_machine(spec: str) -> Path:
@@ -127,9 +161,8 @@ def resolve_machine(spec: str) -> Path:
     known = available_machines()
     if spec in known:
         return known[spec]
-    hint = difflib.get_close_matches(spec, known, n=1)
-    did = f" (did you mean '{hint[0]}'?)" if hint else ""
-    raise MachineError(f"unknown machine '{spec}'{did}; known: {', '.join(sorted(known)) or 'none'}; or give a .toml path")
+    raise MachineError(f"unknown machine '{spec}'{did_you_mean(spec, known)}; known: {', '.join(sorted(known)) or 'none'}; "
+                       "or give a .toml path, or make one: doodlecam machines new NAME")
 
 
 def _check(path: str, table: str, key: str, value: Any, typ: type) -> Any:
@@ -167,9 +200,7 @@ def _travel_law(path: str, law: str | None) -> str:
         return travel_law_name(law)
     except ValueError:
         names = list(TRAVEL_LAWS) + list(TRAVEL_ALIASES)
-        hint = difflib.get_close_matches(str(law), names, n=1)
-        did = f" (did you mean '{hint[0]}'?)" if hint else ""
-        raise MachineError(f"{path}: [travel] law {law!r} is unknown{did}; use one of {', '.join(names)}") from None
+        raise MachineError(f"{path}: [travel] law {law!r} is unknown{did_you_mean(str(law), names)}; use one of {', '.join(names)}") from None
 
 
 def parse_machine(data: dict[str, Any], path: str = "<profile>") -> Machine:
@@ -177,9 +208,7 @@ def parse_machine(data: dict[str, Any], path: str = "<profile>") -> Machine:
     allowed_top = {t.split(".")[0] for t in _SCHEMA} | set(_FREE_TABLES)
     for key in data:
         if key not in allowed_top:
-            hint = difflib.get_close_matches(key, allowed_top, n=1)
-            did = f" (did you mean [{hint[0]}]?)" if hint else ""
-            raise MachineError(f"{path}: unknown table [{key}]{did}; remove or rename it")
+            raise MachineError(f"{path}: unknown table [{key}]{did_you_mean(key, allowed_top, '[]')}; remove or rename it")
     axes = data.get("axes", {})
     if isinstance(axes, dict):
         for key in axes:
@@ -196,14 +225,12 @@ def parse_machine(data: dict[str, Any], path: str = "<profile>") -> Machine:
             raise MachineError(f"{path}: [{table}] must be a table; fix the profile")
         for key in t:
             if key not in keys:
-                hint = difflib.get_close_matches(key, keys, n=1)
-                did = f" (did you mean '{hint[0]}'?)" if hint else ""
-                raise MachineError(f"{path}: unknown key '{key}' in [{table}]{did}; fix the profile")
+                raise MachineError(f"{path}: unknown key '{key}' in [{table}]{did_you_mean(key, keys)}; fix the profile")
         vals[table] = {}
         for key, (typ, required) in keys.items():
             if key not in t:
                 if required:
-                    raise MachineError(f"{path}: missing key '{key}' in [{table}]; add it (see samples/machines/doodlebot.toml)")
+                    raise MachineError(f"{path}: missing key '{key}' in [{table}]; add it (see 'doodlecam machines new')")
                 continue
             vals[table][key] = _check(path, table, key, t[key], typ)
 

@@ -15,11 +15,10 @@ from typing import Any
 
 import numpy as np
 
-from doodlecam import registry
+from doodlecam import checks, registry
 from doodlecam.atomic import replace_all
 from doodlecam.errors import (
     DoodleError,
-    InputError,
     OutputError,
     PlanError,
     PluginError,
@@ -48,26 +47,11 @@ def _guarded(what: str, fn, *args):
 
 def pick_tracer(path: Path, settings: Settings) -> type:
     """The tracer named in settings, else the first one that reads this file type."""
-    if settings.tracer:
-        return registry.get("tracer", settings.tracer, settings.plugin_dirs)
-    ext = path.suffix.lower()
-    candidates = [i for i in registry.discover(settings.plugin_dirs) if i.kind == "tracer"]
-    candidates.sort(key=lambda i: i.name != "edges")  # the report's tracer first for pictures
-    for info in candidates:
-        try:
-            cls = info.load()
-        except PluginError:
-            continue
-        if ext in cls.extensions:
-            return cls
-    raise InputError(f"{path}: no tracer reads '{ext or 'files without extension'}' files; give a picture (PNG, JPEG, ...) or pick one with --tracer")
+    return checks.pick_tracer(path, settings.tracer, settings.plugin_dirs)
 
 
 def trace(path: Path, settings: Settings) -> Drawing:
-    if not path.exists():
-        raise InputError(f"{path}: no such file; check the path")
-    if path.is_dir():
-        raise InputError(f"{path}: is a folder; give one file (folders are for 'doodlecam batch')")
+    checks.check_input(path)
     cls = pick_tracer(path, settings)
     opts = cls.resolve_options(settings.machine.plugin_options.get(f"trace.{cls.name}", {}), settings.tracer_options)
     drawing = _guarded(f"tracer '{cls.name}' on {path}", cls().trace, path, opts)
@@ -294,6 +278,9 @@ def convert(path: str | Path, outdir: str | Path, settings: Settings) -> Result:
     from doodlecam.trace.layout import fit_to_work_area
 
     path = Path(path)
+    # every mistake a user can make ends here, before the slow work and before a byte is written
+    checks.check_input(path)
+    checks.check_settings(settings, settings.machine, [path], Path(outdir))
     timings = {}
     t0 = time.perf_counter()
     drawing = trace(path, settings)

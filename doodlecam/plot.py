@@ -40,6 +40,18 @@ DENSE = 1500  # points per planned curve
 PER_PERIOD = 16  # points per sample period on executed curves
 
 
+def _legend(ax, rows: int, fontsize: float = 8, ncol: int = 2) -> None:
+    """A legend in a band above the data: the y range grows by the legend's height,
+    so the legend never covers a curve (loc="best" cannot avoid dense data)."""
+    handles, _ = ax.get_legend_handles_labels()
+    n_rows = -(-len(handles) // ncol) if rows <= 0 else rows
+    lo, hi = ax.get_ylim()
+    band = 0.075 * n_rows + 0.04  # share of the axes height the legend takes
+    ax.set_ylim(lo, hi + (hi - lo) * band / (1 - band))
+    ax.legend(fontsize=fontsize, loc="upper center", ncol=ncol, frameon=False, borderaxespad=0.2,
+              handlelength=1.6, columnspacing=1.2)
+
+
 def pick_strokes(job: Job, requested: tuple[int, ...] | list[int] = ()) -> list[int]:
     """0-based indices for 1-based stroke numbers; default the longest stroke."""
     n = len(job.strokes)
@@ -139,7 +151,8 @@ def stroke_figure(job: Job, index: int, kinematics):
 
     # a fixed layout: constrained layout would double the rendering time
     fig = Figure(figsize=(13, 15))
-    gs = fig.add_gridspec(4, 2, left=0.065, right=0.975, top=0.945, bottom=0.04, hspace=0.3, wspace=0.2)
+    # left and wspace leave room for six-digit tick labels and their axis labels
+    gs = fig.add_gridspec(4, 2, left=0.085, right=0.98, top=0.945, bottom=0.04, hspace=0.3, wspace=0.24)
     axs = np.array([[fig.add_subplot(gs[r, c]) for c in range(2)] for r in range(3)] + [[None, None]], dtype=object)
     deriv = gs[3, 0].subgridspec(2, 1, hspace=0.12)
     axs[3, 0] = fig.add_subplot(deriv[0])
@@ -171,7 +184,7 @@ def stroke_figure(job: Job, index: int, kinematics):
     top = np.sqrt(np.maximum(prof.b, 0)).max()
     ax.set_ylim(0, 1.25 * top if top > 0 else 1)
     ax.set(xlabel="u (path parameter)", ylabel=r"$\dot u$ (1/s)", title=f"Path-velocity profile (Fig. 2.4.4), {len(prof.u)} grid points")
-    ax.legend(fontsize=8, loc="best")
+    _legend(ax, 0)
 
     # executed, on the PLC's clock, mapped to actuators with the same kinematics
     ex = None
@@ -198,7 +211,7 @@ def stroke_figure(job: Job, index: int, kinematics):
             k = np.searchsorted(te, ts).clip(0, len(te) - 1)
             ax.plot(ts, ex_th[k, i], ".", color="k", ms=3)
         ax.set(xlabel="t (s)", ylabel=f"{names[i]} ({unit})", title=f"{names[i]} position (Fig. 2.4.2)")
-        ax.legend(fontsize=8, loc="best")
+        _legend(ax, 0)
 
     # (e, f) actuator velocities and accelerations, limits dashed
     for col, (what, plan_y, lim, u_s) in enumerate((("velocity", th_v, vmax, f"{unit}/s"),
@@ -214,7 +227,7 @@ def stroke_figure(job: Job, index: int, kinematics):
                 ax.axhline(sign * lim[i], color=colours[i], ls="--", lw=0.9,
                            label=f"{names[i]} limit ±{lim[i]:g}" if sign > 0 else None)
         ax.set(xlabel="t (s)", ylabel=f"{what} ({u_s})", title=f"Actuator {what} (Fig. 2.4.5)")
-        ax.legend(fontsize=7, loc="best", ncol=2)
+        _legend(ax, 0, fontsize=7, ncol=len(names))
 
     # (g) path derivatives along u: q' on top, q'' below
     ax = axs[3, 0]
@@ -225,8 +238,9 @@ def stroke_figure(job: Job, index: int, kinematics):
     ax.set(ylabel="q'(u) (mm)", title="Path derivatives (Fig. 2.4.3)")
     ax.tick_params(labelbottom=False)
     ax_dd.set(xlabel="u", ylabel="q''(u) (mm)")
-    ax.legend(fontsize=8, loc="best", ncol=2)
-    ax_dd.legend(fontsize=8, loc="best", ncol=2)
+    _legend(ax, 1)
+    _legend(ax_dd, 1)
+    fig.align_ylabels([ax, ax_dd])
 
     # (h) drift: at sample instants from the curve point the samples track;
     # in between, from the nearest point of the stretch being drawn
@@ -255,7 +269,7 @@ def stroke_figure(job: Job, index: int, kinematics):
         end_err = float(np.linalg.norm(xs[-1] - spline.end))
         ax.set(xlabel="t (s)", ylabel="distance (µm)", title=f"Executed path: drift (end point off by {end_err * 1000:.2f} µm)")
         ax.set_ylim(bottom=0)
-        ax.legend(fontsize=8, loc="best")
+        _legend(ax, 0, ncol=1)
         drift_txt = f", {len(samples.velocity)} samples of {samples.delta_time * 1000:g} ms"
         if samples.time_scale < 1 - 1e-9:
             drift_txt += f" (executed at {samples.time_scale:.3f}x plan speed: whole periods)"

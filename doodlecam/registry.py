@@ -16,7 +16,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING, Callable, Iterable
 
-from doodlecam.errors import PluginError
+from doodlecam.errors import PluginError, did_you_mean
 
 if TYPE_CHECKING:
     from doodlecam.machine import Machine
@@ -156,7 +156,8 @@ def get(kind: str, name: str, plugin_dirs: Iterable[str | os.PathLike] = ()) -> 
     names = sorted(i.name for i in infos if i.kind == kind)
     broken = [i for i in infos if i.kind == "?"]
     extra = f"; broken drop-ins: {', '.join(i.origin for i in broken)}" if broken else ""
-    raise PluginError(f"unknown {kind} '{name}'; available: {', '.join(names) or 'none'} (see 'doodlecam plugins'){extra}")
+    raise PluginError(f"unknown {kind} '{name}'{did_you_mean(name, names)}; available: {', '.join(names) or 'none'} "
+                      f"(see 'doodlecam plugins'){extra}")
 
 
 def kinematics_for(machine: "Machine", plugin_dirs=()):

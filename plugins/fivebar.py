@@ -106,7 +106,7 @@ class FiveBar(Kinematics):
                 raise MachineError(f"{where} has unknown key '{key}'{did}; the fivebar plugin reads {', '.join(_REQUIRED + _OPTIONAL)}")
         for key in _REQUIRED:
             if key not in params:
-                raise MachineError(f"{where} is missing '{key}'; the fivebar plugin needs {', '.join(_REQUIRED)} (see samples/machines/fivebar.toml)")
+                raise MachineError(f"{where} is missing '{key}'; the fivebar plugin needs {', '.join(_REQUIRED)} (see the built-in profile: doodlecam machines new NAME --from fivebar)")
         self.a0, self.a1, self.a2, self.a3, self.a4 = (self._number(params, k, positive=True) for k in ("a0", "a1", "a2", "a3", "a4"))
         self.origin = self._pair(params, "origin", positive=False)
         self.vmax = self._pair(params, "max_velocity", positive=True)

@@ -1,4 +1,5 @@
 import os
+import tempfile
 
 import numpy as np
 import pytest
@@ -13,6 +14,10 @@ from doodlecam.machine import parse_machine
 settings.register_profile("default", derandomize=True)
 settings.register_profile("explore", derandomize=False, max_examples=200)
 settings.load_profile(os.environ.get("HYPOTHESIS_PROFILE", "default"))
+
+# The user's own machine profiles (platformdirs honours $XDG_CONFIG_HOME) must not
+# change what the tests see; subprocesses inherit this too.
+os.environ["XDG_CONFIG_HOME"] = tempfile.mkdtemp(prefix="doodlecam-test-config-")
 
 PROFILE = {
     "machine": {"name": "testbot", "kinematics": "cartesian"},

@@ -29,8 +29,9 @@ LAYERS: list[tuple[str, ...]] = [
     ("doodlecam.geometry", "doodlecam.motion", "doodlecam.link"),
     ("doodlecam.trace",),
     ("doodlecam.plan",),
+    ("doodlecam.checks",),  # every mistake found before any work
     ("doodlecam.pipeline", "doodlecam.plugins", "doodlecam.postprocessors"),
-    ("doodlecam.plot", "doodlecam.batch"),
+    ("doodlecam.plot", "doodlecam.batch", "doodlecam.calibration"),
     ("doodlecam.cli",),
     ("doodlecam.__main__",),
 ]

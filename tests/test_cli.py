@@ -120,7 +120,7 @@ def assert_user_error(r, *words, out=None):
 
 
 def write_profile(tmp_path, edit):
-    text = (ROOT / "samples" / "machines" / "doodlebot.toml").read_text()
+    text = (ROOT / "doodlecam" / "machines" / "doodlebot.toml").read_text()
     p = tmp_path / "bad.toml"
     p.write_text(edit(text))
     return p

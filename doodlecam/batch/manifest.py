@@ -34,46 +34,33 @@ def write_atomic(path: Path, data: bytes) -> None:
 
 @contextmanager
 def locked(out_dir: Path):
-    """Hold an exclusive lock on ``out_dir`` (``OUT/.doodlecam-lock``) for one batch.
+    """Hold an exclusive lock on ``out_dir`` (``OUT/.doodlecam-lock``, a filelock.FileLock) for one batch.
 
     Two batches into one folder would clear each other's staging folder and
     overwrite each other's manifest, so the second one stops with a one-line
     error instead. The kernel drops the lock when its holder exits in any way
-    (even SIGKILL), so a stale lock file never blocks a re-run.
+    (even SIGKILL), so a lock file left behind never blocks a re-run.
     """
+    from filelock import FileLock, Timeout
+
     path = out_dir / LOCK_NAME
+    lock = FileLock(path, timeout=0)  # one attempt: a second batch is refused, not queued
     try:
-        fd = os.open(path, os.O_RDWR | os.O_CREAT, 0o666)
+        lock.acquire()
+    except Timeout:
+        try:
+            holder = path.read_text(errors="replace").strip()
+        except OSError:
+            holder = ""
+        raise OutputError(f"{out_dir}: another doodlecam batch{f' (pid {holder})' if holder.isdigit() else ''} "
+                          "is writing to this folder; wait for it to finish or choose another OUT_DIR") from None
     except OSError as e:
         raise OutputError(f"{out_dir}: cannot create {LOCK_NAME} ({e.strerror}); check the folder's permissions") from None
     try:
-        if not _try_lock(fd):
-            holder = os.read(fd, 32).decode(errors="replace").strip()
-            raise OutputError(f"{out_dir}: another doodlecam batch{f' (pid {holder})' if holder.isdigit() else ''} "
-                              "is writing to this folder; wait for it to finish or choose another OUT_DIR")
-        os.ftruncate(fd, 0)
-        os.write(fd, f"{os.getpid()}\n".encode())  # only for the message above
+        path.write_text(f"{os.getpid()}\n")  # only for the message above; the lock is the kernel's, on the inode
         yield
     finally:
-        os.close(fd)  # releases the lock
-
-
-def _try_lock(fd: int) -> bool:
-    try:
-        import fcntl
-    except ImportError:  # Windows
-        import msvcrt
-
-        try:
-            msvcrt.locking(fd, msvcrt.LK_NBLCK, 1)
-            return True
-        except OSError:
-            return False
-    try:
-        fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
-        return True
-    except BlockingIOError:
-        return False
+        lock.release()
 
 
 def load_manifest(out_dir: Path) -> dict[str, Any]:

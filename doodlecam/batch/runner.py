@@ -143,13 +143,15 @@ def run_batch(in_dir: str | os.PathLike, out_dir: str | os.PathLike, options: Ba
               recursive: bool = False, include: Iterable[str] = (), exclude: Iterable[str] = (),
               jobs: int | None = None, force: bool = False, scheduler: str | None = None,
               recycle_after: int = RECYCLE_AFTER, progress: bool | None = None,
-              on_result: Callable[[dict[str, Any]], None] | None = None) -> BatchResult:
+              on_result: Callable[[dict[str, Any]], None] | None = None,
+              before_work: Callable[[], None] | None = None) -> BatchResult:
     """Convert a folder. See the module docstring; ``doodlecam batch`` is the CLI.
 
     ``jobs``: worker processes (default ``os.cpu_count()``). ``recycle_after``: files per
     local worker before it is replaced by a fresh one (0 = never). ``scheduler``: a Dask
     distributed scheduler address; workers must see ``in_dir`` and ``out_dir`` at
-    the same paths. ``progress``: a tqdm bar (None = only on a terminal).
+    the same paths. ``progress``: a tqdm bar (None = only on a terminal). ``before_work``: called
+    once every check passed, just before files are converted (the CLI's first-run notice).
     Writes the manifest, ``report.json`` and ``index.html`` into ``out_dir``.
     """
     t_start = time.perf_counter()
@@ -158,13 +160,20 @@ def run_batch(in_dir: str | os.PathLike, out_dir: str | os.PathLike, options: Ba
         raise InputError(f"{in_dir}: not a folder; give the folder of pictures to convert")
     if in_dir.resolve() == out_dir.resolve():
         raise OutputError(f"{out_dir}: the output folder is the input folder; choose another OUT_DIR")
-    # Every check a user can fail comes before anything is written.
+    # Every check a user can fail comes before anything is written: a bad option
+    # is one error (exit 2) now, not one failure per file after its planning.
+    from doodlecam.checks import check_scheduler, check_settings
+    from doodlecam.machine import load_machine
+
     key = options.fingerprint()
     check_posts(options.posts, options.plugin_dirs)
     exts = supported_extensions(options.tracer, options.plugin_dirs)
     rels, unsupported = find_inputs(in_dir, out_dir, recursive, include, exclude, exts)
     if not rels:
         raise nothing_to_convert(in_dir, out_dir, recursive, bool(include or exclude), unsupported)
+    check_settings(options, load_machine(options.machine), [in_dir / r for r in rels], out_dir)
+    if isinstance(scheduler, str):
+        check_scheduler(scheduler)
     try:
         out_dir.mkdir(parents=True, exist_ok=True)
     except OSError as e:
@@ -213,6 +222,8 @@ def run_batch(in_dir: str | os.PathLike, out_dir: str | os.PathLike, options: Ba
 
         interrupted = False
         if todo:
+            if before_work is not None:
+                before_work()
             try:
                 if scheduler:
                     interrupted = _run_dask(todo, stems, options, key, in_dir, out_dir, scheduler, progress, finished)
@@ -357,7 +368,11 @@ def _run_dask(todo, stems, options, key, in_dir, out_dir, scheduler, progress, f
     bar = _progress_bar(len(todo), progress)
     failures = 0
     interrupted = False
-    client = Client(scheduler) if isinstance(scheduler, str) else scheduler
+    try:
+        client = Client(scheduler, timeout=10) if isinstance(scheduler, str) else scheduler
+    except (OSError, TimeoutError, ValueError) as e:  # reachable (checked before) but no Dask scheduler answers
+        raise DoodleError(f"--scheduler {scheduler}: no Dask scheduler answers there ({type(e).__name__}: {_one_line(str(e))}); "
+                          "check the address") from None
     own = isinstance(scheduler, str)
     futures = []
     try:

@@ -19,6 +19,7 @@ from doodlecam.errors import DoodleError
 LAZY_COMMANDS: dict[str, str] = {
     "convert": "doodlecam.cli.convert:convert",
     "machines": "doodlecam.cli.machines:machines",
+    "calibrate": "doodlecam.cli.calibrate:calibrate",
     "inspect": "doodlecam.cli.inspect:inspect",
     "send": "doodlecam.cli.send:send",
     "sim": "doodlecam.cli.send:sim",

@@ -44,6 +44,7 @@ def batch(in_dir, out_dir, recursive, include, exclude, jobs, force, recycle_aft
     """
     from doodlecam.batch.options import BatchOptions
     from doodlecam.batch.report import summary_table
+    from doodlecam.cli.firstrun import first_run_notice
     from doodlecam.batch.runner import (
         RECYCLE_AFTER,
         BatchFailed,
@@ -56,7 +57,8 @@ def batch(in_dir, out_dir, recursive, include, exclude, jobs, force, recycle_aft
     options = BatchOptions(**kw)
     result = run_batch(in_dir, out_dir, options, recursive=recursive, include=include, exclude=exclude, jobs=jobs,
                        force=force, scheduler=scheduler, progress=False if no_progress else None,
-                       recycle_after=RECYCLE_AFTER if recycle_after is None else recycle_after)
+                       recycle_after=RECYCLE_AFTER if recycle_after is None else recycle_after,
+                       before_work=first_run_notice)
     if as_json:
         import json
 

@@ -23,8 +23,14 @@ def convert(input, outdir, as_json, **options):
     from doodlecam.pipeline import Settings
     from doodlecam.pipeline import convert as run
 
+    from doodlecam.checks import check_input, check_settings
+    from doodlecam.cli.firstrun import first_run_notice
+
     kw = job_kwargs(**options)
     settings = Settings(**{**kw, "machine": load_machine(kw["machine"])})
+    check_input(input)
+    check_settings(settings, settings.machine, [input], outdir)  # (convert checks again: cheap)
+    first_run_notice()
     result = run(input, outdir, settings)
     s = result.summary()
     if as_json:

@@ -21,6 +21,45 @@ def _pairs(values: tuple[str, ...], what: str) -> dict[str, str]:
 
 
 
+def post_options(post_opt: tuple[str, ...]) -> dict[str, dict[str, str]]:
+    """``--post-opt POST.KEY=VALUE`` values as {post: {key: value}}."""
+    out: dict[str, dict[str, str]] = {}
+    for key, val in _pairs(post_opt, "--post-opt").items():
+        name, dot, opt = key.partition(".")
+        if not dot:
+            raise click.BadParameter(f"'{key}' must be POST.KEY=VALUE, e.g. gcode.pen_up=M5", param_hint="--post-opt")
+        out.setdefault(name, {})[opt] = val
+    return out
+
+
+LAYOUT_OPTIONS = [
+    click.option("--width", type=float, metavar="MM", help="Target drawing width in mm (aspect kept). Default: fill the work area."),
+    click.option("--height", type=float, metavar="MM", help="Target drawing height in mm (aspect kept)."),
+    click.option("--scale", type=float, metavar="MM", help="Fixed scale: mm per source unit (px, or mm: 1 = an SVG/DXF at true size)."),
+    click.option("--margin", type=float, metavar="MM", help="Margin inside the work area (default: the profile's)."),
+    click.option("--rotate", type=click.Choice(["0", "90", "180", "270", "auto"]),
+                 help="Quarter turns counter-clockwise; auto turns the drawing when it then fits larger."),
+    click.option("--fit", type=click.Choice(["canvas", "ink"]),
+                 help="Fit the whole picture frame (canvas) or only what is drawn (ink)."),
+    click.option("--keep-direction", is_flag=True, default=None,
+                 help="Never draw a stroke backwards (for pens that draw differently each way)."),
+]
+
+
+def layout_options(f):
+    """The layout options alone (plot): size, scale, margin, rotation, fit, direction."""
+    for opt in reversed(LAYOUT_OPTIONS):
+        f = opt(f)
+    return f
+
+
+def layout_kwargs(width, height, scale, margin, rotate, fit, keep_direction) -> dict:
+    """``layout`` and ``order`` for pipeline.Settings from the layout options."""
+    return dict(layout={k: v for k, v in dict(width=width, height=height, scale=scale, margin=margin, rotate=rotate,
+                                                 fit=fit).items() if v is not None},
+                order={"reverse": False} if keep_direction else {})
+
+
 def job_options(f):
     """The options every job-making command shares (convert, batch, plot ...)."""
     opts = [
@@ -38,16 +77,7 @@ def job_options(f):
                      help="Keep the pen within MM of the curve between velocity samples too (0 = off: faster "
                      "drawing, the pen may stray ~0.7 mm). Default: the profile's [sampling] path_tolerance, "
                      "else its fit tolerance."),
-        click.option("--width", type=float, metavar="MM", help="Target drawing width in mm (aspect kept). Default: fill the work area."),
-        click.option("--height", type=float, metavar="MM", help="Target drawing height in mm (aspect kept)."),
-        click.option("--scale", type=float, metavar="MM", help="Fixed scale: mm per source unit (px, or mm: 1 = an SVG/DXF at true size)."),
-        click.option("--margin", type=float, metavar="MM", help="Margin inside the work area (default: the profile's)."),
-        click.option("--rotate", type=click.Choice(["0", "90", "180", "270", "auto"]),
-                     help="Quarter turns counter-clockwise; auto turns the drawing when it then fits larger."),
-        click.option("--fit", type=click.Choice(["canvas", "ink"]),
-                     help="Fit the whole picture frame (canvas) or only what is drawn (ink)."),
-        click.option("--keep-direction", is_flag=True, default=None,
-                     help="Never draw a stroke backwards (for pens that draw differently each way)."),
+        *LAYOUT_OPTIONS,
         PLUGIN_DIR,
     ]
     for opt in reversed(opts):
@@ -59,12 +89,7 @@ def job_kwargs(machine, tracer, tracer_opt, posts, post_opt, solver, smoothing, 
                margin, rotate, fit, keep_direction, plugin_dirs) -> dict:
     """The shared options, parsed: keyword arguments for pipeline.Settings
     (with ``machine`` still the profile's name or path)."""
-    post_opts: dict[str, dict[str, str]] = {}
-    for key, val in _pairs(post_opt, "--post-opt").items():
-        name, dot, opt = key.partition(".")
-        if not dot:
-            raise click.BadParameter(f"'{key}' must be POST.KEY=VALUE, e.g. gcode.pen_up=M5", param_hint="--post-opt")
-        post_opts.setdefault(name, {})[opt] = val
+    post_opts = post_options(post_opt)
     posts = tuple(posts) or ("plc", "gcode", "svg")
     if path_tolerance is not None and not path_tolerance >= 0:
         raise click.BadParameter(f"must be 0 (off) or a distance in mm, got {path_tolerance:g}", param_hint="--path-tolerance")
@@ -75,8 +100,5 @@ def job_kwargs(machine, tracer, tracer_opt, posts, post_opt, solver, smoothing, 
     return dict(
         machine=machine, tracer=tracer, tracer_options=_pairs(tracer_opt, "--tracer-opt"), posts=posts,
         post_options=post_opts, solver=solver, smoothing=smoothing, path_tolerance=path_tolerance,
-        plugin_dirs=tuple(plugin_dirs),
-        layout={k: v for k, v in dict(width=width, height=height, scale=scale, margin=margin, rotate=rotate, fit=fit).items()
-                if v is not None},
-        order={"reverse": False} if keep_direction else {},
+        plugin_dirs=tuple(plugin_dirs), **layout_kwargs(width, height, scale, margin, rotate, fit, keep_direction),
     )

@@ -6,7 +6,7 @@ from pathlib import Path
 
 import click
 
-from doodlecam.cli.options import PLUGIN_DIR, _pairs
+from doodlecam.cli.options import PLUGIN_DIR, _pairs, layout_kwargs, layout_options
 
 
 @click.command("plot")
@@ -20,10 +20,13 @@ from doodlecam.cli.options import PLUGIN_DIR, _pairs
 @click.option("--tracer", help="Tracer plugin (default: chosen by file type; 'edges' for pictures).")
 @click.option("--tracer-opt", multiple=True, metavar="KEY=VALUE", help="Tracer option (repeatable).")
 @click.option("--solver", help="Planner back-end (as for convert). Default: the profile's.")
+@layout_options
 @PLUGIN_DIR
-def plot(input, out, machine, strokes, tracer, tracer_opt, solver, plugin_dirs):
+def plot(input, out, machine, strokes, tracer, tracer_opt, solver, plugin_dirs, **layout):
     """Plot planned strokes of a picture: path, positions, path velocity, axis
     velocities and accelerations against their limits (report Fig. 2.4.1-2.4.5)."""
+    from doodlecam.checks import check_input, check_settings
+    from doodlecam.cli.firstrun import first_run_notice
     from doodlecam.machine import load_machine
     from doodlecam.pipeline import Settings, plan_job, trace
     from doodlecam.registry import kinematics_for
@@ -33,7 +36,10 @@ def plot(input, out, machine, strokes, tracer, tracer_opt, solver, plugin_dirs):
     out = Path(out) if out is not None else Path("out") / f"{Path(input).stem}.png"
     output_paths(out, [0])  # a bad extension fails before any work
     settings = Settings(machine=load_machine(machine), tracer=tracer, tracer_options=_pairs(tracer_opt, "--tracer-opt"),
-                        posts=(), solver=solver, plugin_dirs=tuple(plugin_dirs))
+                        posts=(), solver=solver, plugin_dirs=tuple(plugin_dirs), **layout_kwargs(**layout))
+    check_input(Path(input))
+    check_settings(settings, settings.machine, [Path(input)], out.parent)  # every mistake before the tracing
+    first_run_notice()
     drawing = fit_to_work_area(trace(Path(input), settings), settings.machine, settings.layout)
     job = plan_job(drawing, settings.machine, settings.solver or settings.machine.solver, settings.plugin_dirs,
                    order=settings.order)

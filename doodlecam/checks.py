@@ -1,0 +1,157 @@
+"""Every mistake a user can make in a command line or a profile, found before any work.
+
+``convert``, ``batch`` and the Python API call :func:`check_settings` first: a
+misspelt plugin, an unknown option of a plugin that will run, a misspelt
+plugin section in the profile (``[post.gcod]``), an unwritable output folder
+or an unreachable scheduler each end in one line (a DoodleError, exit 2)
+before a picture is traced, and before anything is written.
+"""
+
+from __future__ import annotations
+
+import os
+import socket
+import tempfile
+from pathlib import Path
+from typing import Iterable
+
+from doodlecam import registry
+from doodlecam.errors import DoodleError, InputError, MachineError, OutputError, PluginError, did_you_mean
+from doodlecam.machine import Machine
+from doodlecam.options import ConvertOptions, layout_options, order_options
+
+# profile table -> registry kind
+SECTION_KINDS = {"trace": "tracer", "post": "postprocessor", "transport": "transport"}
+
+
+def check_profile_plugins(machine: Machine, plugin_dirs: Iterable[str] = ()) -> None:
+    """Every ``[trace.X]``, ``[post.X]`` and ``[transport.X]`` table of the profile names an
+    installed plugin and only its options (each coerced to its type): a misspelt
+    section would otherwise be ignored silently and the job run with the defaults."""
+    infos = registry.discover(plugin_dirs)
+    for section, values in machine.plugin_options.items():
+        group, _, name = section.partition(".")
+        kind = SECTION_KINDS[group]
+        names = sorted(i.name for i in infos if i.kind == kind)
+        if name not in names:
+            raise MachineError(f"{machine.source}: [{section}] names no {kind}{did_you_mean(name, names)}; "
+                               f"rename it to one of: {', '.join(f'[{group}.{n}]' for n in names) or 'none'}")
+        try:
+            registry.get(kind, name, plugin_dirs).resolve_options(values)
+        except PluginError as e:
+            raise MachineError(f"{machine.source}: [{section}]: {e}") from None
+
+
+def pick_tracer(path: Path, tracer: str | None, plugin_dirs: Iterable[str] = ()) -> type:
+    """The tracer named, else the first one that reads this file type (``edges`` first for pictures)."""
+    if tracer:
+        return registry.get("tracer", tracer, plugin_dirs)
+    ext = path.suffix.lower()
+    candidates = [i for i in registry.discover(plugin_dirs) if i.kind == "tracer"]
+    candidates.sort(key=lambda i: i.name != "edges")  # the report's tracer first for pictures
+    for info in candidates:
+        try:
+            cls = info.load()
+        except PluginError:
+            continue
+        if ext in cls.extensions:
+            return cls
+    raise InputError(f"{path}: no tracer reads '{ext or 'files without extension'}' files; "
+                     "give a picture (PNG, JPEG, ...) or pick one with --tracer")
+
+
+def check_output_dir(outdir: Path) -> None:
+    """``outdir`` is, or can be made, a writable folder; nothing is left behind by the check."""
+    outdir = Path(outdir)
+    probe = outdir
+    while not probe.exists():  # the nearest existing ancestor is where the folders will be made
+        if probe.parent == probe:
+            break
+        probe = probe.parent
+    if not probe.is_dir():
+        raise OutputError(f"{outdir}: {probe} is a file, not a folder; choose another output folder (-o)")
+    try:  # a real write, not os.access: read-only mounts and root both answer honestly
+        with tempfile.TemporaryFile(dir=probe, prefix=".doodlecam-probe-"):
+            pass
+    except OSError as e:
+        raise OutputError(f"{outdir}: cannot write in {probe} ({e.strerror}); choose another output folder (-o) "
+                          "or fix its permissions") from None
+
+
+def check_scheduler(address: str, timeout: float = 3.0) -> None:
+    """A Dask scheduler address has a host and a port and something listens there."""
+    from urllib.parse import urlsplit
+
+    parts = urlsplit(address if "://" in address else f"tcp://{address}")
+    try:
+        port = parts.port
+    except ValueError:
+        port = None
+    if parts.scheme not in ("tcp", "tls") or not parts.hostname or port is None:
+        raise DoodleError(f"--scheduler {address}: give the Dask scheduler's address as tcp://HOST:PORT "
+                          "(e.g. tcp://10.0.0.5:8786)")
+    try:
+        sock = socket.create_connection((parts.hostname, port), timeout=timeout)
+    except OSError as e:
+        raise DoodleError(f"--scheduler {address}: cannot reach it ({e.strerror or e}); start the scheduler "
+                          "('dask scheduler') or check the address") from None
+    with sock:
+        # A Dask scheduler sends its handshake as soon as it accepts (distributed.comm); a peer that
+        # stays mute would make distributed.Client wait forever, whatever its timeout.
+        if parts.scheme == "tcp":
+            try:
+                sock.settimeout(timeout)
+                greeting = sock.recv(1)
+            except OSError:
+                greeting = b""
+            if not greeting:
+                raise DoodleError(f"--scheduler {address}: something listens there but no Dask scheduler answers "
+                                  f"within {timeout:g} s; check the address and port") from None
+
+
+def check_settings(options: ConvertOptions, machine: Machine, inputs: Iterable[Path] = (),
+                   outdir: Path | None = None) -> dict[str, type]:
+    """Check everything a conversion will use, cheaply, before any work.
+
+    ``inputs``: the files to convert (one tracer is picked per file type).
+    Returns the tracer class for each file extension. Raises a DoodleError.
+    """
+    from doodlecam.plan.planner import check_solver
+
+    dirs = tuple(options.plugin_dirs)
+    check_profile_plugins(machine, dirs)
+    tracers: dict[str, type] = {}
+    for path in inputs:
+        ext = Path(path).suffix.lower()
+        if ext not in tracers:
+            tracers[ext] = pick_tracer(Path(path), options.tracer, dirs)
+    if options.tracer and not tracers:
+        tracers[""] = registry.get("tracer", options.tracer, dirs)
+    for cls in {c.name: c for c in tracers.values()}.values():
+        cls.resolve_options(machine.plugin_options.get(f"trace.{cls.name}", {}), options.tracer_options)
+    for post in options.posts:
+        cls = registry.get("postprocessor", post, dirs)
+        cls.resolve_options(machine.plugin_options.get(f"post.{post}", {}), options.post_options.get(post, {}))
+    unused = set(options.post_options) - set(options.posts)
+    if unused:
+        name = sorted(unused)[0]
+        raise PluginError(f"options given for post '{name}'{did_you_mean(name, options.posts)}, which is not among the "
+                          f"posts {', '.join(options.posts)}")
+    registry.kinematics_for(machine, dirs)
+    check_solver(options.solver or machine.solver)
+    layout_options({**machine.layout, **options.layout})
+    order_options({**machine.order, **options.order})
+    if outdir is not None:
+        check_output_dir(outdir)
+    return tracers
+
+
+def check_input(path: Path) -> None:
+    """``path`` is a file that can be read (one conversion's input)."""
+    if not path.exists():
+        raise InputError(f"{path}: no such file; check the path")
+    if path.is_dir():
+        raise InputError(f"{path}: is a folder; give one file (folders are for 'doodlecam batch')")
+    if not os.access(path, os.R_OK):
+        raise InputError(f"{path}: cannot read it; check its permissions")
+

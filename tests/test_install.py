@@ -1,0 +1,112 @@
+"""A non-editable install, used from an empty folder, as a new user would (issue 16).
+
+Builds the wheel once (offline: no build isolation, setuptools comes from the
+test extra), installs it without dependencies into a fresh venv that borrows
+this environment's site-packages for them, and runs the CLI from an empty
+folder: nothing of the checkout is on the path. Slow (the installed package
+compiles its numba kernels on the first conversion, ~30 s of CPU), so one test.
+"""
+
+from __future__ import annotations
+
+import os
+import shutil
+import subprocess
+import sys
+import sysconfig
+import venv
+from pathlib import Path
+
+import pytest
+
+ROOT = Path(__file__).resolve().parent.parent
+COPY_IGNORE = shutil.ignore_patterns(".venv", ".git", "__pycache__", "build", "*.egg-info", "out", ".pytest_cache",
+                                     ".hypothesis", "tests", "benchmarks")
+
+
+def _run(cmd, cwd, env, timeout=900):
+    return subprocess.run([str(c) for c in cmd], cwd=cwd, env=env, capture_output=True, text=True, timeout=timeout)
+
+
+@pytest.mark.install
+def test_non_editable_install_from_an_empty_folder(tmp_path):
+    src = tmp_path / "src"
+    shutil.copytree(ROOT, src, ignore=COPY_IGNORE)  # the build writes build/ and *.egg-info: not into the checkout
+    wheels = tmp_path / "wheels"
+    r = _run([sys.executable, "-m", "pip", "wheel", "--no-deps", "--no-build-isolation", "--no-index", "-q",
+              "-w", wheels, src], tmp_path, os.environ)
+    assert r.returncode == 0, r.stdout + r.stderr
+    (wheel,) = wheels.glob("doodlecam-*.whl")
+
+    fresh = tmp_path / "venv"
+    venv.create(fresh, with_pip=False)
+    py = fresh / "bin" / "python"
+    purelib = _run([py, "-c", "import sysconfig; print(sysconfig.get_paths()['purelib'])"], tmp_path, os.environ)
+    # the dependencies from this environment; its (editable) doodlecam is not on the path: .pth files of a
+    # directory added by a .pth are not read
+    Path(purelib.stdout.strip(), "deps.pth").write_text(sysconfig.get_paths()["purelib"] + "\n")
+    r = _run([sys.executable, "-m", "pip", "--python", py, "install", "--no-deps", "--no-index", "-q", wheel],
+             tmp_path, os.environ)
+    assert r.returncode == 0, r.stdout + r.stderr
+
+    empty = tmp_path / "empty"
+    empty.mkdir()
+    env = {k: v for k, v in os.environ.items() if not k.startswith(("DOODLECAM_", "PYTHON"))}
+    env.update(XDG_CONFIG_HOME=str(tmp_path / "config"), XDG_CACHE_HOME=str(tmp_path / "cache"),
+               PYTHONWARNINGS="ignore")
+    exe = fresh / "bin" / "doodlecam"
+
+    def doodlecam(*args):
+        return _run([exe, *args], empty, env)
+
+    where = _run([py, "-c", "import doodlecam; print(doodlecam.__file__)"], empty, env)
+    assert where.stdout.startswith(str(fresh)), where.stdout  # the installed copy, not the checkout
+
+    # the built-in profiles, from anywhere
+    r = doodlecam("machines")
+    assert r.returncode == 0
+    for name in ("doodlebot", "fivebar", "grbl-servo", "grbl-z"):
+        assert f"  {name} " in r.stdout and "built-in" in r.stdout
+
+    # a first plot with the built-in profile; the first run says it compiles, once
+    picture = empty / "camera.png"
+    shutil.copy(ROOT / "samples" / "images" / "camera.png", picture)
+    r = doodlecam("convert", "camera.png", "-o", "out", "--post", "gcode", "--post", "svg")
+    assert r.returncode == 0, r.stderr
+    assert "first run" in r.stderr and "compil" in r.stderr
+    assert sorted(p.name for p in (empty / "out").iterdir()) == ["camera.gcode", "camera.svg"]
+    r = doodlecam("convert", "camera.png", "-o", "out", "--post", "svg")
+    assert r.returncode == 0 and "first run" not in r.stderr, r.stderr
+
+    # a batch: its index.html comes from a template shipped as package data
+    (empty / "pics").mkdir()
+    shutil.copy(picture, empty / "pics" / "camera.png")
+    r = doodlecam("batch", "pics", "batch-out", "-j", "1", "--post", "svg", "--no-progress")
+    assert r.returncode == 0, r.stderr
+    assert "camera.svg" in (empty / "batch-out" / "index.html").read_text()
+    shutil.rmtree(empty / "pics")
+    shutil.rmtree(empty / "batch-out")
+
+    # a profile of one's own
+    r = doodlecam("machines", "new", "mine", "--from", "grbl-z")
+    assert r.returncode == 0, r.stderr
+    assert (tmp_path / "config" / "doodlecam" / "machines" / "mine.toml").is_file()
+    r = doodlecam("machines", "check", "mine")
+    assert r.returncode == 0 and "$100=80 $101=80" in r.stdout and "OK: the profile is valid" in r.stdout, r.stderr
+
+    # mistakes: one line, exit 2, nothing written
+    before = sorted(p.relative_to(empty) for p in empty.rglob("*"))
+    for args, first_line in [
+        (("convert", "camera.png", "-m", "doodlebto"), "doodlecam: error: unknown machine 'doodlebto' (did you mean 'doodlebot'?)"),
+        (("convert", "camera.png", "--post", "gcod"), "doodlecam: error: unknown postprocessor 'gcod' (did you mean 'gcode'?)"),
+        (("convert", "camera.png", "--post-opt", "gcode.pen_upp=M5"),
+         "doodlecam: error: postprocessor 'gcode' has no option 'pen_upp' (did you mean 'pen_up'?)"),
+        (("convert", "camera.png", "--tracer", "edgse"), "doodlecam: error: unknown tracer 'edgse' (did you mean 'edges'?)"),
+        (("convert", "camera.png", "-o", "camera.png/out"), "doodlecam: error: camera.png/out: camera.png is a file"),
+        (("convert", "missing.png"), "doodlecam: error: missing.png: no such file"),
+        (("machines", "check", "mien"), "doodlecam: error: unknown machine 'mien' (did you mean 'mine'?)"),
+    ]:
+        r = doodlecam(*args)
+        assert r.returncode == 2 and r.stderr.splitlines() and r.stderr.count("\n") == 1, (args, r.stderr)
+        assert r.stderr.startswith(first_line), (args, r.stderr)
+    assert sorted(p.relative_to(empty) for p in empty.rglob("*")) == before
