@@ -48,6 +48,9 @@ def job_options(f):
                      help="Fit the whole picture frame (canvas) or only what is drawn (ink)."),
         click.option("--keep-direction", is_flag=True, default=None,
                      help="Never draw a stroke backwards (for pens that draw differently each way)."),
+        click.option("--allow-deviation", is_flag=True, default=False,
+                     help="Write the job even when a measured figure (fit error, pen off the curve between "
+                     "samples, a limit) is over its bound; without it such a job fails with the reason."),
         PLUGIN_DIR,
     ]
     for opt in reversed(opts):
@@ -56,7 +59,7 @@ def job_options(f):
 
 
 def job_kwargs(machine, tracer, tracer_opt, posts, post_opt, solver, smoothing, path_tolerance, width, height, scale,
-               margin, rotate, fit, keep_direction, plugin_dirs) -> dict:
+               margin, rotate, fit, keep_direction, plugin_dirs, allow_deviation=False) -> dict:
     """The shared options, parsed: keyword arguments for pipeline.Settings
     (with ``machine`` still the profile's name or path)."""
     post_opts: dict[str, dict[str, str]] = {}
@@ -75,7 +78,7 @@ def job_kwargs(machine, tracer, tracer_opt, posts, post_opt, solver, smoothing, 
     return dict(
         machine=machine, tracer=tracer, tracer_options=_pairs(tracer_opt, "--tracer-opt"), posts=posts,
         post_options=post_opts, solver=solver, smoothing=smoothing, path_tolerance=path_tolerance,
-        plugin_dirs=tuple(plugin_dirs),
+        plugin_dirs=tuple(plugin_dirs), allow_deviation=bool(allow_deviation),
         layout={k: v for k, v in dict(width=width, height=height, scale=scale, margin=margin, rotate=rotate, fit=fit).items()
                 if v is not None},
         order={"reverse": False} if keep_direction else {},

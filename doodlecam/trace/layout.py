@@ -102,7 +102,8 @@ def fit_to_work_area(drawing: Drawing, machine, options: dict[str, Any] | None =
         raise InputError(f"{src}: every stroke is shorter than {min_len:g} mm (the pen width) at this size; "
                          "draw it larger or use a finer pen")
     meta = dict(drawing.meta, scale_mm_per_unit=scale, rotation_deg=90 * turns,
-                size_mm=(cw * scale, ch * scale), dropped_short=len(drawing.polylines) - len(out))
+                size_mm=(cw * scale, ch * scale), dropped_short=len(drawing.polylines) - len(out),
+                min_length_mm=min_len)
     meta.pop("canvas", None)
     return Drawing(tuple(out), units="mm", y_down=False, source=drawing.source,
                    extent=(machine.width, machine.height), meta=meta)
