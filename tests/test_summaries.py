@@ -26,6 +26,13 @@ def _grid(tmp_path):
     return save(tmp_path, "grid.png", lineart.render(polys, shape, 5))
 
 
+def _circle(tmp_path):
+    """One small ink circle: a single curved stroke, quick to plan."""
+    t = np.linspace(0, 2 * np.pi, 361)
+    return save(tmp_path, "grid.png", lineart.render([np.column_stack([40 + 25 * np.cos(t), 40 + 25 * np.sin(t)])],
+                                                     (80, 80), 5))
+
+
 def test_the_summary_says_which_tracer_ran_and_why(tmp_path):
     m = parse_machine(PROFILE, "t.toml")
     chosen = convert(_grid(tmp_path), tmp_path / "a", Settings(machine=m, tracer="centerline", posts=("svg",))).summary()
@@ -48,21 +55,22 @@ def test_strokes_dropped_at_a_small_size_are_reported(tmp_path):
 
 
 def test_a_job_over_an_hour_is_warned_about(tmp_path):
-    slow = dict(PROFILE, axes={k: dict(v, max_velocity=0.5) for k, v in PROFILE["axes"].items()})
+    slow = dict(PROFILE, axes={k: dict(v, max_velocity=0.1) for k, v in PROFILE["axes"].items()},
+                sampling={"delta_time": 1.0})
     m = parse_machine(slow, "slow.toml")
-    s = convert(_grid(tmp_path), tmp_path / "o", Settings(machine=m, tracer="centerline", posts=("svg",))).summary()
+    s = convert(_circle(tmp_path), tmp_path / "o", Settings(machine=m, tracer="centerline", posts=("svg",))).summary()
     assert s["job_time_s"] > 3600
     assert any(w.startswith(f"the job takes {s['job_time_s'] / 3600:.1f} hours") for w in s["warnings"])
 
 
 def test_a_figure_over_its_bound_fails_unless_allowed(tmp_path):
     m = parse_machine(PROFILE, "t.toml")
-    path = _grid(tmp_path)
-    strict = Settings(machine=m, tracer="centerline", posts=("svg",), path_tolerance=1e-5)
+    path = _circle(tmp_path)
+    strict = Settings(machine=m, tracer="centerline", posts=("svg",), path_tolerance=0.001)
     with pytest.raises(PlanError) as e:
         convert(path, tmp_path / "no", strict)
     msg = str(e.value)
-    assert "\n" not in msg and "over the path tolerance of 1e-05 mm" in msg and "--allow-deviation" in msg
+    assert "\n" not in msg and "over the path tolerance of 0.001 mm" in msg and "--allow-deviation" in msg
     assert not (tmp_path / "no").exists()  # nothing written
     s = convert(path, tmp_path / "yes", replace(strict, allow_deviation=True)).summary()
     assert (tmp_path / "yes" / "grid.svg").exists()
@@ -70,9 +78,9 @@ def test_a_figure_over_its_bound_fails_unless_allowed(tmp_path):
 
 
 def test_cli_prints_warnings_and_exits_non_zero_over_a_bound(tmp_path):
-    path = _grid(tmp_path)
+    path = _circle(tmp_path)
     cmd = [sys.executable, "-m", "doodlecam", "convert", str(path), "-o", str(tmp_path / "o"), "--tracer",
-           "centerline", "--post", "svg", "--path-tolerance", "0.00001"]
+           "centerline", "--post", "svg", "--path-tolerance", "0.001"]
     r = subprocess.run(cmd, capture_output=True, text=True)
     assert r.returncode != 0 and "Traceback" not in r.stderr and "over the path tolerance" in r.stderr
     r = subprocess.run(cmd + ["--allow-deviation"], capture_output=True, text=True)
