@@ -52,7 +52,8 @@ def pick_tracer(path: Path, settings: Settings) -> type:
         return registry.get("tracer", settings.tracer, settings.plugin_dirs)
     ext = path.suffix.lower()
     candidates = [i for i in registry.discover(settings.plugin_dirs) if i.kind == "tracer"]
-    candidates.sort(key=lambda i: i.name != "edges")  # the report's tracer first for pictures
+    # pictures: 'auto' (centre lines for line art, else the report's edges) first
+    candidates.sort(key=lambda i: (i.name != "auto", i.name != "edges"))
     for info in candidates:
         try:
             cls = info.load()

@@ -50,9 +50,12 @@ class CenterlineTracer(Tracer):
         for key in ("spur", "speck", "simplify", "staircase", "min_length"):
             if opt[key] < 0:
                 raise PluginError(f"tracer 'centerline': {key} must be >= 0, got {opt[key]:g}")
-        gray = load_gray(path)
+        return self.trace_gray(load_gray(path), path, opt)
+
+    def trace_gray(self, gray: np.ndarray, path: Path, opt: dict[str, Any], skel: np.ndarray | None = None) -> Drawing:
+        """``trace`` of a picture already loaded (``skel``: its skeleton, when already made)."""
         ink, level = ink_mask(gray, opt["threshold"])
-        polylines, info = centerlines(ink, opt)
+        polylines, info = centerlines(ink, opt, skel)
         if not polylines:
             raise InputError(f"{path}: no ink lines found (threshold {level:.2f}); "
                              "try --tracer-opt threshold=... or a picture with dark lines on light paper")
@@ -89,7 +92,8 @@ def line_width(ink: np.ndarray, skel: np.ndarray) -> float:
     return float(np.count_nonzero(ink) / length) if length > 0 else 0.0
 
 
-def centerlines(ink: np.ndarray, opt: dict[str, Any]) -> tuple[list[np.ndarray], dict[str, Any]]:
+def centerlines(ink: np.ndarray, opt: dict[str, Any], skel: np.ndarray | None = None
+                ) -> tuple[list[np.ndarray], dict[str, Any]]:
     """Centre-line polylines, (row, col) in px, of the ink mask, and what was measured on the way."""
     from scipy import ndimage as ndi
     from skimage import morphology
@@ -97,7 +101,7 @@ def centerlines(ink: np.ndarray, opt: dict[str, Any]) -> tuple[list[np.ndarray],
     from doodlecam.plugins.edges import _lengths, link_edges, simplify, unstair
 
     dist = ndi.distance_transform_edt(ink)
-    skel = morphology.skeletonize(ink)
+    skel = morphology.skeletonize(ink) if skel is None else skel.copy()
     width = max(line_width(ink, skel), 1.0)
     speck = opt["speck"] or np.pi * width * width / 4
     if speck > 1:  # specks of dust or noise: no line to draw
@@ -148,3 +152,83 @@ def _out_of_caps(chain: np.ndarray, dist: np.ndarray, radius: float) -> np.ndarr
     while hi > lo + 1 and short[hi] and total - step[hi] < radius:
         hi -= 1
     return chain[lo:hi + 1]
+
+
+# Line-art test (``--tracer auto``): a picture is line art when it is paper and
+# ink with few tones between, the ink is thin lines rather than filled areas,
+# and the lines are narrow against the picture.
+_MAX_INK = 0.35  # share of the picture that is ink
+_MIN_CONTRAST = 0.3  # paper minus ink grey level
+_MAX_MID = 0.08  # share of the picture in mid tones (anti-aliased line edges stay well below)
+_MAX_FILLED = 0.15  # share of the ink farther than 1.5 line half-widths from the paper
+_MAX_WIDTH = 0.1  # line width as a share of the picture's shorter side
+
+
+def line_art(gray: np.ndarray) -> tuple[bool, str, np.ndarray | None]:
+    """(is it line art?, the reason in words, the ink's skeleton when it was made)."""
+    from scipy import ndimage as ndi
+    from skimage import morphology
+
+    ink, level = ink_mask(gray)
+    share = float(np.count_nonzero(ink)) / gray.size
+    if share == 0.0 or share > _MAX_INK:
+        return False, f"a picture: {share:.0%} of it is dark (line art has under {_MAX_INK:.0%})", None
+    ink_tone, paper = float(gray[ink].mean()), float(gray[~ink].mean())
+    if paper - ink_tone < _MIN_CONTRAST:
+        return False, f"a picture: ink and paper differ by only {paper - ink_tone:.2f} in grey level", None
+    lo, hi = ink_tone + 0.3 * (paper - ink_tone), paper - 0.3 * (paper - ink_tone)
+    mid = float(np.count_nonzero((gray > lo) & (gray < hi))) / gray.size
+    if mid > _MAX_MID:
+        return False, f"a picture: {mid:.0%} of it is mid tones (line art has under {_MAX_MID:.0%})", None
+    skel = morphology.skeletonize(ink)
+    width = line_width(ink, skel)
+    if width <= 0:
+        return False, "a picture: no ink lines", None
+    if width > _MAX_WIDTH * min(gray.shape):
+        return False, f"a picture: its dark shapes are {width:.0f} px wide, not lines", skel
+    dist = ndi.distance_transform_edt(ink)
+    filled = float(np.count_nonzero(dist > 1.5 * (width / 2 + 1))) / np.count_nonzero(ink)
+    if filled > _MAX_FILLED:
+        return False, f"a picture: {filled:.0%} of its ink is filled areas, not lines", skel
+    return True, (f"line art: paper and ink lines {width:.1f} px wide, {mid:.1%} mid tones; "
+                  "drawn once along their centre"), skel
+
+
+class AutoTracer(Tracer):
+    name = "auto"
+    summary = "the default for pictures: centerline for line art (thin dark lines on paper), else edges"
+    extensions = IMAGE_EXTENSIONS
+
+    @classmethod
+    def _options(cls) -> tuple[Option, ...]:
+        from doodlecam.plugins.edges import EdgesTracer
+
+        seen, out = set(), []
+        for o in (*EdgesTracer.options, *CenterlineTracer.options):
+            if o.name not in seen:
+                seen.add(o.name)
+                out.append(Option(o.name, o.type, None, f"passed to the chosen tracer; {o.help}"))
+        return tuple(out)
+
+    def trace(self, path: Path, options: dict[str, Any]) -> Drawing:
+        from dataclasses import replace
+
+        from doodlecam.plugins.edges import EdgesTracer
+
+        # None = not given (the chosen tracer's default), also when the pipeline resolved them already
+        given = {k: v for k, v in self.resolve_options({k: v for k, v in options.items() if v is not None}).items()
+                 if v is not None}
+        gray = load_gray(path)
+        art, reason, skel = line_art(gray)
+        chosen = CenterlineTracer if art else EdgesTracer
+        extra = set(given) - {o.name for o in chosen.options}
+        if extra:
+            raise PluginError(f"tracer 'auto' chose '{chosen.name}' ({reason}), which has no option "
+                              f"'{sorted(extra)[0]}'; pick the tracer with --tracer")
+        opt = chosen.resolve_options(given)
+        d = (CenterlineTracer().trace_gray(gray, path, opt, skel) if art
+             else EdgesTracer().trace_gray(gray, path, opt))
+        return replace(d, meta={**d.meta, "tracer_reason": f"auto: {reason}"})
+
+
+AutoTracer.options = AutoTracer._options()

@@ -52,8 +52,10 @@ class EdgesTracer(Tracer):
 
     def trace(self, path: Path, options: dict[str, Any]) -> Drawing:
         """Polylines in pixels: x = column, y = row (down), a pixel's centre at its index."""
-        opt = self.resolve_options(options)
-        gray = load_gray(path)
+        return self.trace_gray(load_gray(path), path, self.resolve_options(options))
+
+    def trace_gray(self, gray: np.ndarray, path: Path, opt: dict[str, Any]) -> Drawing:
+        """``trace`` of a picture already loaded, with resolved options."""
         edges, low, high = self.edge_map(gray, opt)
         chains, n_objects, n_junctions = link_edges(edges, opt["min_length"])
         polylines = _finish(chains, opt["simplify"], opt["min_length"], opt["join"], opt["staircase"])

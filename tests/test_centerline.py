@@ -73,3 +73,26 @@ def test_bad_options_and_blank_pictures_are_one_line_errors(tmp_path):
         TRACER.trace(path, {"threshold": 2.0})
     with pytest.raises(PluginError):
         TRACER.trace(path, {"spur": -1})
+
+
+def test_auto_draws_line_art_along_its_centre_and_photos_by_their_edges(tmp_path):
+    from pathlib import Path
+
+    from doodlecam.plugins.centerline import AutoTracer
+
+    auto = AutoTracer()
+    for shape_name in ("grid", "text", "scribble"):
+        polys, path, _ = _trace(tmp_path, shape_name, 5)
+        d = auto.trace(path, {})
+        assert d.meta["tracer"] == "centerline" and d.meta["tracer_reason"].startswith("auto: line art")
+        drawn = lineart.polyline_length([np.asarray(p) for p in d.polylines])
+        assert drawn == pytest.approx(lineart.polyline_length(polys), rel=0.03)
+    samples = Path(__file__).resolve().parents[1] / "samples" / "images"
+    for name in ("camera.png", "coins.png", "horse.png", "text.png"):
+        d = auto.trace(samples / name, {})
+        assert d.meta["tracer"] == "edges" and d.meta["tracer_reason"].startswith("auto: a picture")
+    # options reach the chosen tracer; one it lacks is a one-line error naming the choice
+    _, path, _ = _trace(tmp_path, "grid", 5)
+    assert auto.trace(path, {"simplify": "1.0"}).meta["options"]["simplify"] == 1.0
+    with pytest.raises(PluginError, match="chose 'centerline'.*no option 'sigma'"):
+        auto.trace(path, {"sigma": "3"})

@@ -39,6 +39,8 @@ def test_the_summary_says_which_tracer_ran_and_why(tmp_path):
     assert chosen["tracer"] == "centerline" and chosen["tracer_reason"] == "chosen with --tracer"
     assert chosen["line_width_mm"] == pytest.approx(5 * chosen["scale_mm_per_px"], rel=0.12)
     assert chosen["warnings"] == []
+    default = convert(_grid(tmp_path), tmp_path / "b", Settings(machine=m, posts=("svg",))).summary()
+    assert default["tracer"] == "centerline" and default["tracer_reason"].startswith("auto: line art")
 
 
 def test_strokes_dropped_at_a_small_size_are_reported(tmp_path):
