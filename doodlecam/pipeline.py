@@ -27,6 +27,7 @@ from doodlecam.errors import (
 from doodlecam.machine import Machine
 from doodlecam.model import Drawing, Job, Stroke
 from doodlecam.options import ConvertOptions
+from doodlecam.trace.raster import IMAGE_EXTENSIONS
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -71,7 +72,16 @@ def trace(path: Path, settings: Settings) -> Drawing:
         raise InputError(f"{path}: is a folder; give one file (folders are for 'doodlecam batch')")
     cls = pick_tracer(path, settings)
     opts = cls.resolve_options(settings.machine.plugin_options.get(f"trace.{cls.name}", {}), settings.tracer_options)
-    drawing = _guarded(f"tracer '{cls.name}' on {path}", cls().trace, path, opts)
+    tracer = cls()
+    if path.suffix.lower() in IMAGE_EXTENSIONS:  # tell the tracer how large a pixel will be drawn
+        from doodlecam.trace.layout import picture_scale
+        from doodlecam.trace.raster import picture_size
+
+        size = picture_size(path)
+        if size is not None:
+            tracer.mm_per_px = picture_scale(*size, settings.machine, settings.layout)
+            tracer.pen_mm = settings.machine.pen.width
+    drawing = _guarded(f"tracer '{cls.name}' on {path}", tracer.trace, path, opts)
     if not isinstance(drawing, Drawing):
         raise PluginError(f"tracer '{cls.name}' returned {type(drawing).__name__}, not a Drawing; fix the plugin")
     if "tracer_reason" not in drawing.meta:  # say which tracer ran and why (auto says it itself)

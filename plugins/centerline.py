@@ -226,8 +226,14 @@ class AutoTracer(Tracer):
             raise PluginError(f"tracer 'auto' chose '{chosen.name}' ({reason}), which has no option "
                               f"'{sorted(extra)[0]}'; pick the tracer with --tracer")
         opt = chosen.resolve_options(given)
-        d = (CenterlineTracer().trace_gray(gray, path, opt, skel) if art
-             else EdgesTracer().trace_gray(gray, path, opt))
+        if art:  # line art keeps its full resolution: thin lines would fade to grey
+            d = CenterlineTracer().trace_gray(gray, path, opt, skel)
+        else:
+            from doodlecam.trace.raster import in_picture_px, working_picture
+
+            pixel = opt["pixel_mm"] if opt["pixel_mm"] > 0 else (self.pen_mm or 0.0)
+            work = working_picture(gray, self.mm_per_px, pixel)[0]
+            d = in_picture_px(EdgesTracer().trace_gray(work, path, opt), gray.shape)
         return replace(d, meta={**d.meta, "tracer_reason": f"auto: {reason}"})
 
 

@@ -24,7 +24,7 @@ import numpy as np
 from doodlecam.api import Option, Tracer
 from doodlecam.errors import InputError, PluginError
 from doodlecam.model import Drawing
-from doodlecam.trace.raster import IMAGE_EXTENSIONS, load_gray
+from doodlecam.trace.raster import IMAGE_EXTENSIONS, in_picture_px, load_working
 
 # A high threshold never drops below the gradient of a step of this size
 # (fraction of black-to-white), so a blank, noisy sheet gives no edges.
@@ -48,11 +48,15 @@ class EdgesTracer(Tracer):
                "removes the pixel staircase, so fewer control points and a faster, smoother job (0 = off)"),
         Option("join", float, 2.0, "join strokes whose free ends are at most this far apart, in px (0 = never)"),
         Option("min_length", float, 4.0, "drop strokes shorter than this, in px"),
+        Option("pixel_mm", float, 0.0, "trace finer pictures scaled down to this many mm per pixel as drawn "
+               "(0 = the pen width), so px options mean the same drawn size at any resolution"),
     )
 
     def trace(self, path: Path, options: dict[str, Any]) -> Drawing:
         """Polylines in pixels: x = column, y = row (down), a pixel's centre at its index."""
-        return self.trace_gray(load_gray(path), path, self.resolve_options(options))
+        opt = self.resolve_options(options)
+        gray, shape = load_working(path, self, opt["pixel_mm"])
+        return in_picture_px(self.trace_gray(gray, path, opt), shape)
 
     def trace_gray(self, gray: np.ndarray, path: Path, opt: dict[str, Any]) -> Drawing:
         """``trace`` of a picture already loaded, with resolved options."""
