@@ -225,3 +225,29 @@ def in_picture_px(drawing, shape: tuple[int, int]):
     polys = tuple((p + 0.5) * (sx, sy) - 0.5 for p in drawing.polylines)
     return replace(drawing, polylines=polys, extent=(float(shape[1]), float(shape[0])),
                    meta={**drawing.meta, "working_px": (ws[1], ws[0])})
+
+
+def noise_level(gray: np.ndarray) -> float:
+    """Standard deviation of the picture's pixel noise, in grey levels (0-1).
+
+    Immerkaer's fast estimate (1996): the picture convolved with a mask that
+    cancels every linear and quadratic tone ramp, summed absolutely. Edges
+    and texture leak in a little: clean photos read 0.003-0.018, a clean
+    photo with Gaussian noise of 0.03 about 0.035.
+    """
+    from scipy import ndimage as ndi
+
+    h, w = gray.shape
+    if h < 3 or w < 3:
+        return 0.0
+    mask = np.array([[1, -2, 1], [-2, 4, -2], [1, -2, 1]], np.float32)
+    r = ndi.convolve(gray.astype(np.float32, copy=False), mask)[1:-1, 1:-1]
+    return float(np.sqrt(np.pi / 2) * np.abs(r).sum(dtype=np.float64) / (6 * (w - 2) * (h - 2)))
+
+
+NOISE_CLEAN, NOISE_HEAVY = 0.02, 0.06  # noise levels: below the first nothing changes ...
+
+
+def denoise_amount(noise: float) -> float:
+    """0 for a clean picture (noise <= NOISE_CLEAN) to 1 for a heavily noisy one (>= NOISE_HEAVY), linear between."""
+    return float(np.clip((noise - NOISE_CLEAN) / (NOISE_HEAVY - NOISE_CLEAN), 0.0, 1.0))
