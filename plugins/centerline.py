@@ -54,17 +54,22 @@ class CenterlineTracer(Tracer):
 
     def trace_gray(self, gray: np.ndarray, path: Path, opt: dict[str, Any], skel: np.ndarray | None = None) -> Drawing:
         """``trace`` of a picture already loaded (``skel``: its skeleton, when already made)."""
+        from doodlecam.trace.raster import in_picture_px
+
         ink, level = ink_mask(gray, opt["threshold"])
-        polylines, info = centerlines(ink, opt, skel)
+        work, ink, k = thin_enough(gray, ink, level)
+        polylines, info = centerlines(ink, opt, skel if k == 1.0 else None)
         if not polylines:
             raise InputError(f"{path}: no ink lines found (threshold {level:.2f}); "
                              "try --tracer-opt threshold=... or a picture with dark lines on light paper")
-        h, w = gray.shape
-        return Drawing(
+        h, w = work.shape
+        d = Drawing(
             polylines=tuple(p[:, ::-1] for p in polylines),  # (row, col) -> (x, y)
             units="px", y_down=True, source=str(path), extent=(float(w), float(h)),
-            meta={"tracer": self.name, "options": opt, "threshold": level, **info},
+            meta={"tracer": self.name, "options": opt, "threshold": level, **info,
+                  "line_width_px": info["line_width_px"] / k},
         )
+        return in_picture_px(d, gray.shape)
 
 
 def ink_mask(gray: np.ndarray, threshold: float = 0.0) -> tuple[np.ndarray, float]:
@@ -83,6 +88,35 @@ def skeleton_length(skel: np.ndarray) -> float:
     d1 = a[1:, 1:] & a[:-1, :-1] & ~a[1:, :-1] & ~a[:-1, 1:]
     d2 = a[1:, :-1] & a[:-1, 1:] & ~a[1:, 1:] & ~a[:-1, :-1]
     return float(orth + np.sqrt(2.0) * (np.count_nonzero(d1) + np.count_nonzero(d2)))
+
+
+# Ink wider than _FULL_WIDTH px is traced on the picture scaled down to lines
+# _WORK_WIDTH px wide: a skeleton costs per ink pixel and per pixel of width.
+_FULL_WIDTH, _WORK_WIDTH = 12.0, 6.0
+
+
+def rough_width(ink: np.ndarray) -> float:
+    """A quick line width in px: twice the ink area over its boundary pixels (a line has two sides)."""
+    inner = ink.copy()
+    inner[1:] &= ink[:-1]
+    inner[:-1] &= ink[1:]
+    inner[:, 1:] &= ink[:, :-1]
+    inner[:, :-1] &= ink[:, 1:]
+    boundary = np.count_nonzero(ink) - np.count_nonzero(inner)
+    return 2.0 * np.count_nonzero(ink) / boundary if boundary else 0.0
+
+
+def thin_enough(gray: np.ndarray, ink: np.ndarray, level: float) -> tuple[np.ndarray, np.ndarray, float]:
+    """(picture, ink, scale factor): scaled down when its ink lines are wider than
+    _FULL_WIDTH px, so the skeleton of a high-resolution scan or of a photo's
+    dark areas costs a fraction; thin lines keep the full resolution."""
+    width = rough_width(ink)
+    if width <= _FULL_WIDTH:
+        return gray, ink, 1.0
+    from doodlecam.trace.raster import working_picture
+
+    work, k = working_picture(gray, _WORK_WIDTH / width, 1.0)
+    return work, work < level, k
 
 
 def line_width(ink: np.ndarray, skel: np.ndarray) -> float:
@@ -180,18 +214,19 @@ def line_art(gray: np.ndarray) -> tuple[bool, str, np.ndarray | None]:
     mid = float(np.count_nonzero((gray > lo) & (gray < hi))) / gray.size
     if mid > _MAX_MID:
         return False, f"a picture: {mid:.0%} of it is mid tones (line art has under {_MAX_MID:.0%})", None
+    gray, ink, k = thin_enough(gray, ink, level)
     skel = morphology.skeletonize(ink)
     width = line_width(ink, skel)
     if width <= 0:
         return False, "a picture: no ink lines", None
     if width > _MAX_WIDTH * min(gray.shape):
-        return False, f"a picture: its dark shapes are {width:.0f} px wide, not lines", skel
+        return False, f"a picture: its dark shapes are {width / k:.0f} px wide, not lines", None
     dist = ndi.distance_transform_edt(ink)
     filled = float(np.count_nonzero(dist > 1.5 * (width / 2 + 1))) / np.count_nonzero(ink)
     if filled > _MAX_FILLED:
-        return False, f"a picture: {filled:.0%} of its ink is filled areas, not lines", skel
-    return True, (f"line art: paper and ink lines {width:.1f} px wide, {mid:.1%} mid tones; "
-                  "drawn once along their centre"), skel
+        return False, f"a picture: {filled:.0%} of its ink is filled areas, not lines", None
+    return True, (f"line art: paper and ink lines {width / k:.1f} px wide, {mid:.1%} mid tones; "
+                  "drawn once along their centre"), skel if k == 1.0 else None
 
 
 class AutoTracer(Tracer):
