@@ -73,6 +73,7 @@ def trace(path: Path, settings: Settings) -> Drawing:
     cls = pick_tracer(path, settings)
     opts = cls.resolve_options(settings.machine.plugin_options.get(f"trace.{cls.name}", {}), settings.tracer_options)
     tracer = cls()
+    tracer.profile_options = settings.machine.plugin_options  # 'auto' applies the chosen tracer's [trace.NAME]
     if path.suffix.lower() in IMAGE_EXTENSIONS:  # tell the tracer how large a pixel will be drawn
         from doodlecam.trace.layout import picture_scale
         from doodlecam.trace.raster import picture_size

@@ -260,7 +260,9 @@ class AutoTracer(Tracer):
         if extra:
             raise PluginError(f"tracer 'auto' chose '{chosen.name}' ({reason}), which has no option "
                               f"'{sorted(extra)[0]}'; pick the tracer with --tracer")
-        opt = chosen.resolve_options(given)
+        # the profile's [trace.edges] / [trace.centerline] table applies to the chosen tracer too
+        profile = getattr(self, "profile_options", {}).get(f"trace.{chosen.name}", {})
+        opt = chosen.resolve_options(profile, given)
         if art:  # line art keeps its full resolution: thin lines would fade to grey
             d = CenterlineTracer().trace_gray(gray, path, opt, skel)
         else:

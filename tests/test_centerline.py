@@ -96,3 +96,14 @@ def test_auto_draws_line_art_along_its_centre_and_photos_by_their_edges(tmp_path
     assert auto.trace(path, {"simplify": "1.0"}).meta["options"]["simplify"] == 1.0
     with pytest.raises(PluginError, match="chose 'centerline'.*no option 'sigma'"):
         auto.trace(path, {"sigma": "3"})
+
+
+def test_auto_applies_the_profiles_table_of_the_tracer_it_chose(tmp_path):
+    from conftest import PROFILE
+    from doodlecam.machine import parse_machine
+    from doodlecam.pipeline import Settings, trace
+
+    _, path, _ = _trace(tmp_path, "grid", 5)
+    m = parse_machine(dict(PROFILE, trace={"centerline": {"simplify": 2.0}, "edges": {"sigma": 5.0}}), "t.toml")
+    d = trace(path, Settings(machine=m))
+    assert d.meta["tracer"] == "centerline" and d.meta["options"]["simplify"] == 2.0
