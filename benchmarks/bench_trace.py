@@ -15,6 +15,11 @@ Tables (Markdown):
    saved as JPEG) traced by every tracer, each in a fresh process: the trace's
    wall time, the process's CPU time (imports included; the fairer figure on a
    busy machine) and its peak resident memory, VmHWM (targets < 5 s, < 1 GB).
+5. Line art (`--lineart` for this table only): generated pictures of known
+   centre lines (tests/lineart.py) traced by `centerline`, `edges` and
+   `contours`: drawn length against the true centre-line length (target:
+   within 3 % for centerline), the farthest drawn point from the centre line
+   in line widths (target <= 0.5), strokes, and which tracer `auto` picks.
 4. Spline size: every sample traced, laid out on the `doodlebot` profile and
    fitted at its default tolerance: control points per mm of stroke against
    polyline vertices per mm.
@@ -121,8 +126,8 @@ def big_photo() -> None:
         del im, noisy
         print("| tracer on a 4000 x 3000 px JPEG | strokes | trace s | process CPU s | process wall s | peak memory MB |")
         print("|---|---|---|---|---|---|")
-        for name, opts in (("edges", {}), ("contours", {}), ("contours", {"fill": True}), ("hatch", {}),
-                           ("hatch", {"join": True})):
+        for name, opts in (("auto", {}), ("edges", {}), ("centerline", {}), ("contours", {}),
+                           ("contours", {"fill": True}), ("hatch", {}), ("hatch", {"join": True})):
             t = time.perf_counter()
             out = subprocess.run([sys.executable, "-c", _CHILD, name, str(photo), json.dumps(opts)],
                                  capture_output=True, text=True, check=True).stdout
@@ -130,6 +135,35 @@ def big_photo() -> None:
             r = json.loads(out.strip().splitlines()[-1])
             label = name + (" " + ", ".join(f"{k}={v}" for k, v in opts.items()) if opts else "")
             print(f"| {label} | {r['strokes']} | {r['s']:.2f} | {r['cpu']:.2f} | {wall:.2f} | {r['peak_mb']:.0f} |", flush=True)
+
+
+def line_art() -> None:
+    from PIL import Image
+
+    sys.path.insert(0, str(ROOT / "tests"))
+    import lineart
+
+    from doodlecam.plugins.centerline import AutoTracer, CenterlineTracer
+    from doodlecam.plugins.contours import ContoursTracer
+    from doodlecam.plugins.edges import EdgesTracer
+
+    print("| line art | width px | true length px | tracer | strokes | drawn / true | farthest / width | auto picks |")
+    print("|---|---|---|---|---|---|---|---|")
+    with tempfile.TemporaryDirectory() as tmp:
+        for shape in ("circles", "grid", "text", "scribble"):
+            for width in (3, 5, 7):
+                polys, size = lineart.text(size=2.5 * width) if shape == "text" else getattr(lineart, shape)()
+                path = Path(tmp) / f"{shape}_{width}.png"
+                Image.fromarray(lineart.render(polys, size, width)).save(path)
+                true = lineart.polyline_length(polys)
+                picked = AutoTracer().trace(path, {}).meta["tracer"]
+                for tracer in (CenterlineTracer(), EdgesTracer(), ContoursTracer()):
+                    d = tracer.trace(path, {})
+                    drawn = lineart.polyline_length([np.asarray(p) for p in d.polylines])
+                    pts = np.vstack([lineart._dense(np.asarray(p), 0.2) for p in d.polylines])
+                    far = lineart.distance_to(polys, pts).max() / width
+                    print(f"| {shape} | {width} | {true:.0f} | {tracer.name} | {len(d.polylines)} | {drawn / true:.3f} "
+                          f"| {far:.2f} | {picked} |", flush=True)
 
 
 def _fit_at(rev: str):
@@ -185,15 +219,21 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--quick", action="store_true", help="skip the big photo and the spline fits")
     ap.add_argument("--fits", action="store_true", help="only the spline sizes and fit times")
+    ap.add_argument("--lineart", action="store_true", help="only the line-art table")
     ap.add_argument("--against", metavar="REV", help="with --fits: also time doodlecam/geometry/fit.py as at git revision REV")
     args = ap.parse_args()
     warnings.simplefilter("ignore")
     if args.fits:
         spline_size(args.against)
         return
+    if args.lineart:
+        line_art()
+        return
     fidelity()
     print()
     hatch_speed()
+    print()
+    line_art()
     if not args.quick:
         print()
         big_photo()

@@ -89,6 +89,11 @@ class Tracer(Plugin):
 
     kind = "tracer"
     extensions: ClassVar[tuple[str, ...]] = ()  # lower-case, with the dot
+    # Set by the pipeline before ``trace`` when it can tell (pictures laid out by
+    # their canvas): how many mm one picture pixel will be drawn, and the pen
+    # width in mm. None when unknown (direct calls, fit = "ink"). Optional to use.
+    mm_per_px: float | None = None
+    pen_mm: float | None = None
 
     def trace(self, path: Path, options: dict[str, Any]):  # -> doodlecam.model.Drawing
         raise NotImplementedError

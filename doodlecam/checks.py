@@ -43,12 +43,13 @@ def check_profile_plugins(machine: Machine, plugin_dirs: Iterable[str] = ()) -> 
 
 
 def pick_tracer(path: Path, tracer: str | None, plugin_dirs: Iterable[str] = ()) -> type:
-    """The tracer named, else the first one that reads this file type (``edges`` first for pictures)."""
+    """The tracer named, else the first one that reads this file type (for pictures ``auto``:
+    centre lines for line art, else the report's ``edges``)."""
     if tracer:
         return registry.get("tracer", tracer, plugin_dirs)
     ext = path.suffix.lower()
     candidates = [i for i in registry.discover(plugin_dirs) if i.kind == "tracer"]
-    candidates.sort(key=lambda i: i.name != "edges")  # the report's tracer first for pictures
+    candidates.sort(key=lambda i: (i.name != "auto", i.name != "edges"))
     for info in candidates:
         try:
             cls = info.load()

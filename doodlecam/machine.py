@@ -93,7 +93,7 @@ _SCHEMA: dict[str, dict[str, tuple[type, bool]]] = {
     "fit": {"degree": (int, False), "tolerance": (float, False)},
     # layout and order: see doodlecam/trace/layout.py and docs/tracing.md (values are checked there)
     "layout": {k: (object, False) for k in ("margin", "rotate", "width", "height", "scale", "fit", "min_length")},
-    "order": {k: (object, False) for k in ("reverse", "merge", "budget")},
+    "order": {k: (object, False) for k in ("reverse", "merge", "budget", "moves")},
 }
 _FREE_TABLES = ("kinematics", "trace", "post", "transport")  # plugin-defined contents
 _NON_NEGATIVE = {"work_area.margin", "pen.up_delay", "pen.down_delay", "sampling.path_tolerance"}

@@ -27,6 +27,7 @@ class ConvertOptions:
     plugin_dirs: tuple[str, ...] = ()
     layout: dict[str, Any] = field(default_factory=dict)  # overrides the profile's [layout] (doodlecam.trace.layout)
     order: dict[str, Any] = field(default_factory=dict)  # overrides the profile's [order]
+    allow_deviation: bool = False  # write the job even when a measured figure is over its bound
 
 
 # ---------------------------------------------------------------- layout, order and travel
@@ -48,7 +49,9 @@ LAYOUT_DEFAULTS: dict[str, Any] = {
 ORDER_DEFAULTS: dict[str, Any] = {
     "reverse": True,  # strokes may be drawn backwards (false for pens that draw differently each way)
     "merge": 0.05,  # mm; strokes whose ends meet within this are drawn as one
-    "budget": 1.0,  # s spent improving the greedy order (2-opt / Or-opt)
+    "budget": None,  # s: an optional clock cap on improving the order (0 = greedy only); None = no clock,
+    # so the same input gives the same order on any machine under any load
+    "moves": 200.0,  # improving moves (2-opt / Or-opt / kicks' repairs) per stroke at most: the deterministic cap
 }
 
 

@@ -9,7 +9,7 @@ so a failure never leaves a half-written job behind.
 from __future__ import annotations
 
 import time
-from dataclasses import dataclass, replace
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
@@ -26,6 +26,7 @@ from doodlecam.errors import (
 from doodlecam.machine import Machine
 from doodlecam.model import Drawing, Job, Stroke
 from doodlecam.options import ConvertOptions
+from doodlecam.trace.raster import IMAGE_EXTENSIONS
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -54,9 +55,22 @@ def trace(path: Path, settings: Settings) -> Drawing:
     checks.check_input(path)
     cls = pick_tracer(path, settings)
     opts = cls.resolve_options(settings.machine.plugin_options.get(f"trace.{cls.name}", {}), settings.tracer_options)
-    drawing = _guarded(f"tracer '{cls.name}' on {path}", cls().trace, path, opts)
+    tracer = cls()
+    tracer.profile_options = settings.machine.plugin_options  # 'auto' applies the chosen tracer's [trace.NAME]
+    if path.suffix.lower() in IMAGE_EXTENSIONS:  # tell the tracer how large a pixel will be drawn
+        from doodlecam.trace.layout import picture_scale
+        from doodlecam.trace.raster import picture_size
+
+        size = picture_size(path)
+        if size is not None:
+            tracer.mm_per_px = picture_scale(*size, settings.machine, settings.layout)
+            tracer.pen_mm = settings.machine.pen.width
+    drawing = _guarded(f"tracer '{cls.name}' on {path}", tracer.trace, path, opts)
     if not isinstance(drawing, Drawing):
         raise PluginError(f"tracer '{cls.name}' returned {type(drawing).__name__}, not a Drawing; fix the plugin")
+    if "tracer_reason" not in drawing.meta:  # say which tracer ran and why (auto says it itself)
+        why = "chosen with --tracer" if settings.tracer else f"the default for {path.suffix.lower() or 'such'} files"
+        drawing = replace(drawing, meta={"tracer": cls.name, **drawing.meta, "tracer_reason": why})
     return drawing
 
 
@@ -91,7 +105,7 @@ def plan_job(drawing: Drawing, machine: Machine, solver: str = "reach", plugin_d
     t0 = time.perf_counter()
     oo = order_options({**machine.order, **(order or {})})
     ordered = order_strokes(drawing.polylines, machine.home, allow_reverse=oo["reverse"],
-                            merge=oo["merge"], budget=oo["budget"])
+                            merge=oo["merge"], budget=oo["budget"], moves=oo["moves"])
     timings["order"] = time.perf_counter() - t0
 
     t0 = time.perf_counter()
@@ -239,17 +253,66 @@ def write_outputs(outdir: Path, stem: str, outputs: list[tuple[str, str, bytes]]
         raise OutputError(f"{outdir}: cannot write output ({e.strerror}); check space and permissions") from None
 
 
+LONG_JOB_S = 3600.0  # jobs longer than this get a warning with the estimate
+
+
+def over_bounds(job: Job) -> list[str]:
+    """Each measured figure of a planned job that is over its bound, in words (empty when all keep them)."""
+    m, meta = job.machine, job.meta
+    out = []
+    fit = meta.get("max_fit_error_mm", 0.0)
+    if fit > m.tolerance * (1 + 1e-6) + 1e-9:
+        out.append(f"the fitted curves are up to {fit:.3f} mm off the traced lines, over the fit tolerance of {m.tolerance:g} mm")
+    tol, between = meta.get("path_tolerance_mm", 0.0), meta.get("max_between_samples_mm", 0.0)
+    if tol > 0 and between > tol * (1 + 1e-6) + 1e-9:
+        out.append(f"the pen strays up to {between:.3f} mm off the curve between velocity samples, "
+                   f"over the path tolerance of {tol:g} mm")
+    for key, what in (("worst_acceleration_ratio", "acceleration"), ("worst_velocity_ratio", "velocity")):
+        r = meta.get(key, 0.0)
+        if r > 1.0 + 1e-6:
+            out.append(f"the planned {what} reaches {r:.4f} times its limit")
+    ramp = meta.get("worst_ramp_ratio")
+    if ramp is not None and ramp > 1.0 + 1e-6:
+        out.append(f"the actuators reach {ramp:.4f} times their limits along the sampled ramps")
+    return out
+
+
+def warnings_for(job: Job, drawing_meta: dict[str, Any]) -> list[str]:
+    """What the user should know about a finished job, one sentence each."""
+    out = []
+    if job.duration > LONG_JOB_S:
+        out.append(f"the job takes {job.duration / 3600:.1f} hours ({job.duration / 60:.0f} min); check the tracer "
+                   "options (a noisy picture traces to many strokes) or draw it smaller")
+    short = drawing_meta.get("dropped_short", 0)
+    if short:
+        total = drawing_meta.get("strokes_traced")
+        out.append(f"{short}{f' of {total}' if total else ''} traced stroke{'s' if short != 1 else ''} dropped: "
+                   f"shorter than {drawing_meta.get('min_length_mm', job.machine.pen.width):g} mm "
+                   "(the pen width, or [layout] min_length) at this size; draw it larger to keep them")
+    return out + [f"{w}; allowed by --allow-deviation" for w in job.meta.get("allowed_deviations", ())]
+
+
 @dataclass
 class Result:
     job: Job
     outputs: list[Path]
     timings: dict[str, float]
+    drawing_meta: dict[str, Any] = field(default_factory=dict)  # the laid-out drawing's meta (tracer, scale, drops)
 
     def summary(self) -> dict[str, Any]:
         j = self.job
+        d = self.drawing_meta
+        scale = d.get("scale_mm_per_unit")
+        width_px = d.get("line_width_px")
         return {
             "source": j.source,
             "machine": j.machine.name,
+            "tracer": d.get("tracer"),
+            "tracer_reason": d.get("tracer_reason"),
+            "line_width_mm": round(width_px * scale, 4) if width_px and scale else None,
+            "scale_mm_per_px": scale if d.get("units_in") == "px" else None,
+            "dropped_strokes": {"shorter_than_pen": d.get("dropped_short", 0)},
+            "warnings": warnings_for(j, d),
             "strokes": len(j.strokes),
             "pen_down_mm": round(j.pen_down_length, 3),
             "travel_mm": round(j.travel_length, 3),
@@ -293,8 +356,14 @@ def convert(path: str | Path, outdir: str | Path, settings: Settings) -> Result:
                    smoothing=settings.smoothing,
                    order=settings.order)
     timings.update(job.meta["timings"])
+    over = over_bounds(job)
+    if over and not settings.allow_deviation:  # before any file is written
+        raise PlanError(f"{path}: " + "; ".join(over) + "; nothing written (lower the speed or the tolerance "
+                        "demands, or pass --allow-deviation to write it anyway)")
+    job.meta["allowed_deviations"] = over
     t0 = time.perf_counter()
     outputs = run_posts(job, settings)
     timings["post"] = time.perf_counter() - t0
     written = write_outputs(Path(outdir), path.stem, outputs)
-    return Result(job=job, outputs=written, timings=timings)
+    meta = dict(drawing_mm.meta, units_in=drawing.units, strokes_traced=len(drawing.polylines))
+    return Result(job=job, outputs=written, timings=timings, drawing_meta=meta)

@@ -18,7 +18,7 @@ import numpy as np
 from doodlecam.api import Option, Tracer
 from doodlecam.errors import InputError, PluginError
 from doodlecam.model import Drawing
-from doodlecam.trace.raster import IMAGE_EXTENSIONS, load_gray
+from doodlecam.trace.raster import IMAGE_EXTENSIONS, in_picture_px, load_working
 
 
 class ContoursTracer(Tracer):
@@ -35,6 +35,8 @@ class ContoursTracer(Tracer):
         Option("fill_spacing", float, 3.0, "distance between fill lines in px"),
         Option("fill_angle", float, 45.0, "angle of the fill lines in degrees"),
         Option("fill_cross", bool, False, "cross-hatch the fill (a second layer at right angles)"),
+        Option("pixel_mm", float, 0.0, "trace finer pictures scaled down to this many mm per pixel as drawn "
+               "(0 = the pen width), so px options mean the same drawn size at any resolution"),
     )
 
     def trace(self, path: Path, options: dict[str, Any]) -> Drawing:
@@ -47,7 +49,8 @@ class ContoursTracer(Tracer):
         opt = self.resolve_options(options)
         if opt["blur"] < 0 or opt["min_area"] < 0 or opt["simplify"] < 0 or opt["fill_spacing"] < 0.5:
             raise PluginError("tracer 'contours': blur, min_area and simplify must be >= 0 and fill_spacing >= 0.5")
-        gray = load_gray(path).astype(np.float32)
+        gray, shape = load_working(path, self, opt["pixel_mm"])
+        gray = gray.astype(np.float32)
         if opt["invert"]:
             gray = 1.0 - gray
         if opt["blur"] > 0:
@@ -83,9 +86,10 @@ class ContoursTracer(Tracer):
             raise InputError(f"{path}: no dark regions at threshold {level:.3f} (the picture looks blank); "
                              "try --tracer-opt threshold=0.7 or invert=true")
         h, w = gray.shape
-        return Drawing(tuple(polylines), units="px", y_down=True, source=str(path), extent=(float(w), float(h)),
-                       meta={"tracer": self.name, "options": opt, "threshold": level, "outlines": n_outlines,
-                             "polylines": len(polylines), "vertices": int(sum(len(p) for p in polylines))})
+        return in_picture_px(Drawing(
+            tuple(polylines), units="px", y_down=True, source=str(path), extent=(float(w), float(h)),
+            meta={"tracer": self.name, "options": opt, "threshold": level, "outlines": n_outlines,
+                  "polylines": len(polylines), "vertices": int(sum(len(p) for p in polylines))}), shape)
 
     @staticmethod
     def level(gray: np.ndarray, threshold: str, path) -> float:

@@ -24,7 +24,7 @@ import numpy as np
 from doodlecam.api import Option, Tracer
 from doodlecam.errors import InputError, PluginError
 from doodlecam.model import Drawing
-from doodlecam.trace.raster import IMAGE_EXTENSIONS, load_gray
+from doodlecam.trace.raster import IMAGE_EXTENSIONS, denoise_amount, in_picture_px, load_working, noise_level
 
 # A high threshold never drops below the gradient of a step of this size
 # (fraction of black-to-white), so a blank, noisy sheet gives no edges.
@@ -48,12 +48,24 @@ class EdgesTracer(Tracer):
                "removes the pixel staircase, so fewer control points and a faster, smoother job (0 = off)"),
         Option("join", float, 2.0, "join strokes whose free ends are at most this far apart, in px (0 = never)"),
         Option("min_length", float, 4.0, "drop strokes shorter than this, in px"),
+        Option("denoise", bool, True, "estimate the picture's noise and raise smooth and sigma to match "
+               "(up to smooth=3 sigma=3 for heavy noise; clean pictures are untouched); false = off"),
+        Option("pixel_mm", float, 0.0, "trace finer pictures scaled down to this many mm per pixel as drawn "
+               "(0 = the pen width), so px options mean the same drawn size at any resolution"),
     )
 
     def trace(self, path: Path, options: dict[str, Any]) -> Drawing:
         """Polylines in pixels: x = column, y = row (down), a pixel's centre at its index."""
         opt = self.resolve_options(options)
-        gray = load_gray(path)
+        gray, shape = load_working(path, self, opt["pixel_mm"])
+        return in_picture_px(self.trace_gray(gray, path, opt), shape)
+
+    def trace_gray(self, gray: np.ndarray, path: Path, opt: dict[str, Any]) -> Drawing:
+        """``trace`` of a picture already loaded, with resolved options."""
+        noise = noise_level(gray)
+        if opt["denoise"] and (a := denoise_amount(noise)) > 0:
+            # the settings that rescued a noisy photo by hand, reached at heavy noise
+            opt = {**opt, "smooth": max(opt["smooth"], round(3 * a)), "sigma": max(opt["sigma"], 2.0 + a)}
         edges, low, high = self.edge_map(gray, opt)
         chains, n_objects, n_junctions = link_edges(edges, opt["min_length"])
         polylines = _finish(chains, opt["simplify"], opt["min_length"], opt["join"], opt["staircase"])
@@ -70,7 +82,7 @@ class EdgesTracer(Tracer):
                   "edge_objects": n_objects, "junctions": n_junctions, "polylines": len(polylines),
                   "vertices": int(sum(len(p) for p in polylines)),
                   "length_px": float(_lengths(polylines).sum()),
-                  "low_threshold": low, "high_threshold": high},
+                  "low_threshold": low, "high_threshold": high, "noise": noise},
         )
 
     @staticmethod

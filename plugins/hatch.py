@@ -24,12 +24,14 @@ import numpy as np
 from doodlecam.api import Option, Tracer
 from doodlecam.errors import InputError, PluginError
 from doodlecam.model import Drawing
-from doodlecam.trace.raster import IMAGE_EXTENSIONS, load_gray
+from doodlecam.trace.raster import IMAGE_EXTENSIONS, in_picture_px, load_working
 
 _STEP = 0.5  # px between samples along a scan line (run ends are found to within half of it) ...
 _BIG = 4_000_000  # ... or 1 px on pictures above this many pixels, where half a pixel is invisible
 _BLOCK = 1 << 21  # samples per block: bounds memory on huge pictures
 _UTURN = 6  # points on each U-turn between linked lines
+_PEN_FACTOR = 4.0  # default line spacing in pen widths: each layer inks a quarter of its area
+_SPACING_PX = 4.0  # ... or in px, when the tracer is not told the drawn size (direct calls)
 _CROSS = (0.0, 90.0, 45.0, 135.0)  # layer angles relative to `angle` for the first four layers
 
 
@@ -38,7 +40,10 @@ class HatchTracer(Tracer):
     summary = "Tone by hatching: more layers of lines where the picture is darker (PNG, JPEG, ...)"
     extensions = IMAGE_EXTENSIONS
     options = (
-        Option("spacing", float, 4.0, "distance between the lines of one layer, in px"),
+        Option("spacing_mm", float, 0.0, f"distance between the lines of one layer as drawn, in mm; 0 = {_PEN_FACTOR:g} "
+               "pen widths (never below one pen width)"),
+        Option("spacing", float, 0.0, "the same in px of the picture, instead of spacing_mm; 0 = use spacing_mm "
+               f"({_SPACING_PX:g} px when the drawn size is unknown)"),
         Option("levels", int, 4, "number of tone layers: the darkest pixels get them all (1-8)"),
         Option("angle", float, 45.0, "angle of the first layer's lines, degrees counter-clockwise from the x axis"),
         Option("cross", bool, True, "give each layer its own angle (cross-hatching); off: parallel, interleaved lines"),
@@ -48,18 +53,23 @@ class HatchTracer(Tracer):
         Option("join", bool, False, "link neighbouring lines by U-turns where they stay in the dark: fewer pen "
                "lifts, but long curvy strokes that are slow to fit and plan"),
         Option("min_length", float, 2.0, "drop hatch strokes shorter than this, in px"),
+        Option("pixel_mm", float, 0.0, "trace finer pictures scaled down to this many mm per pixel as drawn "
+               "(0 = the pen width), so px options mean the same drawn size at any resolution"),
     )
 
     def trace(self, path: Path, options: dict[str, Any]) -> Drawing:
         """Polylines in pixels: x = column, y = row (down), pixel centres at integers."""
         opt = self.resolve_options(options)
-        if opt["spacing"] < 0.5:
-            raise PluginError(f"tracer 'hatch': spacing must be >= 0.5 px, got {opt['spacing']:g}")
+        if opt["spacing"] != 0 and opt["spacing"] < 0.5:
+            raise PluginError(f"tracer 'hatch': spacing must be >= 0.5 px (or 0: spacing_mm), got {opt['spacing']:g}")
+        if opt["spacing_mm"] < 0:
+            raise PluginError(f"tracer 'hatch': spacing_mm must be >= 0, got {opt['spacing_mm']:g}")
         if not 1 <= opt["levels"] <= 8:
             raise PluginError(f"tracer 'hatch': levels must be 1 to 8, got {opt['levels']}")
         if opt["blur"] < 0 or opt["gamma"] <= 0 or opt["min_length"] < 0:
             raise PluginError("tracer 'hatch': blur and min_length must be >= 0 and gamma > 0")
-        gray = load_gray(path)
+        gray, shape = load_working(path, self, opt["pixel_mm"])
+        opt["spacing"] = spacing = _spacing_px(self, opt, gray.shape[1] / shape[1])
         dark = darkness(gray, opt["blur"], opt["gamma"], opt["equalize"])
         polylines: list[np.ndarray] = []
         n = opt["levels"]
@@ -72,15 +82,31 @@ class HatchTracer(Tracer):
                 offset = 0.0 if i < 4 else 0.5
             else:
                 angle, offset = opt["angle"], _interleave(i)
-            polylines += hatch_mask(mask, opt["spacing"], angle, offset=offset, join=opt["join"],
+            polylines += hatch_mask(mask, spacing, angle, offset=offset, join=opt["join"],
                                     min_length=opt["min_length"])
         if not polylines:
             raise InputError(f"{path}: nothing dark enough to hatch (the picture looks blank); "
                              "try --tracer-opt gamma=0.5 or more levels")
         h, w = gray.shape
-        return Drawing(tuple(polylines), units="px", y_down=True, source=str(path), extent=(float(w), float(h)),
-                       meta={"tracer": self.name, "options": opt, "polylines": len(polylines),
-                             "vertices": int(sum(len(p) for p in polylines))})
+        return in_picture_px(Drawing(tuple(polylines), units="px", y_down=True, source=str(path),
+                                     extent=(float(w), float(h)),
+                                     meta={"tracer": self.name, "options": opt, "polylines": len(polylines),
+                                           "vertices": int(sum(len(p) for p in polylines))}), shape)
+
+
+def _spacing_px(self: HatchTracer, opt: dict[str, Any], k: float) -> float:
+    """Line spacing in px of the working picture (``k`` of the picture's px per px):
+    spacing_mm (default: pen widths) when the drawn size is known, never below the pen width."""
+    mm = self.mm_per_px / k if self.mm_per_px else None  # mm per working px
+    if opt["spacing"] > 0:
+        px = opt["spacing"] * k
+    elif mm is None:
+        return _SPACING_PX
+    else:
+        px = (opt["spacing_mm"] or _PEN_FACTOR * (self.pen_mm or 0.5)) / mm
+    if mm is not None and self.pen_mm:  # lines closer than the pen only ink the paper solid
+        px = max(px, self.pen_mm / mm)
+    return max(px, 0.5)
 
 
 def _interleave(i: int) -> float:

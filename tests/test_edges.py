@@ -416,3 +416,25 @@ def test_large_pictures_sample_the_gradient(monkeypatch):
     sample = E._gradient_sample(b)
     assert np.allclose(np.sort(sample), np.sort(full[1:-1, 1:-1].ravel()))  # k = 1 here: every inner pixel
     assert abs(np.quantile(sample, 0.9) - np.quantile(full, 0.9)) < 0.02
+
+
+def test_noise_is_estimated_and_smoothed_by_default(tmp_path):
+    """A low-contrast photo with heavy noise traces to about as many strokes as the clean one
+    (not hundreds of noise strokes); a clean picture is traced exactly as without the estimate."""
+    from doodlecam.trace.raster import noise_level
+
+    rng = np.random.default_rng(0)
+    g = data.camera() / 255.0
+    clean = save(tmp_path, "clean.png", ((0.35 + 0.3 * g) * 255).astype(np.uint8))
+    noisy_g = np.clip(0.35 + 0.3 * g + rng.normal(0, 0.06, g.shape), 0, 1)
+    noisy = save(tmp_path, "noisy.png", (noisy_g * 255).astype(np.uint8))
+    assert noise_level(noisy_g) == pytest.approx(0.06, rel=0.15)
+    tr = EdgesTracer()
+    c_on, c_off = tr.trace(clean, {}), tr.trace(clean, {"denoise": "false"})
+    assert all(np.array_equal(a, b) for a, b in zip(c_on.polylines, c_off.polylines))
+    assert len(c_on.polylines) == len(c_off.polylines)
+    n_on, n_off = tr.trace(noisy, {}), tr.trace(noisy, {"denoise": "false"})
+    assert n_on.meta["options"]["smooth"] == 3 and n_on.meta["options"]["sigma"] == 3.0
+    assert len(n_off.polylines) > 3 * len(c_on.polylines)  # what the issue saw
+    assert len(n_on.polylines) < 1.3 * len(c_on.polylines)
+    assert n_on.meta["length_px"] < 1.3 * c_on.meta["length_px"]

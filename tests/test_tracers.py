@@ -218,7 +218,7 @@ def test_default_tracer_per_file_type(tmp_path):
     from conftest import PROFILE
 
     s = Settings(machine=parse_machine(PROFILE, "t.toml"))
-    for name, tracer in (("a.png", "edges"), ("a.JPG", "edges"), ("a.svg", "vector"), ("a.dxf", "vector"),
+    for name, tracer in (("a.png", "auto"), ("a.JPG", "auto"), ("a.svg", "vector"), ("a.dxf", "vector"),
                          ("a.stl", "vector")):
         assert pick_tracer(tmp_path / name, s).name == tracer
     from dataclasses import replace

@@ -37,6 +37,9 @@ def convert(input, outdir, as_json, **options):
         click.echo(json.dumps(s, indent=2))
         return
     click.echo(f"{input} -> {outdir}/  (machine {s['machine']}, solver {result.job.meta['solver']})")
+    if s.get("tracer"):
+        click.echo(f"  tracer             {s['tracer']} ({s['tracer_reason']})"
+                   + (f"; ink lines {s['line_width_mm']:.2f} mm wide" if s.get("line_width_mm") else ""))
     click.echo(f"  strokes            {s['strokes']}  ({s['control_points']} control points, fit within {s['max_fit_error_mm']:.3f} mm)")
     click.echo(f"  pen-down length    {s['pen_down_mm']:.1f} mm")
     click.echo(f"  travel length      {s['travel_mm']:.1f} mm")
@@ -60,3 +63,5 @@ def convert(input, outdir, as_json, **options):
         click.echo("                     (the PLC's linear ramps; set [sampling] path_tolerance in the machine profile "
                    "to keep within it, docs/sampling.md)")
     click.echo("  wrote              " + ", ".join(s["outputs"]))
+    for w in s["warnings"]:
+        click.echo(f"  warning: {w}", err=True)

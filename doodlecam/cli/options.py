@@ -64,7 +64,7 @@ def job_options(f):
     """The options every job-making command shares (convert, batch, plot ...)."""
     opts = [
         click.option("-m", "--machine", default="doodlebot", show_default=True, help="Machine profile: a name or a .toml path."),
-        click.option("--tracer", help="Tracer plugin (default: chosen by file type; 'edges' for pictures)."),
+        click.option("--tracer", help="Tracer plugin (default: chosen by file type; 'auto' for pictures: centre lines for line art, else edges)."),
         click.option("--tracer-opt", multiple=True, metavar="KEY=VALUE", help="Tracer option (repeatable)."),
         click.option("--post", "posts", multiple=True, metavar="NAME",
                      help="Post-processor (repeatable). Default: plc, gcode and svg."),
@@ -78,6 +78,9 @@ def job_options(f):
                      "drawing, the pen may stray ~0.7 mm). Default: the profile's [sampling] path_tolerance, "
                      "else its fit tolerance."),
         *LAYOUT_OPTIONS,
+        click.option("--allow-deviation", is_flag=True, default=False,
+                     help="Write the job even when a measured figure (fit error, pen off the curve between "
+                     "samples, a limit) is over its bound; without it such a job fails with the reason."),
         PLUGIN_DIR,
     ]
     for opt in reversed(opts):
@@ -86,7 +89,7 @@ def job_options(f):
 
 
 def job_kwargs(machine, tracer, tracer_opt, posts, post_opt, solver, smoothing, path_tolerance, width, height, scale,
-               margin, rotate, fit, keep_direction, plugin_dirs) -> dict:
+               margin, rotate, fit, keep_direction, plugin_dirs, allow_deviation=False) -> dict:
     """The shared options, parsed: keyword arguments for pipeline.Settings
     (with ``machine`` still the profile's name or path)."""
     post_opts = post_options(post_opt)
@@ -100,5 +103,6 @@ def job_kwargs(machine, tracer, tracer_opt, posts, post_opt, solver, smoothing, 
     return dict(
         machine=machine, tracer=tracer, tracer_options=_pairs(tracer_opt, "--tracer-opt"), posts=posts,
         post_options=post_opts, solver=solver, smoothing=smoothing, path_tolerance=path_tolerance,
-        plugin_dirs=tuple(plugin_dirs), **layout_kwargs(width, height, scale, margin, rotate, fit, keep_direction),
+        plugin_dirs=tuple(plugin_dirs), allow_deviation=bool(allow_deviation),
+        **layout_kwargs(width, height, scale, margin, rotate, fit, keep_direction),
     )

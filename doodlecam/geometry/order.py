@@ -39,6 +39,8 @@ _STALL = 0.5  # ... ended after this many per stroke (+ 100) in a row gained not
 _WINDOW = 15  # tour positions a kick spans
 _SPAN = 1000  # ... and its repair moves at most
 _ALL = np.zeros(0, np.int64)  # local search seeds: every stroke
+MOVES = 200.0  # improving moves per stroke at most (local search settles in far fewer; a cap, not a target)
+MOVES_MIN = 10_000  # ... plus this many
 
 
 @dataclass(frozen=True)
@@ -153,8 +155,9 @@ def _neighbours(p0: np.ndarray, p1: np.ndarray, k: int) -> np.ndarray:
     return nearest_k(ends, k)
 
 
-def _improve(tour: dict, allow_reverse: bool, deadline: float, k_near: int) -> tuple[int, int, int]:
-    """2-opt / Or-opt local search, kicks, loops re-started, until settled or out of time.
+def _improve(tour: dict, allow_reverse: bool, deadline: float, k_near: int, max_moves: int = 2**62
+             ) -> tuple[int, int, int]:
+    """2-opt / Or-opt local search, kicks, loops re-started, until settled, out of moves or out of time.
 
     ``tour`` holds the arrays (modified in place): p0 / p1 entry / exit points
     (a loop's both its start vertex), seq, flip, rot and the loops' rings.
@@ -183,11 +186,11 @@ def _improve(tour: dict, allow_reverse: bool, deadline: float, k_near: int) -> t
         while True:
             m = local_search(p0, p1, seq, flip, home, nbr, allow_reverse, chunk, _ALL)
             moves += m
-            if m < chunk or time.perf_counter() > deadline:
+            if m < chunk or moves >= max_moves or time.perf_counter() > deadline:
                 break
         # Then reversals between any two pen-up edges (a pass is O(n^2): only
         # while it stays cheap), and the neighbour search again after them.
-        if allow_reverse and n <= _FULL_2OPT_MAX and time.perf_counter() < deadline:
+        if allow_reverse and n <= _FULL_2OPT_MAX and moves < max_moves and time.perf_counter() < deadline:
             m = full_two_opt(p0, p1, seq, flip, home, 1)
             if m:
                 moves += m + local_search(p0, p1, seq, flip, home, nbr, allow_reverse, chunk, _ALL)
@@ -207,11 +210,13 @@ def _improve(tour: dict, allow_reverse: bool, deadline: float, k_near: int) -> t
         rounds += 1
         cost = tour_cost(p0, p1, seq, flip, home)
         if (cost >= before - 1e-9 * max(1.0, before) or time.perf_counter() > deadline or not loops
+                or moves >= max_moves
                 or rounds >= 3):  # loops re-started a few times: later rounds gain little
             return rounds, moves, kicks
 
 
-def _order(starts, ends, closed, ring_pts, ring_off, home, allow_reverse, budget, neighbours, t_start):
+def _order(starts, ends, closed, ring_pts, ring_off, home, allow_reverse, budget, neighbours, t_start,
+           moves_per_stroke: float = 0.0):
     """Greedy tour, then its improvement: the tour dict (see ``_improve``) and meta."""
     from doodlecam.geometry.order_search import greedy, rotate_loops, tour_cost
 
@@ -225,10 +230,12 @@ def _order(starts, ends, closed, ring_pts, ring_off, home, allow_reverse, budget
     greedy_cost = tour_cost(p0, p1, seq, flip, home)
     rounds = moves = kicks = 0
     n = len(seq)
-    if budget > 0 and n >= 2:
+    if (budget is None or budget > 0) and n >= 2:
         if len(c):
             rotate_loops(p0, p1, seq, flip, closed, ring_pts, ring_off, rot, home)
-        rounds, moves, kicks = _improve(tour, allow_reverse, t_start + budget, neighbours)
+        deadline = np.inf if budget is None else t_start + budget
+        cap = int(moves_per_stroke * n) + MOVES_MIN if moves_per_stroke > 0 else 2**62
+        rounds, moves, kicks = _improve(tour, allow_reverse, deadline, neighbours, cap)
     tour["cost"] = tour_cost(p0, p1, seq, flip, home)
     return tour, {"greedy_travel": greedy_cost, "rounds": rounds, "moves": moves, "kicks": kicks}
 
@@ -249,15 +256,19 @@ def _compile_once() -> None:
     polys = [rng.random((3, 2)) * 100 for _ in range(10)]
     ring = rng.random((4, 2)) * 100
     polys += [np.vstack([ring, ring[:1]]), np.vstack([ring[::-1], ring[-1:]]) + 50]  # closed: any start
-    order_strokes(polys, (0.0, 0.0), budget=60.0)
+    order_strokes(polys, (0.0, 0.0), budget=None)
 
 
 def order_strokes(polylines: Sequence[np.ndarray], home=(0.0, 0.0), allow_reverse: bool = True,
-                  merge: float = 0.0, budget: float = 1.0, neighbours: int = 16) -> Ordering:
+                  merge: float = 0.0, budget: float | None = 1.0, neighbours: int = 16,
+                  moves: float = MOVES) -> Ordering:
     """Order, orient and rotate strokes to keep pen-up travel short.
 
     ``merge``: join strokes whose ends meet within this distance first (0 = never).
-    ``budget``: seconds after which the improvement stops (0 = greedy only),
+    ``moves``: improving moves per stroke at most (plus MOVES_MIN): the
+    deterministic cap on the improvement. ``budget``: seconds after which the
+    improvement stops as well (0 = greedy only, None = no clock: the order
+    then never depends on the machine's speed or load, as in a conversion),
     counted from the call and checked between compiled steps, so very large
     sets may overrun it a little; small sets settle in milliseconds and stop
     there. The clock starts after numba has compiled or loaded the kernels, so
@@ -286,7 +297,8 @@ def order_strokes(polylines: Sequence[np.ndarray], home=(0.0, 0.0), allow_revers
     np.cumsum(ring_len, out=ring_off[1:])
     ci = np.flatnonzero(closed)
     ring_pts = np.concatenate([polys[i][:-1] for i in ci]) if len(ci) else np.zeros((0, 2))
-    tour, meta = _order(starts, ends, closed, ring_pts, ring_off, home_pt, allow_reverse, budget, neighbours, t_start)
+    tour, meta = _order(starts, ends, closed, ring_pts, ring_off, home_pt, allow_reverse, budget, neighbours, t_start,
+                        moves)
     out = []
     rot = tour["rot"]
     for s, f in zip(tour["seq"].tolist(), tour["flip"].tolist()):

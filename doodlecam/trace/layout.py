@@ -41,6 +41,27 @@ def _canvas(drawing: Drawing, pts: np.ndarray, fit: str) -> tuple[float, float, 
     return (min(frame[0], ink[0]), min(frame[1], ink[1]), max(frame[2], ink[2]), max(frame[3], ink[3]))
 
 
+def picture_scale(width_px: float, height_px: float, machine, options: dict[str, Any] | None = None) -> float | None:
+    """mm per pixel a width x height px picture will be drawn at (laid out by its
+    canvas), known before tracing; None when the layout fits the ink instead."""
+    opt = layout_options({**getattr(machine, "layout", {}), **(options or {})})
+    if opt["fit"] == "ink":
+        return None
+    margin = machine.margin if opt["margin"] is None else opt["margin"]
+    aw, ah = machine.width - 2 * margin, machine.height - 2 * margin
+    if aw <= 0 or ah <= 0 or width_px <= 0 or height_px <= 0:
+        return None
+    fill = [min(aw / cw, ah / ch) for cw, ch in ((width_px, height_px), (height_px, width_px))]
+    turns = (1 if fill[1] > fill[0] * (1 + 1e-9) else 0) if opt["rotate"] == "auto" else int(opt["rotate"]) // 90
+    cw, ch = (width_px, height_px) if turns % 2 == 0 else (height_px, width_px)
+    if opt["scale"] is not None:
+        return float(opt["scale"])
+    if opt["width"] is not None or opt["height"] is not None:
+        return float(min(opt["width"] / cw if opt["width"] is not None else np.inf,
+                         opt["height"] / ch if opt["height"] is not None else np.inf))
+    return float(fill[turns % 2])
+
+
 def fit_to_work_area(drawing: Drawing, machine, options: dict[str, Any] | None = None) -> Drawing:
     """The drawing in machine millimetres, inside the work area's margin.
 
@@ -102,7 +123,8 @@ def fit_to_work_area(drawing: Drawing, machine, options: dict[str, Any] | None =
         raise InputError(f"{src}: every stroke is shorter than {min_len:g} mm (the pen width) at this size; "
                          "draw it larger or use a finer pen")
     meta = dict(drawing.meta, scale_mm_per_unit=scale, rotation_deg=90 * turns,
-                size_mm=(cw * scale, ch * scale), dropped_short=len(drawing.polylines) - len(out))
+                size_mm=(cw * scale, ch * scale), dropped_short=len(drawing.polylines) - len(out),
+                min_length_mm=min_len)
     meta.pop("canvas", None)
     return Drawing(tuple(out), units="mm", y_down=False, source=drawing.source,
                    extent=(machine.width, machine.height), meta=meta)

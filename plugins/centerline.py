@@ -1,0 +1,277 @@
+"""The built-in ``centerline`` tracer: line art drawn once, along the middle of each ink line.
+
+Outline tracers (``edges``, ``contours``) draw both sides of an ink line, so a
+sketch, a logo or a page of lettering is drawn twice. This tracer draws one
+stroke per ink line instead:
+
+threshold (Otsu unless given) -> specks removed -> skeleton (scikit-image's
+``skeletonize``) -> the edge linker of ``edges`` (non-branching runs joined
+straight through junctions; free-ended spurs shorter than the line width
+dropped) -> each free end pulled back out of the line's round cap, where the
+skeleton runs on past the centre line's end -> staircase smoothing ->
+Ramer-Douglas-Peucker -> short strokes dropped.
+
+The ink line width is estimated from the distance transform along the
+skeleton (the median of twice the distance to the paper) and reported in the
+drawing's ``meta["line_width_px"]``; the layout turns it into millimetres.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from doodlecam.api import Option, Tracer
+from doodlecam.errors import InputError, PluginError
+from doodlecam.model import Drawing
+from doodlecam.trace.raster import IMAGE_EXTENSIONS, load_gray
+
+
+class CenterlineTracer(Tracer):
+    name = "centerline"
+    summary = "centre lines of line art (sketches, logos, lettering) as single strokes (PNG, JPEG, ...)"
+    extensions = IMAGE_EXTENSIONS
+    options = (
+        Option("threshold", float, 0.0, "grey level (0-1) below which a pixel is ink; 0 = automatic (Otsu)"),
+        Option("spur", float, 0.0, "drop side branches with a free end shorter than this, in px; 0 = the line width"),
+        Option("speck", float, 0.0, "drop ink blobs smaller than this many px; 0 = a disc of the line width"),
+        Option("simplify", float, 0.25, "line simplification tolerance in px (Ramer-Douglas-Peucker)"),
+        Option("staircase", float, 1.5, "Gaussian smoothing along each stroke, in px (0 = off)"),
+        Option("min_length", float, 0.0, "drop strokes shorter than this, in px; 0 = the line width"),
+    )
+
+    def trace(self, path: Path, options: dict[str, Any]) -> Drawing:
+        """Polylines in pixels: x = column, y = row (down), a pixel's centre at its index."""
+        opt = self.resolve_options(options)
+        if not 0.0 <= opt["threshold"] <= 1.0:
+            raise PluginError(f"tracer 'centerline': threshold must be within 0-1, got {opt['threshold']:g}")
+        for key in ("spur", "speck", "simplify", "staircase", "min_length"):
+            if opt[key] < 0:
+                raise PluginError(f"tracer 'centerline': {key} must be >= 0, got {opt[key]:g}")
+        return self.trace_gray(load_gray(path), path, opt)
+
+    def trace_gray(self, gray: np.ndarray, path: Path, opt: dict[str, Any], skel: np.ndarray | None = None) -> Drawing:
+        """``trace`` of a picture already loaded (``skel``: its skeleton, when already made)."""
+        from doodlecam.trace.raster import in_picture_px
+
+        ink, level = ink_mask(gray, opt["threshold"])
+        work, ink, k = thin_enough(gray, ink, level)
+        polylines, info = centerlines(ink, opt, skel if k == 1.0 else None)
+        if not polylines:
+            raise InputError(f"{path}: no ink lines found (threshold {level:.2f}); "
+                             "try --tracer-opt threshold=... or a picture with dark lines on light paper")
+        h, w = work.shape
+        d = Drawing(
+            polylines=tuple(p[:, ::-1] for p in polylines),  # (row, col) -> (x, y)
+            units="px", y_down=True, source=str(path), extent=(float(w), float(h)),
+            meta={"tracer": self.name, "options": opt, "threshold": level, **info,
+                  "line_width_px": info["line_width_px"] / k},
+        )
+        return in_picture_px(d, gray.shape)
+
+
+def ink_mask(gray: np.ndarray, threshold: float = 0.0) -> tuple[np.ndarray, float]:
+    """(ink pixels, grey level used): dark ink on light paper; ``threshold`` 0 = Otsu's."""
+    from skimage.filters import threshold_otsu
+
+    level = threshold if threshold > 0 else (float(threshold_otsu(gray)) if np.ptp(gray) > 0.05 else 0.5)
+    return gray < level, level
+
+
+def skeleton_length(skel: np.ndarray) -> float:
+    """Length in px of a one-pixel-thin skeleton: its 4-neighbour links count 1,
+    its diagonal links (where no 4-neighbour path joins the pair) sqrt(2)."""
+    a = skel
+    orth = np.count_nonzero(a[:, 1:] & a[:, :-1]) + np.count_nonzero(a[1:] & a[:-1])
+    d1 = a[1:, 1:] & a[:-1, :-1] & ~a[1:, :-1] & ~a[:-1, 1:]
+    d2 = a[1:, :-1] & a[:-1, 1:] & ~a[1:, 1:] & ~a[:-1, :-1]
+    return float(orth + np.sqrt(2.0) * (np.count_nonzero(d1) + np.count_nonzero(d2)))
+
+
+# Ink wider than _FULL_WIDTH px is traced on the picture scaled down to lines
+# _WORK_WIDTH px wide: a skeleton costs per ink pixel and per pixel of width.
+_FULL_WIDTH, _WORK_WIDTH = 12.0, 6.0
+
+
+def rough_width(ink: np.ndarray) -> float:
+    """A quick line width in px: twice the ink area over its boundary pixels (a line has two sides)."""
+    inner = ink.copy()
+    inner[1:] &= ink[:-1]
+    inner[:-1] &= ink[1:]
+    inner[:, 1:] &= ink[:, :-1]
+    inner[:, :-1] &= ink[:, 1:]
+    boundary = np.count_nonzero(ink) - np.count_nonzero(inner)
+    return 2.0 * np.count_nonzero(ink) / boundary if boundary else 0.0
+
+
+def thin_enough(gray: np.ndarray, ink: np.ndarray, level: float) -> tuple[np.ndarray, np.ndarray, float]:
+    """(picture, ink, scale factor): scaled down when its ink lines are wider than
+    _FULL_WIDTH px, so the skeleton of a high-resolution scan or of a photo's
+    dark areas costs a fraction; thin lines keep the full resolution."""
+    width = rough_width(ink)
+    if width <= _FULL_WIDTH:
+        return gray, ink, 1.0
+    from doodlecam.trace.raster import working_picture
+
+    work, k = working_picture(gray, _WORK_WIDTH / width, 1.0)
+    return work, work < level, k
+
+
+def line_width(ink: np.ndarray, skel: np.ndarray) -> float:
+    """The ink line width in px: ink area over centre-line length (exact for a
+    long line at any angle, where distance-transform values step by whole pixels)."""
+    length = skeleton_length(skel)
+    return float(np.count_nonzero(ink) / length) if length > 0 else 0.0
+
+
+def centerlines(ink: np.ndarray, opt: dict[str, Any], skel: np.ndarray | None = None
+                ) -> tuple[list[np.ndarray], dict[str, Any]]:
+    """Centre-line polylines, (row, col) in px, of the ink mask, and what was measured on the way."""
+    from scipy import ndimage as ndi
+    from skimage import morphology
+
+    from doodlecam.plugins.edges import _lengths, link_edges, simplify, unstair
+
+    dist = ndi.distance_transform_edt(ink)
+    skel = morphology.skeletonize(ink) if skel is None else skel.copy()
+    width = max(line_width(ink, skel), 1.0)
+    speck = opt["speck"] or np.pi * width * width / 4
+    if speck > 1:  # specks of dust or noise: no line to draw
+        ink = morphology.remove_small_objects(ink, max_size=int(speck))
+        skel &= ink
+    spur = opt["spur"] or width
+    chains, n_objects, n_junctions = link_edges(skel, spur)
+    radius = (width + 1) / 2
+    chains = [_out_of_caps(c, dist, radius) for c in chains]
+    if len(chains) > 1:
+        # Ends within a line width of each other are one line's: the arms of a
+        # sharp corner meet the skeleton's corner branch a little apart.
+        from doodlecam.geometry.order import merge_ends
+
+        chains = merge_ends(chains, 1.5 * width)[0]
+    if opt["staircase"] > 0:
+        chains = [unstair(c, opt["staircase"]) for c in chains]
+    chains = simplify(chains, opt["simplify"]) if opt["simplify"] > 0 else chains
+    min_len = opt["min_length"] or width
+    keep = _lengths(chains) >= max(min_len, 1e-9) if chains else np.zeros(0, bool)
+    out = [c for c, k in zip(chains, keep) if k and len(c) >= 2]
+    info = {"line_width_px": width, "skeleton_pixels": int(skel.sum()), "edge_objects": n_objects,
+            "junctions": n_junctions, "polylines": len(out), "dropped_short": int(len(chains) - len(out)),
+            "vertices": int(sum(len(p) for p in out)), "length_px": float(_lengths(out).sum()) if out else 0.0}
+    return out, info
+
+
+def _out_of_caps(chain: np.ndarray, dist: np.ndarray, radius: float) -> np.ndarray:
+    """The chain with each free end pulled back to where the line has its full width.
+
+    A round-capped ink line's skeleton runs on into the cap, up to a pixel
+    from its tip: a pen of that width drawing only to the centre line's end
+    leaves the same cap, so the extra length would be drawn twice. Points are
+    dropped from an open end while their distance to the paper is below the
+    line's half width, never more than that half width along the chain.
+    Closed chains have no ends.
+    """
+    if len(chain) < 3 or np.array_equal(chain[0], chain[-1]):
+        return chain
+    d = dist[chain[:, 0].astype(int), chain[:, 1].astype(int)]
+    step = np.r_[0.0, np.cumsum(np.hypot(*np.diff(chain, axis=0).T))]
+    total = step[-1]
+    short = d < radius - 1.25
+    lo = 0
+    while lo < len(chain) - 2 and short[lo] and step[lo] < radius:
+        lo += 1
+    hi = len(chain) - 1
+    while hi > lo + 1 and short[hi] and total - step[hi] < radius:
+        hi -= 1
+    return chain[lo:hi + 1]
+
+
+# Line-art test (``--tracer auto``): a picture is line art when it is paper and
+# ink with few tones between, the ink is thin lines rather than filled areas,
+# and the lines are narrow against the picture.
+_MAX_INK = 0.35  # share of the picture that is ink
+_MIN_CONTRAST = 0.3  # paper minus ink grey level
+_MAX_MID = 0.08  # share of the picture in mid tones (anti-aliased line edges stay well below)
+_MAX_FILLED = 0.15  # share of the ink farther than 1.5 line half-widths from the paper
+_MAX_WIDTH = 0.1  # line width as a share of the picture's shorter side
+
+
+def line_art(gray: np.ndarray) -> tuple[bool, str, np.ndarray | None]:
+    """(is it line art?, the reason in words, the ink's skeleton when it was made)."""
+    from scipy import ndimage as ndi
+    from skimage import morphology
+
+    ink, level = ink_mask(gray)
+    share = float(np.count_nonzero(ink)) / gray.size
+    if share == 0.0 or share > _MAX_INK:
+        return False, f"a picture: {share:.0%} of it is dark (line art has under {_MAX_INK:.0%})", None
+    ink_tone, paper = float(gray[ink].mean()), float(gray[~ink].mean())
+    if paper - ink_tone < _MIN_CONTRAST:
+        return False, f"a picture: ink and paper differ by only {paper - ink_tone:.2f} in grey level", None
+    lo, hi = ink_tone + 0.3 * (paper - ink_tone), paper - 0.3 * (paper - ink_tone)
+    mid = float(np.count_nonzero((gray > lo) & (gray < hi))) / gray.size
+    if mid > _MAX_MID:
+        return False, f"a picture: {mid:.0%} of it is mid tones (line art has under {_MAX_MID:.0%})", None
+    gray, ink, k = thin_enough(gray, ink, level)
+    skel = morphology.skeletonize(ink)
+    width = line_width(ink, skel)
+    if width <= 0:
+        return False, "a picture: no ink lines", None
+    if width > _MAX_WIDTH * min(gray.shape):
+        return False, f"a picture: its dark shapes are {width / k:.0f} px wide, not lines", None
+    dist = ndi.distance_transform_edt(ink)
+    filled = float(np.count_nonzero(dist > 1.5 * (width / 2 + 1))) / np.count_nonzero(ink)
+    if filled > _MAX_FILLED:
+        return False, f"a picture: {filled:.0%} of its ink is filled areas, not lines", None
+    return True, (f"line art: paper and ink lines {width / k:.1f} px wide, {mid:.1%} mid tones; "
+                  "drawn once along their centre"), skel if k == 1.0 else None
+
+
+class AutoTracer(Tracer):
+    name = "auto"
+    summary = "the default for pictures: centerline for line art (thin dark lines on paper), else edges"
+    extensions = IMAGE_EXTENSIONS
+
+    @classmethod
+    def _options(cls) -> tuple[Option, ...]:
+        from doodlecam.plugins.edges import EdgesTracer
+
+        seen, out = set(), []
+        for o in (*EdgesTracer.options, *CenterlineTracer.options):
+            if o.name not in seen:
+                seen.add(o.name)
+                out.append(Option(o.name, o.type, None, f"passed to the chosen tracer; {o.help}"))
+        return tuple(out)
+
+    def trace(self, path: Path, options: dict[str, Any]) -> Drawing:
+        from dataclasses import replace
+
+        from doodlecam.plugins.edges import EdgesTracer
+
+        # None = not given (the chosen tracer's default), also when the pipeline resolved them already
+        given = {k: v for k, v in self.resolve_options({k: v for k, v in options.items() if v is not None}).items()
+                 if v is not None}
+        gray = load_gray(path)
+        art, reason, skel = line_art(gray)
+        chosen = CenterlineTracer if art else EdgesTracer
+        extra = set(given) - {o.name for o in chosen.options}
+        if extra:
+            raise PluginError(f"tracer 'auto' chose '{chosen.name}' ({reason}), which has no option "
+                              f"'{sorted(extra)[0]}'; pick the tracer with --tracer")
+        # the profile's [trace.edges] / [trace.centerline] table applies to the chosen tracer too
+        profile = getattr(self, "profile_options", {}).get(f"trace.{chosen.name}", {})
+        opt = chosen.resolve_options(profile, given)
+        if art:  # line art keeps its full resolution: thin lines would fade to grey
+            d = CenterlineTracer().trace_gray(gray, path, opt, skel)
+        else:
+            from doodlecam.trace.raster import in_picture_px, working_picture
+
+            pixel = opt["pixel_mm"] if opt["pixel_mm"] > 0 else (self.pen_mm or 0.0)
+            work = working_picture(gray, self.mm_per_px, pixel)[0]
+            d = in_picture_px(EdgesTracer().trace_gray(work, path, opt), gray.shape)
+        return replace(d, meta={**d.meta, "tracer_reason": f"auto: {reason}"})
+
+
+AutoTracer.options = AutoTracer._options()

@@ -1,0 +1,44 @@
+"""Tracer options that mean drawn sizes: the same photo at three resolutions gives nearly the
+same job; hatch lines are never closer than the pen is wide."""
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+from PIL import Image
+
+from conftest import PROFILE, save
+from doodlecam.machine import load_machine, parse_machine
+from doodlecam.pipeline import Settings, convert, trace
+
+CAMERA = Path(__file__).resolve().parents[1] / "samples" / "images" / "camera.png"
+
+
+@pytest.mark.parametrize("tracer", ["edges", "hatch"])
+def test_the_same_photo_at_three_resolutions_gives_the_same_job(tmp_path, tracer):
+    m = load_machine("doodlebot")
+    src = Image.open(CAMERA).convert("L")
+    figures = []
+    for n in (512, 1024, 2048):
+        path = tmp_path / f"cam{n}.png"
+        src.resize((n, n), Image.BICUBIC).save(path)
+        s = convert(path, tmp_path / "o", Settings(machine=m, tracer=tracer, posts=("svg",))).summary()
+        figures.append((s["strokes"], s["job_time_s"]))
+    strokes, times = np.array(figures).T
+    assert strokes.max() <= 1.15 * strokes.min() and times.max() <= 1.15 * times.min()
+
+
+def test_hatch_lines_are_never_closer_than_the_pen(tmp_path):
+    m = parse_machine(dict(PROFILE, pen={"width": 0.8}), "t.toml")
+    path = save(tmp_path, "grey.png", np.full((300, 400), 60, np.uint8))
+    for opts in ({}, {"spacing": "0.5"}, {"spacing_mm": "0.1"}):
+        s = Settings(machine=m, tracer="hatch", tracer_options={**opts, "levels": "1", "cross": "false", "angle": "0"})
+        d = trace(path, s)
+        from doodlecam.trace.layout import fit_to_work_area
+
+        mm = fit_to_work_area(d, m)
+        rows = np.unique(np.round([p[0, 1] for p in mm.polylines], 6))  # angle 0: one height per line
+        gap = np.diff(rows).min()
+        assert gap >= 0.8 - 1e-6
+        if not opts:
+            assert gap == pytest.approx(4 * 0.8, rel=0.02)  # the default: four pen widths
