@@ -154,7 +154,7 @@ MISTAKES = [
     (["--post-opt", "gcode.pen_upp=M5"], "postprocessor 'gcode' has no option 'pen_upp' (did you mean 'pen_up'?)"),
     (["--post-opt", "svg.step=wide"], "option 'step' must be a float"),
     (["--tracer", "edgse"], "unknown tracer 'edgse' (did you mean 'edges'?)"),
-    (["--tracer-opt", "sigm=3"], "tracer 'edges' has no option 'sigm' (did you mean 'sigma'?)"),
+    (["--tracer-opt", "sigm=3"], "tracer 'auto' has no option 'sigm' (did you mean 'sigma'?)"),
     (["--solver", "reachh"], "unknown solver 'reachh'"),
     (["-m", "doodlebto"], "unknown machine 'doodlebto' (did you mean 'doodlebot'?)"),
     ([("profile", lambda t: t.replace("[post.gcode]", "[post.gcod]"))],
@@ -275,7 +275,7 @@ def test_an_invalid_user_profile_is_listed_not_fatal(user_dir, capsys):
 
 
 @pytest.mark.parametrize("args, message", [
-    (["--tracer-opt", "sigm=3"], "tracer 'edges' has no option 'sigm' (did you mean 'sigma'?)"),
+    (["--tracer-opt", "sigm=3"], "tracer 'auto' has no option 'sigm' (did you mean 'sigma'?)"),
     (["-o", "a-file/fig.png"], "a-file is a file, not a folder"),
     (["--rotate", "90", "--scale", "1", "--width", "50"], "give a scale or a target width/height, not both"),
 ])
