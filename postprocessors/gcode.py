@@ -31,6 +31,7 @@ import numpy as np
 from doodlecam.api import Option, PostProcessor
 from doodlecam.errors import OutputError, PluginError
 
+CAP_LEVELS = 5  # chord tolerances tried for feeds = cap: tol, tol/2, ... tol/16
 MAX_LINE = 79  # GRBL's line buffer is 80 bytes including the terminating NUL
 
 
@@ -90,6 +91,76 @@ def _refine(spline, u: np.ndarray, tol: float, max_rounds: int = 30) -> np.ndarr
     return u
 
 
+def _seg_dist(q: np.ndarray, a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Distance (mm) of each point of q (n, 2) from the segment a-b."""
+    d = b - a
+    dd = float(d @ d)
+    s = np.clip((q - a) @ d / dd, 0.0, 1.0) if dd > 0 else np.zeros(len(q))
+    return np.hypot(*(q - a - s[:, None] * d).T)
+
+
+def _greedy_chords(q: np.ndarray, tol: float) -> np.ndarray:
+    """Indices of the vertices of the longest chords through q (n, 2) from q[0] to q[-1], each within ``tol``.
+
+    From each vertex the chord reaches as far along q as it can (exponential then
+    binary search over the dense points), so the polyline has the fewest vertices
+    whenever a chord within the tolerance has every sub-chord within it too (the
+    case on pieces without an inflection).
+    """
+    n = len(q)
+    out = [0]
+    i = 0
+
+    def ok(j: int) -> bool:
+        return bool(_seg_dist(q[i + 1:j], q[i], q[j]).max(initial=0.0) <= tol)
+
+    while i < n - 1:
+        step, good = 1, i + 1
+        while good + step < n and ok(good + step):
+            good += step
+            step *= 2
+        lo, hi = good, min(good + step, n)  # ok(lo), not ok(hi) (or hi = n)
+        while hi - lo > 1:
+            mid = (lo + hi) // 2
+            if ok(mid):
+                lo = mid
+            else:
+                hi = mid
+        out.append(lo)
+        i = lo
+    return np.asarray(out)
+
+
+def _one_step_apart(p: np.ndarray, steps_per_mm: np.ndarray) -> np.ndarray:
+    """Keep-mask of points (n, 2) that move at least one motor step from the previous kept one.
+
+    GRBL drops a block whose target rounds to the same steps (so no F word of it
+    means anything); the last point is always kept, in place of the one before.
+    """
+    st = np.round(p * steps_per_mm).astype(np.int64)
+    keep = np.ones(len(p), bool)
+    last = st[0]
+    for k in range(1, len(p)):  # sequential: compares with the last point kept
+        if (st[k] == last).all():
+            keep[k] = False
+        else:
+            last = st[k]
+    if len(p) > 1 and not keep[-1]:
+        j = np.flatnonzero(keep)[-1]
+        if j > 0:
+            keep[j] = False
+        keep[-1] = True
+    return keep
+
+
+def pen_feed_cap(machine, max_feed: float = 0.0) -> float:
+    """The fastest pen-down feed (mm/min): ``max_feed`` if given, else the pen-speed cap, else the slower axis."""
+    v = min(machine.x.max_velocity, machine.y.max_velocity)
+    if machine.pen.max_speed:
+        v = min(v, machine.pen.max_speed)
+    return float(max_feed) if max_feed > 0 else 60.0 * v
+
+
 class GcodePost(PostProcessor):
     name = "gcode"
     summary = "G-code (GRBL, Marlin, LinuxCNC): G0 travels, G1 strokes whose feeds follow the planned profile"
@@ -107,6 +178,16 @@ class GcodePost(PostProcessor):
         Option("min_feed", float, 10.0, "smallest feed (mm/min) written, so no segment has F0"),
         Option("program_end", str, "", "last line of the program; empty = the dialect's (grbl, linuxcnc: M2; marlin: M84)"),
         Option("estimate", bool, True, "grbl: put GRBL 1.1's own job time (planner model, doodlecam.link.grbl.timing) in the header"),
+        Option("feeds", str, "cap", "cap: the longest chords within chord_tolerance at one feed, the pen-speed cap, and the "
+               "firmware's planner sets the speeds (fastest on GRBL); plan: feeds follow the time-optimal plan, which keeps "
+               "the true acceleration limits on curves (for controllers that follow F literally)", ("cap", "plan")),
+        Option("max_feed", float, 0.0, "highest feed (mm/min) written; 0 = the pen-speed cap (pen.max_speed, else the "
+               "slower axis' max_velocity) x 60"),
+        Option("junction_deviation", float, 0.01, "grbl: the $11 (mm) the estimate assumes"),
+        Option("idle_delay", int, 25, "grbl: the $1 stepper idle delay (ms) the estimate assumes; 255 = motors always on"),
+        Option("work_offset", str, "none", "grbl: none; g10: G10 L20 P1 makes the pen's position at the start the "
+               "profile's home (stored, for machines with soft limits in negative space); g92: the same with G92 "
+               "(until reset)", ("none", "g10", "g92")),
     )
 
     def _resolve(self, options: dict[str, Any]) -> tuple[Dialect, dict[str, Any]]:
@@ -133,6 +214,20 @@ class GcodePost(PostProcessor):
             v = o[key]
             if not v.strip() or "\n" in v or "\r" in v or len(v) > d.max_line or not v.isascii():
                 raise PluginError(f"postprocessor 'gcode': option '{key}' must be one ASCII line of at most {d.max_line} characters, got {v!r}")
+        defaults = {x.name: x.default for x in self.options}
+        for key in ("feeds", "max_feed", "junction_deviation", "idle_delay", "work_offset"):
+            o.setdefault(key, defaults[key])
+        if o["feeds"] not in ("cap", "plan"):
+            raise PluginError(f"postprocessor 'gcode': option 'feeds' must be cap or plan, got {o['feeds']!r}")
+        if o["work_offset"] not in ("none", "g10", "g92"):
+            raise PluginError(f"postprocessor 'gcode': option 'work_offset' must be none, g10 or g92, got {o['work_offset']!r}")
+        if o["work_offset"] == "g10" and d.name == "marlin":
+            raise PluginError("postprocessor 'gcode': Marlin's G10 is a retract, not a work offset; use work_offset=g92")
+        if not (0 <= o["idle_delay"] <= 255):
+            raise PluginError(f"postprocessor 'gcode': option 'idle_delay' must be 0..255 ms ($1), got {o['idle_delay']!r}")
+        for key in ("max_feed", "junction_deviation"):
+            if not o[key] >= 0:
+                raise PluginError(f"postprocessor 'gcode': option '{key}' must not be negative, got {o[key]!r}")
         for key in ("chord_tolerance", "min_feed", "z_feed"):
             if not o[key] > 0:
                 raise PluginError(f"postprocessor 'gcode': option '{key}' must be positive, got {o[key]!r}")
@@ -140,38 +235,77 @@ class GcodePost(PostProcessor):
             raise PluginError(f"postprocessor 'gcode': option 'z_up' ({o['z_up']}) must be above 'z_down' ({o['z_down']})")
         return d, o
 
-    def _stroke_points(self, stroke, dt: float, tol: float, min_feed: float):
-        """Rounded G1 points (n, 2) and the feed (mm/min) of each of the n-1 segments."""
+    def _plan_points(self, stroke, dt: float, tol: float, min_feed: float):
+        """feeds = plan: G1 points at the planned sample instants, refined to the tolerance, and the
+        feed (mm/min) of each segment: its chord over the planned time between its ends."""
         prof = stroke.profile
-        if prof is None:
-            raise OutputError("job is not planned (a stroke has no feed profile); plan it before writing G-code")
         t = np.append(np.arange(0.0, prof.duration, dt), prof.duration)
         u = np.unique(np.append(prof.state_at(t)[0], [0.0, 1.0]))
         # Leave room for rounding the coordinates to 3 decimals (<= 0.0007 mm).
         u = _refine(stroke.spline, u, max(tol - 1e-3, 0.5 * tol))
+        return u
+
+    def _cap_candidates(self, stroke, tol: float) -> list[np.ndarray]:
+        """feeds = cap: polylines of the longest chords within tol, tol/2, tol/4 ... (u values of their vertices).
+
+        Longer chords turn more at each junction, and GRBL's junction speed falls
+        as the turn grows, while shorter ones starve its 15-block look-ahead: which
+        is faster depends on the curve, so the caller times each with GRBL's model.
+        """
+        # Dense points whose own chords stray at most `fine`: a chord within
+        # e - fine - 0.0007 of them (rounding to 3 decimals) is within e of the spline.
+        fine = 0.02 * tol
+        n0 = max(int(np.ceil(stroke.spline.length / max(tol, 0.05))) + 1, 9)
+        u = _refine(stroke.spline, np.linspace(0.0, 1.0, n0), fine)
+        q = stroke.spline(u)
+        out = []
+        for e in tol * 0.5 ** np.arange(CAP_LEVELS):
+            room = e - fine - 7.1e-4
+            if room < 0.25 * e and out:
+                break
+            out.append(u[_greedy_chords(q, max(room, 0.25 * e))])
+        return out
+
+    def _stroke_points(self, stroke, dt: float, tol: float, min_feed: float, mode: str, cap: float, machine):
+        """Rounded G1 points (n, 2) and the feed (mm/min) of each of the n-1 segments."""
+        prof = stroke.profile
+        if prof is None:
+            raise OutputError("job is not planned (a stroke has no feed profile); plan it before writing G-code")
+        spm = np.array([machine.x.steps_per_mm, machine.y.steps_per_mm])
+        if mode == "cap":
+            from doodlecam.link.grbl.timing import GrblSettings, _segment_time
+
+            settings = GrblSettings.from_machine(machine)
+            feed = max(cap, min_feed)
+            cands = []
+            for u in self._cap_candidates(stroke, tol):
+                p = np.round(stroke.spline(u), 3)
+                p = p[_one_step_apart(p, spm)]
+                # a stroke runs from rest to rest (the pen commands empty GRBL's planner)
+                t = _segment_time(np.c_[p, np.zeros(len(p))], np.full(len(p) - 1, feed / 60.0), settings).sum()
+                cands.append((t, len(cands), p))
+            p = min(cands)[2]  # the faster by GRBL's planner model
+            return p, np.full(len(p) - 1, feed)
+        u = self._plan_points(stroke, dt, tol, min_feed)
         p = np.round(stroke.spline(u), 3)
-        keep = np.ones(len(p), bool)
-        keep[1:] = np.any(p[1:] != p[:-1], axis=1)  # drop moves that round to zero length
-        if not keep[-1]:  # always end exactly at u = 1
-            j = np.flatnonzero(keep)[-1]
-            if j > 0:
-                keep[j], keep[-1] = False, True
+        keep = _one_step_apart(p, spm)  # also drops moves that round to zero length
         p, tu = p[keep], _t_of_u(prof, u[keep])
         chord, dtu = np.linalg.norm(np.diff(p, axis=0), axis=1), np.diff(tu)
         with np.errstate(divide="ignore", invalid="ignore"):
             feed = np.where(dtu > 0, 60.0 * chord / dtu, np.inf)
-        feed = np.maximum(feed, min_feed)
-        if np.isinf(feed).any():  # a zero-time segment (degenerate profile): use the fastest finite feed
-            finite = feed[np.isfinite(feed)]
-            feed[np.isinf(feed)] = finite.max() if len(finite) else min_feed
-        return p, feed
+        # never above the pen-speed cap (a very short last segment has a tiny planned time)
+        return p, np.clip(feed, min_feed, max(cap, min_feed))
 
     def write(self, job, options: dict[str, Any]) -> bytes:
         d, options = self._resolve(options)
         m = job.machine
         tol, min_feed = float(options["chord_tolerance"]), float(options["min_feed"])
+        if tol < 2e-3:
+            raise PluginError(f"postprocessor 'gcode': option 'chord_tolerance' must be at least 0.002 mm (coordinates "
+                              f"are written to 0.001 mm), got {tol!r}")
+        cap = pen_feed_cap(m, float(options["max_feed"]))
         dts = [s.delta_time for s in job.samples] if len(job.samples) == len(job.strokes) else []
-        paths = [self._stroke_points(s, dts[i] if dts else m.delta_time, tol, min_feed)
+        paths = [self._stroke_points(s, dts[i] if dts else m.delta_time, tol, min_feed, options["feeds"], cap, m)
                  for i, s in enumerate(job.strokes)]
         home = job.travels[-1].end if job.travels else np.asarray(m.home, float)
 
@@ -221,17 +355,23 @@ class GcodePost(PostProcessor):
         if d.name != "grbl" or options["pen"] != "servo":
             head.append(f"; dialect {d.name} ({d.firmware}), pen by {options['pen']}")
         if estimate:
-            est = self._grbl_estimate(m, program)
-            if est is not None:
-                head.append(f"; GRBL 1.1 estimate {est:.1f} s (planner model: junctions, 16-block look-ahead)")
+            from doodlecam.link.grbl.timing import GrblSettings, estimate_program
+
+            gs = GrblSettings.from_machine(m, float(options["junction_deviation"]), int(options["idle_delay"]))
+            est = estimate_program(program, gs, start=tuple(m.home)).total
+            head.append(f"; GRBL 1.1 estimate {est:.1f} s (planner model: junctions, 15-block look-ahead, $1 stops)")
+            dollars = gs.dollars()
+            head.append("; assumes " + " ".join(f"{k}={_num(v, 3)}" for k, v in dollars.items()
+                                                 if k not in ("$102", "$112", "$122")))
+        head.append(f"; feeds {options['feeds']}: " + ("longest chords at F" + _num(cap, 1) if options["feeds"] == "cap"
+                                                        else "the planned profile's"))
         preamble = list(d.preamble)
+        if options["work_offset"] != "none":
+            # The pen stands on the profile's home point: make that its work coordinates, so a
+            # GRBL with soft limits (machine travel in negative space) runs the positive job.
+            preamble.append(("G10 L20 P1" if options["work_offset"] == "g10" else "G92")
+                            + f" X{_num(m.home[0])} Y{_num(m.home[1])}")
         if d.name == "linuxcnc":
             preamble.append(f"G64 P{_num(tol)}")  # blend corners within the chord tolerance
         lines = [h[:d.max_line] for h in head] + preamble + body
         return ("\n".join(lines) + "\n").encode("ascii")
-
-    @staticmethod
-    def _grbl_estimate(machine, program: list[tuple]) -> float:
-        from doodlecam.link.grbl.timing import GrblSettings, estimate_program
-
-        return estimate_program(program, GrblSettings.from_machine(machine), start=tuple(machine.home)).total

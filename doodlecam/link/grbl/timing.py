@@ -19,9 +19,13 @@ the firmware will take, not only the time doodlecam planned:
   that keeps the buffer full (as ``doodlecam send`` does) sees exactly this
   window: block i may leave at most at the speed from which blocks
   i+1..i+14 can still brake to rest;
-* M-codes (spindle/servo changes, outside laser mode) and G4 dwells
-  synchronise: the planner empties and the machine stops; a dwell adds its
-  time (GRBL's G4 P is in seconds).
+* M-codes (spindle/servo changes, outside laser mode), G10 (an EEPROM
+  write) and G4 dwells synchronise: the planner empties and the machine
+  stops; a dwell adds its time (GRBL's G4 P is in seconds);
+* each time motion stops (the stepper segment buffer runs empty, i.e. at
+  every synchronisation after a move and at the program end) ``st_go_idle``
+  waits the ``$1`` stepper idle delay (25 ms by default) before GRBL goes on;
+  ``$1=255`` keeps the motors on and skips it.
 
 Each block then runs a trapezoid (or triangle) between its entry and exit
 speeds. Stepper segment quantisation (~ms) is ignored. Units: mm, s, mm/s.
@@ -49,13 +53,45 @@ class GrblSettings:
     acceleration: tuple[float, float, float] = (500.0, 500.0, 100.0)  # $120..$122 (mm/s²)
     junction_deviation: float = 0.01  # $11
     blocks: int = 16  # BLOCK_BUFFER_SIZE; the ring holds blocks - 1
+    idle_delay_ms: int = 25  # $1; 255 keeps the motors enabled (no delay)
+    steps_per_mm: tuple[float, float, float] = (250.0, 250.0, 250.0)  # $100..$102
 
     @classmethod
-    def from_machine(cls, machine, junction_deviation: float = 0.01) -> "GrblSettings":
+    def from_machine(cls, machine, junction_deviation: float = 0.01, idle_delay_ms: int = 25) -> "GrblSettings":
         """Settings matching a doodlecam machine profile (Z like X: a pen lift is short)."""
         x, y = machine.axes
         return cls((x.max_velocity, y.max_velocity, x.max_velocity),
-                   (x.max_acceleration, y.max_acceleration, x.max_acceleration), junction_deviation)
+                   (x.max_acceleration, y.max_acceleration, x.max_acceleration), junction_deviation,
+                   idle_delay_ms=int(idle_delay_ms), steps_per_mm=(x.steps_per_mm, y.steps_per_mm, x.steps_per_mm))
+
+    @property
+    def idle_delay(self) -> float:
+        """Seconds GRBL waits each time motion stops ($1)."""
+        return 0.0 if self.idle_delay_ms >= 255 else self.idle_delay_ms / 1000.0
+
+    def dollars(self) -> dict[str, float]:
+        """These settings as GRBL ``$`` settings (units as GRBL takes them: mm/min for $110..$112)."""
+        out: dict[str, float] = {}
+        for k, v in enumerate(self.steps_per_mm):
+            out[f"${100 + k}"] = round(v, 3)
+        for k, v in enumerate(self.max_rate):
+            out[f"${110 + k}"] = round(60.0 * v, 3)
+        for k, v in enumerate(self.acceleration):
+            out[f"${120 + k}"] = round(v, 3)
+        out["$11"] = self.junction_deviation
+        out["$1"] = self.idle_delay_ms
+        return out
+
+
+def grbl_settings_for(machine, junction_deviation: float = 0.01, idle_delay_ms: int = 25) -> dict[str, float]:
+    """The ``$`` settings a GRBL 1.1 controller needs for a doodlecam machine profile.
+
+    Keys ``$1``, ``$11``, ``$100..$102`` (steps/mm), ``$110..$112`` (mm/min),
+    ``$120..$122`` (mm/s², as GRBL shows them), ``$130/$131`` (travel, mm).
+    """
+    out = GrblSettings.from_machine(machine, junction_deviation, idle_delay_ms).dollars()
+    out["$130"], out["$131"] = float(machine.width), float(machine.height)
+    return dict(sorted(out.items(), key=lambda kv: int(kv[0][1:])))
 
 
 @dataclass
@@ -64,12 +100,14 @@ class Estimate:
 
     motion: float = 0.0
     dwell: float = 0.0
+    idle: float = 0.0  # $1 stepper idle delays
+    stops: int = 0  # times motion stopped
     blocks: int = 0
     block_times: np.ndarray = field(default_factory=lambda: np.zeros(0))
 
     @property
     def total(self) -> float:
-        return self.motion + self.dwell
+        return self.motion + self.dwell + self.idle
 
 
 def _axis_limit(values: np.ndarray, unit: np.ndarray) -> np.ndarray:
@@ -201,6 +239,10 @@ def estimate_program(program, settings: GrblSettings = GrblSettings(), start=(0.
         else:
             raise ValueError(f"unknown program item {item!r}")
     bt = _segment_time(np.array(pts), np.array(feeds), settings, np.array(rest, bool)) if feeds else np.zeros(0)
+    if len(bt):  # every run with motion ends in a stop: st_go_idle waits $1
+        run = np.cumsum(rest)
+        est.stops = len(np.unique(run[bt > 0]))
+        est.idle = est.stops * settings.idle_delay
     bt = bt[bt > 0]  # the blocks GRBL keeps (zero-length ones take no time)
     est.block_times, est.blocks, est.motion = bt, len(bt), float(bt.sum())
     return est
@@ -220,8 +262,10 @@ def parse_gcode(text: str) -> list[tuple]:
         words = _WORD.findall(line)
         g = [float(v) for k, v in words if k == "G"]
         vals = {k: float(v) for k, v in words if k in "XYZFP"}
-        if any(k == "M" for k, _ in words):
+        if any(k == "M" for k, _ in words) or 10.0 in g:  # G10 writes EEPROM: GRBL synchronises first
             program.append(("M", line))
+        if 10.0 in g or 92.0 in g:
+            continue  # offsets move nothing
         if 4.0 in g:
             program.append(("G4", vals.get("P", 0.0)))
             continue
