@@ -245,11 +245,10 @@ class GrblLink:
 
     # ------------------------------------------------------------ session
 
-    def connect(self) -> GrblStatus:
-        """Make sure GRBL answers, wait for a previous job to finish, start from a clean reset."""
+    def first_status(self) -> GrblStatus:
+        """GRBL's first status report after opening the port, in whatever state it is."""
         end = time.monotonic() + self.connect_timeout
-        st = None
-        while time.monotonic() < end and st is None:
+        while time.monotonic() < end:
             try:
                 ev = self.next_event(end - time.monotonic())
             except LinkError as e:
@@ -257,10 +256,13 @@ class GrblLink:
                     break
                 raise
             if ev and ev[0] == "status":
-                st = ev[1]
-        if st is None:
-            raise LinkError(f"no answer from GRBL on {self.port} within {self.connect_timeout:g} s; check the port, the "
-                            "baud rate (--baud) and that the controller runs GRBL")
+                return ev[1]
+        raise LinkError(f"no answer from GRBL on {self.port} within {self.connect_timeout:g} s; check the port, the "
+                        "baud rate (--baud) and that the controller runs GRBL")
+
+    def connect(self) -> GrblStatus:
+        """Make sure GRBL answers, wait for a previous job to finish, start from a clean reset."""
+        st = self.first_status()
         if st.state in ("Run", "Jog", "Home"):
             self.log("GRBL is still moving (a previous job?); waiting for it to finish")
             st = self.wait_idle()

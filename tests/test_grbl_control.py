@@ -1,0 +1,158 @@
+"""Machine control against the GRBL emulator on a pseudo-terminal: bytes sent, replies, soft limits in
+negative machine space, the interactive console, and ``doodlecam machine`` end to end."""
+
+from __future__ import annotations
+
+import time
+
+import pytest
+from test_grbl import bounded, emu_factory  # noqa: F401  (fixture)
+
+from doodlecam.cli import main
+from doodlecam.link.grbl.control import Controller, decode, run_console
+from doodlecam.link.grbl.port import GrblLink
+from doodlecam.link.grbl.protocol import GrblError
+from doodlecam.link.grbl.streamer import send_gcode
+
+
+def controller(emu) -> tuple[GrblLink, Controller]:
+    link = GrblLink(emu.port, timeout=5.0).open()
+    ctl = Controller(link)
+    ctl.attach()
+    return link, ctl
+
+
+def test_soft_limits_live_in_negative_machine_space(emu_factory, tmp_path):
+    emu = emu_factory(speed=50.0, soft_limits=True, travel=(400.0, 300.0))
+    link, ctl = controller(emu)
+    try:
+        assert ctl.status().state == "Alarm"  # homing enabled: locked until $H, as GRBL 1.1 starts
+        r = ctl.command("G0X10Y10")
+        assert not r.ok and r.code == 9  # G-code locked out during alarm
+        st = ctl.home()
+        assert emu.received[-1] == "$H" and st.state == "Idle" and st.mpos == (-1.0, -1.0, -1.0)  # $27 pull-off
+        # A positive target is outside GRBL's travel (-400..0): ALARM:2, as the firmware does
+        with pytest.raises(GrblError, match=r"ALARM:2 .*exceeds machine travel"):
+            ctl.command("G0X10Y10")
+        link.soft_reset()
+        ctl.home()
+        r = ctl.command("$J=G21G91X-500Y0F3000")
+        assert not r.ok and r.code == 15 and "exceeds machine travel" in decode("error:15")  # jogs are refused, no alarm
+        st = ctl.jog(-390.0, -290.0, 6000.0)
+        assert emu.received[-1] == "$J=G21G91X-390.000Y-290.000F6000"
+        assert st.mpos[:2] == (-391.0, -291.0)
+        st = ctl.zero()
+        assert emu.received[-1] == "G10L20P1X0.000Y0.000" and ctl.wco[:2] == (-391.0, -291.0)
+    finally:
+        link.close()
+    # now a job in positive work coordinates runs inside the travel, and one that leaves it alarms
+    ok = tmp_path / "ok.gcode"
+    ok.write_text("G21 G90\nG0 X10 Y10\nG1 X380 Y280 F9000\nG0 X0 Y0\nM2\n")
+    r = bounded(lambda: send_gcode(emu.port, ok, state_file=None))
+    assert r["lines"] == 5 and emu.pos[:2] == [-391.0, -291.0]
+    bad = tmp_path / "bad.gcode"
+    bad.write_text("G21 G90\nG0 X10 Y10\nG0 X395 Y10\n")
+    with pytest.raises(GrblError, match=r"ALARM:2 .*exceeds machine travel"):
+        bounded(lambda: send_gcode(emu.port, bad, state_file=None))
+
+
+def test_work_offset_option_makes_a_job_run_under_soft_limits(emu_factory, tmp_path):
+    from test_gcode_dialects import write
+    from test_posts import MACHINE, make_job
+
+    from doodlecam.machine import parse_machine
+
+    job = make_job(parse_machine(MACHINE, "test.toml"))
+    text = write(job, work_offset="g10")
+    assert "G10 L20 P1 X0 Y0" in text.splitlines()
+    emu = emu_factory(speed=200.0, soft_limits=True, travel=(400.0, 300.0))
+    link, ctl = controller(emu)
+    try:
+        ctl.home()
+        ctl.jog(-390.0, -290.0, 9000.0)  # the pen over the profile's home corner
+    finally:
+        link.close()
+    path = tmp_path / "job.gcode"
+    path.write_text(text)
+    r = bounded(lambda: send_gcode(emu.port, path, state_file=None), 120)
+    assert r["lines"] == len([x for x in text.splitlines() if not x.startswith(";")])
+    assert emu.g54[:2] == [-391.0, -291.0] and emu.state == "Idle"
+    # without the offset the same job alarms at its first move
+    path.write_text(write(job))
+    link, ctl = controller(emu)
+    try:
+        ctl.command("G10L2P1X0Y0")  # forget the offset
+    finally:
+        link.close()
+    with pytest.raises(GrblError, match="ALARM:2"):
+        bounded(lambda: send_gcode(emu.port, path, state_file=None), 60)
+
+
+def test_unlock_status_settings_and_refusals(emu_factory):
+    emu = emu_factory(speed=50.0, homing=True)
+    link, ctl = controller(emu)
+    try:
+        assert ctl.status().state == "Alarm"
+        st = ctl.unlock()
+        assert emu.received[-1] == "$X" and st.state == "Idle"
+        lines = ctl.settings()
+        assert "$110=9000 (X-axis maximum rate, mm/min)" in lines and "$1=25 (step idle delay, ms)" in lines
+        assert "$22=1 (homing cycle enable, bool)" in lines
+        assert emu.received[-1] == "$$"
+    finally:
+        link.close()
+    emu2 = emu_factory(speed=50.0)  # homing disabled: $H is refused with error:5
+    link, ctl = controller(emu2)
+    try:
+        with pytest.raises(GrblError, match=r"error:5 homing cycle is not enabled"):
+            ctl.home()
+    finally:
+        link.close()
+
+
+def test_console_keys_jog_override_and_dollar_commands(emu_factory):
+    emu = emu_factory(speed=50.0)
+    link, ctl = controller(emu)
+    keys = list("]") + ["\x1b", "[", "C"] + ["\x1b", "[", "A"] + list("++-") + list("$$\r") + list("$Q\r")
+    script = iter(keys)
+    out: list[str] = []
+    state = {"wait": 0}
+
+    def getch():
+        k = next(script, None)
+        if k is None:  # all typed: let the jogs and replies land, then quit
+            state["wait"] += 1
+            return "q" if state["wait"] > 40 else None
+        return k
+
+    try:
+        bounded(lambda: run_console(ctl, getch, out.append, step=1.0, feed=3000.0), 30)
+        st = ctl.status()
+    finally:
+        link.close()
+    sent = [x for x in emu.received if x.startswith("$J=")]
+    assert sent == ["$J=G21G91X10.000Y0.000F3000", "$J=G21G91X0.000Y10.000F3000"]  # ] made the step 10 mm
+    assert st.mpos[:2] == (10.0, 10.0)
+    assert emu.overrides == 110 and "feed 110%" in "\n".join(out)  # +10 +10 -10
+    assert "$110=9000 (X-axis maximum rate, mm/min)" in out
+    assert "error:3 (GRBL '$' system command was not recognized or supported)" in out  # $Q decoded
+    assert any(x.startswith("Idle") and "MPos 10.000,10.000" in x for x in out)
+
+
+def test_cli_machine_commands_end_to_end(emu_factory, capsys):
+    emu = emu_factory(speed=50.0, soft_limits=True)
+    assert main(["machine", "--serial", emu.port, "home"]) == 0
+    assert "MPos -1.000,-1.000,-1.000" in capsys.readouterr().out
+    assert main(["machine", "--serial", emu.port, "jog", "--", "-10", "-20"]) == 0
+    assert main(["machine", "--serial", emu.port, "zero"]) == 0
+    out = capsys.readouterr().out
+    assert "WPos 0.000,0.000" in out.splitlines()[-1]
+    assert main(["machine", "--serial", emu.port, "status"]) == 0
+    assert capsys.readouterr().out.startswith("Idle")
+    assert main(["machine", "--serial", emu.port, "jog", "--", "10", "500"]) != 0  # beyond $131: error:15
+    err = capsys.readouterr().err
+    assert "error:15" in err and "Traceback" not in err and len(err.strip().splitlines()) == 1
+    assert main(["machine", "--serial", "/dev/nonexistent-tty", "status"]) != 0
+    err = capsys.readouterr().err
+    assert "no such device" in err and len(err.strip().splitlines()) == 1
+    time.sleep(0.05)
