@@ -156,3 +156,120 @@ def test_cli_machine_commands_end_to_end(emu_factory, capsys):
     err = capsys.readouterr().err
     assert "no such device" in err and len(err.strip().splitlines()) == 1
     time.sleep(0.05)
+
+
+# ------------------------------------------------------------ controls during send
+
+def _scripted(emu, plan):
+    """controls(): each (condition(emu), command) fires once, in order, when its condition holds."""
+    steps = list(plan)
+    fired: list[tuple[str, int, dict]] = []
+
+    def controls():
+        if steps and steps[0][0](emu):
+            cmd = steps.pop(0)[1]
+            fired.append((cmd, len(emu.received), {"state": emu.state, "s": emu.modal["s"], "pos": list(emu.pos)}))
+            return cmd
+        return None
+
+    return controls, fired, steps
+
+
+def lasting(cond, seconds: float):
+    """A condition on the emulator that holds for ``seconds``; what it saw first (time, lines, position)."""
+    seen: dict = {}
+
+    def check(e) -> bool:
+        if not cond(e):
+            return False
+        seen.setdefault("t", time.monotonic())
+        seen.setdefault("n", len(e.received))
+        seen.setdefault("pos", list(e.pos))
+        return time.monotonic() - seen["t"] > seconds
+
+    return check, seen
+
+
+def test_pause_lifts_the_pen_and_resume_sends_every_line_once(emu_factory, tmp_path):
+    from test_grbl import sent_lines, synth_gcode
+
+    text = synth_gcode(n_strokes=6, seg=40, seed=5)
+    job = tmp_path / "p.gcode"
+    job.write_text(text)
+    emu = emu_factory(speed=40.0)
+    # after the pause: idle, pen up, nothing new for a while
+    paused_and_still, seen = lasting(lambda e: e.state == "Idle" and e.modal["s"] == 0 and not e.planner, 0.5)
+
+    controls, fired, left = _scripted(emu, [
+        (lambda e: len(e.received) > 60 and e.modal["s"] == 1000, "pause"),  # mid-stroke, pen down
+        (paused_and_still, "resume"),
+    ])
+    r = bounded(lambda: send_gcode(emu.port, job, state_file=None, controls=controls), 120)
+    assert not left and [f[0] for f in fired] == ["pause", "resume"]
+    expected = sent_lines(text)
+    got = emu.received
+    assert fired[1][1] == seen["n"]  # nothing was sent while paused
+    # the file's lines, each once and in order, with the sender's lift before the pause point and
+    # the resume prefix (position, pen down, dwell, feed) after it
+    k = next(i for i in range(len(expected)) if got[i] != expected[i])
+    assert got[k] == "M3S0"  # the pen was lifted (the file's own pen-up command)
+    rest = got[k + 1:]
+    prefix = [x for x in rest[:6] if x.startswith(("G21G90", "G0X", "M3S1000", "G4P", "F"))]
+    assert "M3S1000" in prefix  # the pen went down again where it was lifted
+    assert rest[len(prefix):] == expected[k:] and r["lines"] == len(expected)
+    assert fired[1][2]["s"] == 0  # the pen was up during the pause
+
+
+def test_hold_resume_and_feed_override_during_send(emu_factory, tmp_path):
+    from test_grbl import sent_lines, synth_gcode
+
+    text = synth_gcode(n_strokes=4, seg=40, seed=6)
+    job = tmp_path / "h.gcode"
+    job.write_text(text)
+    emu = emu_factory(speed=40.0)
+    held_long_enough, held = lasting(lambda e: e.state == "Hold", 0.4)
+
+    controls, fired, left = _scripted(emu, [
+        (lambda e: len(e.received) > 40 and e.state == "Run", "feed+"),
+        (lambda e: True, "feed+"),
+        (lambda e: True, "feed-"),
+        (lambda e: e.overrides == 110, "hold"),
+        (held_long_enough, "resume"),
+    ])
+    bounded(lambda: send_gcode(emu.port, job, state_file=None, controls=controls), 120)
+    assert not left
+    assert emu.received == sent_lines(text)  # a hold adds nothing and loses nothing
+    assert emu.overrides == 110
+    assert fired[-1][2]["state"] == "Hold" and fired[-1][2]["pos"] == pytest.approx(held["pos"], abs=1e-6)
+
+
+def test_send_keys_from_a_terminal(emu_factory, tmp_path):
+    """`doodlecam send` on a terminal: + raises the feed override, s stops cleanly with the pen up."""
+    import os
+    import subprocess
+    import sys
+
+    from test_grbl import ENV, ROOT, synth_gcode
+
+    job = tmp_path / "k.gcode"
+    job.write_text(synth_gcode(n_strokes=12, seg=40, seed=3))
+    emu = emu_factory(speed=10.0)
+    master, slave = os.openpty()
+    cmd = [sys.executable, "-m", "doodlecam", "send", str(job), "--serial", emu.port, "--no-progress"]
+    p = subprocess.Popen(cmd, stdin=slave, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=ENV, cwd=ROOT)
+    try:
+        end = time.monotonic() + 30
+        while len(emu.received) < 60 and time.monotonic() < end:
+            time.sleep(0.01)
+        os.write(master, b"+")
+        while emu.overrides != 110 and time.monotonic() < end:
+            time.sleep(0.01)
+        os.write(master, b"s")
+        out, err = p.communicate(timeout=30)
+    finally:
+        p.kill()
+        os.close(master)
+        os.close(slave)
+    assert emu.overrides == 110
+    assert p.returncode == 130 and "paused before" in err and "keys: p pause" in err and "Traceback" not in err
+    assert emu.received[-1] == "M3S0" and emu.state == "Idle"

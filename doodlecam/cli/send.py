@@ -6,6 +6,7 @@ import any of this.
 
 from __future__ import annotations
 
+import contextlib
 import sys
 import time
 from pathlib import Path
@@ -131,8 +132,9 @@ def send(job, udp, serial_port, baud, check, restart, cancel, from_line, timeout
         if kind == "udp":
             result = transport.send(job, udp, options, restart=restart, cancel=cancel, progress=bar, log=bar.log)
         else:
-            result = transport.send(job, serial_port, options, restart=restart, check=check, from_line=from_line,
-                                    progress=bar, log=bar.log)
+            with _grbl_keys(transport, check, bar.log) as keys:
+                result = transport.send(job, serial_port, options, restart=restart, check=check, from_line=from_line,
+                                        progress=bar, log=bar.log, **keys)
     except Paused as e:
         bar.close()
         click.echo(f"doodlecam: {e}", err=True)
@@ -140,6 +142,25 @@ def send(job, udp, serial_port, baud, check, restart, cancel, from_line, timeout
     finally:
         bar.close()
     _report(job, kind, result, check, cancel)
+
+
+GRBL_KEYS = {"p": "pause", " ": "pause", "r": "resume", "~": "resume", "!": "hold", "+": "feed+", "-": "feed-",
+             "=": "feed=", "s": "stop"}
+
+
+@contextlib.contextmanager
+def _grbl_keys(transport, check: bool, log):
+    """Keys that control a GRBL send from a terminal (pause/resume, hold, feed override, stop); {} otherwise."""
+    import inspect
+
+    if check or not sys.stdin.isatty() or "controls" not in inspect.signature(transport.send).parameters:
+        yield {}
+        return
+    from doodlecam.cli.machine import raw_keys
+
+    log("keys: p pause (pen up) | r resume | ! hold | ~ cycle start | + - = feed override | s stop")
+    with raw_keys() as getch:
+        yield {"controls": lambda: GRBL_KEYS.get(getch() or "")}
 
 
 def _plc_plan(job: Path):
