@@ -161,6 +161,21 @@ def pen_feed_cap(machine, max_feed: float = 0.0) -> float:
     return float(max_feed) if max_feed > 0 else 60.0 * v
 
 
+def _serial_keeps_up(p: np.ndarray, block_times: np.ndarray, baud: int, window: int = 15) -> bool:
+    """Can a character-counting sender at ``baud`` keep GRBL's planner full through these blocks?
+
+    Every ``window`` consecutive blocks (the planned look-ahead) must take at
+    least as long as their lines take on the wire (10 bits per byte, spaces
+    stripped as the streamer sends them); otherwise the planner runs dry and
+    GRBL brakes to a stop at its last block.
+    """
+    if baud <= 0 or len(block_times) < window:
+        return True
+    nbytes = np.array([len(f"G1X{_num(x)}Y{_num(y)}") + 1 for x, y in p[1:].tolist()], float)
+    slack = np.concatenate([[0.0], np.cumsum(block_times - nbytes * 10.0 / baud)])
+    return bool((slack[window:] - slack[:-window]).min() >= 0.0)
+
+
 class GcodePost(PostProcessor):
     name = "gcode"
     summary = "G-code (GRBL, Marlin, LinuxCNC): G0 travels, G1 strokes whose feeds follow the planned profile"
@@ -185,6 +200,8 @@ class GcodePost(PostProcessor):
                "slower axis' max_velocity) x 60"),
         Option("junction_deviation", float, 0.01, "grbl: the $11 (mm) the estimate assumes"),
         Option("idle_delay", int, 25, "grbl: the $1 stepper idle delay (ms) the estimate assumes; 255 = motors always on"),
+        Option("baud", int, 115200, "feeds = cap: the serial rate (baud) the chords must not outrun (GRBL's 15 planned "
+               "blocks must take longer than sending their lines); 0 = no limit"),
         Option("work_offset", str, "none", "grbl: none; g10: G10 L20 P1 makes the pen's position at the start the "
                "profile's home (stored, for machines with soft limits in negative space); g92: the same with G92 "
                "(until reset)", ("none", "g10", "g92")),
@@ -215,7 +232,7 @@ class GcodePost(PostProcessor):
             if not v.strip() or "\n" in v or "\r" in v or len(v) > d.max_line or not v.isascii():
                 raise PluginError(f"postprocessor 'gcode': option '{key}' must be one ASCII line of at most {d.max_line} characters, got {v!r}")
         defaults = {x.name: x.default for x in self.options}
-        for key in ("feeds", "max_feed", "junction_deviation", "idle_delay", "work_offset"):
+        for key in ("feeds", "max_feed", "junction_deviation", "idle_delay", "work_offset", "baud"):
             o.setdefault(key, defaults[key])
         if o["feeds"] not in ("cap", "plan"):
             raise PluginError(f"postprocessor 'gcode': option 'feeds' must be cap or plan, got {o['feeds']!r}")
@@ -225,7 +242,7 @@ class GcodePost(PostProcessor):
             raise PluginError("postprocessor 'gcode': Marlin's G10 is a retract, not a work offset; use work_offset=g92")
         if not (0 <= o["idle_delay"] <= 255):
             raise PluginError(f"postprocessor 'gcode': option 'idle_delay' must be 0..255 ms ($1), got {o['idle_delay']!r}")
-        for key in ("max_feed", "junction_deviation"):
+        for key in ("max_feed", "junction_deviation", "baud"):
             if not o[key] >= 0:
                 raise PluginError(f"postprocessor 'gcode': option '{key}' must not be negative, got {o[key]!r}")
         for key in ("chord_tolerance", "min_feed", "z_feed"):
@@ -266,25 +283,26 @@ class GcodePost(PostProcessor):
             out.append(u[_greedy_chords(q, max(room, 0.25 * e))])
         return out
 
-    def _stroke_points(self, stroke, dt: float, tol: float, min_feed: float, mode: str, cap: float, machine):
+    def _stroke_points(self, stroke, dt: float, tol: float, min_feed: float, mode: str, cap: float, machine,
+                       grbl, baud: int):
         """Rounded G1 points (n, 2) and the feed (mm/min) of each of the n-1 segments."""
         prof = stroke.profile
         if prof is None:
             raise OutputError("job is not planned (a stroke has no feed profile); plan it before writing G-code")
         spm = np.array([machine.x.steps_per_mm, machine.y.steps_per_mm])
         if mode == "cap":
-            from doodlecam.link.grbl.timing import GrblSettings, _segment_time
+            from doodlecam.link.grbl.timing import _segment_time
 
-            settings = GrblSettings.from_machine(machine)
             feed = max(cap, min_feed)
             cands = []
             for u in self._cap_candidates(stroke, tol):
                 p = np.round(stroke.spline(u), 3)
                 p = p[_one_step_apart(p, spm)]
                 # a stroke runs from rest to rest (the pen commands empty GRBL's planner)
-                t = _segment_time(np.c_[p, np.zeros(len(p))], np.full(len(p) - 1, feed / 60.0), settings).sum()
-                cands.append((t, len(cands), p))
-            p = min(cands)[2]  # the faster by GRBL's planner model
+                bt = _segment_time(np.c_[p, np.zeros(len(p))], np.full(len(p) - 1, feed / 60.0), grbl)
+                fed = _serial_keeps_up(p, bt, baud)
+                cands.append((not fed, bt.sum(), len(cands), p))
+            p = min(cands)[3]  # the fastest by GRBL's planner model among those the serial line can feed
             return p, np.full(len(p) - 1, feed)
         u = self._plan_points(stroke, dt, tol, min_feed)
         p = np.round(stroke.spline(u), 3)
@@ -305,8 +323,11 @@ class GcodePost(PostProcessor):
                               f"are written to 0.001 mm), got {tol!r}")
         cap = pen_feed_cap(m, float(options["max_feed"]))
         dts = [s.delta_time for s in job.samples] if len(job.samples) == len(job.strokes) else []
-        paths = [self._stroke_points(s, dts[i] if dts else m.delta_time, tol, min_feed, options["feeds"], cap, m)
-                 for i, s in enumerate(job.strokes)]
+        from doodlecam.link.grbl.timing import GrblSettings
+
+        grbl = GrblSettings.from_machine(m, float(options["junction_deviation"]), int(options["idle_delay"]))
+        paths = [self._stroke_points(s, dts[i] if dts else m.delta_time, tol, min_feed, options["feeds"], cap, m,
+                                     grbl, int(options["baud"])) for i, s in enumerate(job.strokes)]
         home = job.travels[-1].end if job.travels else np.asarray(m.home, float)
 
         from doodlecam.link.grbl.timing import parse_gcode
@@ -355,14 +376,14 @@ class GcodePost(PostProcessor):
         if d.name != "grbl" or options["pen"] != "servo":
             head.append(f"; dialect {d.name} ({d.firmware}), pen by {options['pen']}")
         if estimate:
-            from doodlecam.link.grbl.timing import GrblSettings, estimate_program
+            from doodlecam.link.grbl.timing import estimate_program
 
-            gs = GrblSettings.from_machine(m, float(options["junction_deviation"]), int(options["idle_delay"]))
+            gs = grbl
             est = estimate_program(program, gs, start=tuple(m.home)).total
-            head.append(f"; GRBL 1.1 estimate {est:.1f} s (planner model: junctions, 15-block look-ahead, $1 stops)")
-            dollars = gs.dollars()
-            head.append("; assumes " + " ".join(f"{k}={_num(v, 3)}" for k, v in dollars.items()
-                                                 if k not in ("$102", "$112", "$122")))
+            head.append(f"; GRBL 1.1 estimate {est:.1f} s (planner model, see doodlecam.link.grbl.timing)")
+            words = [f"{k}={_num(v, 3)}" for k, v in gs.dollars().items() if k not in ("$102", "$112", "$122")]
+            head.append("; assumes " + " ".join(words[:4]))  # split: GRBL lines are at most 79 characters
+            head.append("; assumes " + " ".join(words[4:]))
         head.append(f"; feeds {options['feeds']}: " + ("longest chords at F" + _num(cap, 1) if options["feeds"] == "cap"
                                                         else "the planned profile's"))
         preamble = list(d.preamble)

@@ -130,9 +130,45 @@ def test_header_carries_the_grbl_estimate(job):
     body = "\n".join(x for x in text.splitlines() if not x.startswith(";"))
     est = estimate_gcode(body, GrblSettings.from_machine(job.machine)).total
     assert shown == pytest.approx(est, abs=0.051)
+    # the settings the estimate assumes, as GRBL takes them
+    assert "; assumes $100=80 $101=80 $110=9000 $111=9000" in text.splitlines()
+    assert "; assumes $120=2000 $121=2000 $11=0.01 $1=25" in text.splitlines()
+    # $1=255 keeps the motors on: no 25 ms at each of the 2 stops per stroke and the last travel
+    quiet = write(job, idle_delay=255)
+    shown255 = float(re.search(r"estimate ([\d.]+) s", quiet).group(1))
+    assert shown - shown255 == pytest.approx(0.025 * (2 * len(job.strokes) + 1), abs=0.11)
     # GRBL cannot beat the plan's own feeds: its time is at least the pen-down plan plus dwells.
-    assert est >= sum(s.profile.duration for s in job.strokes) + 0.3 * len(job.strokes)
+    plan = write(job, feeds="plan")
+    est_plan = estimate_gcode(plan, GrblSettings.from_machine(job.machine)).total
+    assert est_plan >= sum(s.profile.duration for s in job.strokes) + 0.3 * len(job.strokes)
+    assert est < est_plan  # the default G-code runs faster on GRBL
     assert "GRBL 1.1 estimate" not in write(job, estimate="no")
+
+
+def test_grbl_settings_for_a_profile():
+    from doodlecam.link.grbl.timing import grbl_settings_for
+
+    m = parse_machine(MACHINE, "test.toml")
+    d = grbl_settings_for(m)
+    assert d["$100"] == m.x.steps_per_mm and d["$110"] == pytest.approx(60 * m.x.max_velocity)
+    assert d["$120"] == m.x.max_acceleration and d["$130"] == m.width and d["$131"] == m.height
+    assert d["$11"] == 0.01 and d["$1"] == 25
+    assert list(d) == sorted(d, key=lambda k: int(k[1:]))
+
+
+def test_cap_chords_never_outrun_the_serial_line(job):
+    """Every 15 consecutive blocks take GRBL longer than sending their lines at 115200 baud."""
+    from doodlecam.link.grbl.timing import parse_gcode
+    from doodlecam.postprocessors.gcode import _serial_keeps_up
+
+    text = write(job)
+    s = GrblSettings.from_machine(job.machine)
+    for pts, _ in strict_parse(text, "grbl", "M3 S0", "M3 S1000", "G4 P0.15"):
+        p = np.array(pts)
+        prog = [("G1", x, y, None, 9000.0) for x, y in p[1:]]
+        bt = estimate_program(prog, s, start=tuple(p[0])).block_times
+        assert _serial_keeps_up(p, bt, 115200)
+    assert parse_gcode(text)  # the whole file parses for the model
 
 
 # ------------------------------------------------------------ GRBL 1.1 time model, by hand
