@@ -1,11 +1,21 @@
 """G-code post-processor for pen plotters: GRBL, Marlin and LinuxCNC dialects.
 
-Each stroke becomes short G1 segments along its spline. Segment ends sit at
-the planned sample instants, split further until every chord stays within
-``chord_tolerance`` of the spline. Each segment's feed is its chord length
-over the planned time between its ends, so a controller that follows F
-reproduces the time-optimal profile (the firmware's own planner smooths the
-joins; ``doodlecam.link.grbl.timing`` estimates how long GRBL 1.1 really takes).
+Each stroke becomes G1 segments along its spline, every chord within
+``chord_tolerance`` of it, in one of two modes (``feeds``):
+
+* ``cap`` (default): the longest chords within the tolerance (or a half,
+  quarter ... of it), all at the pen-speed cap; the firmware's planner sets
+  the speeds. Per stroke the polyline that ``doodlecam.link.grbl.timing``
+  (GRBL 1.1's planner) runs fastest is written, among those a serial line at
+  ``baud`` can feed.
+* ``plan``: segment ends at the planned sample instants, split further until
+  every chord is within the tolerance; each feed is the chord over the
+  planned time between its ends, so a controller that follows F reproduces
+  the time-optimal profile and its true acceleration limits on curves.
+
+No segment is shorter than one motor step (GRBL drops those) and no F is
+above the pen-speed cap. The GRBL header states the model's job time and the
+``$`` settings it assumes.
 
 Dialects (``dialect``; every line stays within the firmware's line limit):
 
@@ -91,35 +101,46 @@ def _refine(spline, u: np.ndarray, tol: float, max_rounds: int = 30) -> np.ndarr
     return u
 
 
-def _seg_dist(q: np.ndarray, a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """Distance (mm) of each point of q (n, 2) from the segment a-b."""
+def _seg_dist2(q: np.ndarray, a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Squared distance (mm²) of each point of q (n, 2) from the segment a-b (few NumPy calls: this is the hot loop)."""
     d = b - a
     dd = float(d @ d)
-    s = np.clip((q - a) @ d / dd, 0.0, 1.0) if dd > 0 else np.zeros(len(q))
-    return np.hypot(*(q - a - s[:, None] * d).T)
+    qa = q - a
+    s = qa @ d
+    if dd > 0:
+        s = np.minimum(np.maximum(s / dd, 0.0), 1.0)
+    r = qa - np.multiply.outer(s, d)
+    return np.einsum("ij,ij->i", r, r)
 
 
 def _greedy_chords(q: np.ndarray, tol: float) -> np.ndarray:
     """Indices of the vertices of the longest chords through q (n, 2) from q[0] to q[-1], each within ``tol``.
 
-    From each vertex the chord reaches as far along q as it can (exponential then
-    binary search over the dense points), so the polyline has the fewest vertices
+    From each vertex the chord reaches as far along q as it can (a search over
+    the dense points that starts from the previous chord's reach, grows it
+    exponentially, then bisects), so the polyline has the fewest vertices
     whenever a chord within the tolerance has every sub-chord within it too (the
     case on pieces without an inflection).
     """
     n = len(q)
     out = [0]
     i = 0
+    tol2 = tol * tol
 
     def ok(j: int) -> bool:
-        return bool(_seg_dist(q[i + 1:j], q[i], q[j]).max(initial=0.0) <= tol)
+        return j == i + 1 or bool(_seg_dist2(q[i + 1:j], q[i], q[j]).max() <= tol2)
 
+    reach = 1
     while i < n - 1:
-        step, good = 1, i + 1
-        while good + step < n and ok(good + step):
-            good += step
-            step *= 2
-        lo, hi = good, min(good + step, n)  # ok(lo), not ok(hi) (or hi = n)
+        guess = min(i + reach, n - 1)
+        if ok(guess):  # ok(i + 1) always: no point between
+            good, step = guess, max(reach // 2, 1)
+            while good + step < n and ok(good + step):
+                good += step
+                step *= 2
+            lo, hi = good, min(good + step, n)  # ok(lo), not ok(hi) (or hi = n)
+        else:
+            lo, hi = i + 1, guess
         while hi - lo > 1:
             mid = (lo + hi) // 2
             if ok(mid):
@@ -127,7 +148,7 @@ def _greedy_chords(q: np.ndarray, tol: float) -> np.ndarray:
             else:
                 hi = mid
         out.append(lo)
-        i = lo
+        reach, i = lo - i, lo
     return np.asarray(out)
 
 
@@ -178,7 +199,7 @@ def _serial_keeps_up(p: np.ndarray, block_times: np.ndarray, baud: int, window: 
 
 class GcodePost(PostProcessor):
     name = "gcode"
-    summary = "G-code (GRBL, Marlin, LinuxCNC): G0 travels, G1 strokes whose feeds follow the planned profile"
+    summary = "G-code (GRBL, Marlin, LinuxCNC): G0 travels, G1 strokes at the pen-speed cap or the planned feeds"
     extension = ".gcode"
     options = (
         Option("dialect", str, "grbl", "firmware: sets line limit, pen commands, dwell units, preamble", tuple(DIALECTS)),
@@ -204,7 +225,7 @@ class GcodePost(PostProcessor):
                "blocks must take longer than sending their lines); 0 = no limit"),
         Option("work_offset", str, "none", "grbl: none; g10: G10 L20 P1 makes the pen's position at the start the "
                "profile's home (stored, for machines with soft limits in negative space); g92: the same with G92 "
-               "(until reset)", ("none", "g10", "g92")),
+               "(forgotten at a reset: such a job cannot resume)", ("none", "g10", "g92")),
     )
 
     def _resolve(self, options: dict[str, Any]) -> tuple[Dialect, dict[str, Any]]:
@@ -262,7 +283,7 @@ class GcodePost(PostProcessor):
         u = _refine(stroke.spline, u, max(tol - 1e-3, 0.5 * tol))
         return u
 
-    def _cap_candidates(self, stroke, tol: float) -> list[np.ndarray]:
+    def _cap_candidates(self, stroke, tol: float):
         """feeds = cap: polylines of the longest chords within tol, tol/2, tol/4 ... (u values of their vertices).
 
         Longer chords turn more at each junction, and GRBL's junction speed falls
@@ -275,13 +296,11 @@ class GcodePost(PostProcessor):
         n0 = max(int(np.ceil(stroke.spline.length / max(tol, 0.05))) + 1, 9)
         u = _refine(stroke.spline, np.linspace(0.0, 1.0, n0), fine)
         q = stroke.spline(u)
-        out = []
-        for e in tol * 0.5 ** np.arange(CAP_LEVELS):
+        for k, e in enumerate(tol * 0.5 ** np.arange(CAP_LEVELS)):
             room = e - fine - 7.1e-4
-            if room < 0.25 * e and out:
-                break
-            out.append(u[_greedy_chords(q, max(room, 0.25 * e))])
-        return out
+            if room < 0.25 * e and k:
+                return
+            yield u[_greedy_chords(q, max(room, 0.25 * e))]
 
     def _stroke_points(self, stroke, dt: float, tol: float, min_feed: float, mode: str, cap: float, machine,
                        grbl, baud: int):
@@ -294,16 +313,16 @@ class GcodePost(PostProcessor):
             from doodlecam.link.grbl.timing import _segment_time
 
             feed = max(cap, min_feed)
-            cands = []
-            for u in self._cap_candidates(stroke, tol):
+            best, best_t = None, np.inf
+            for u in self._cap_candidates(stroke, tol):  # coarse to fine
                 p = np.round(stroke.spline(u), 3)
                 p = p[_one_step_apart(p, spm)]
                 # a stroke runs from rest to rest (the pen commands empty GRBL's planner)
                 bt = _segment_time(np.c_[p, np.zeros(len(p))], np.full(len(p) - 1, feed / 60.0), grbl)
-                fed = _serial_keeps_up(p, bt, baud)
-                cands.append((not fed, bt.sum(), len(cands), p))
-            p = min(cands)[3]  # the fastest by GRBL's planner model among those the serial line can feed
-            return p, np.full(len(p) - 1, feed)
+                if best is not None and (bt.sum() >= best_t or not _serial_keeps_up(p, bt, baud)):
+                    break  # finer chords stopped paying (the gain is single-peaked in practice) or outrun the line
+                best, best_t = p, bt.sum()
+            return best, np.full(len(best) - 1, feed)
         u = self._plan_points(stroke, dt, tol, min_feed)
         p = np.round(stroke.spline(u), 3)
         keep = _one_step_apart(p, spm)  # also drops moves that round to zero length

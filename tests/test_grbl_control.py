@@ -273,3 +273,18 @@ def test_send_keys_from_a_terminal(emu_factory, tmp_path):
     assert emu.overrides == 110
     assert p.returncode == 130 and "paused before" in err and "keys: p pause" in err and "Traceback" not in err
     assert emu.received[-1] == "M3S0" and emu.state == "Idle"
+
+
+def test_offset_lines_are_not_positions_and_g92_cannot_resume():
+    from doodlecam.errors import InputError
+    from doodlecam.link.grbl.protocol import line_durations, prepare, resume_prefix
+    from doodlecam.link.grbl.streamer import end_positions
+
+    lines = prepare("G21 G90 G94\nG10 L20 P1 X5 Y7\nG0 X10 Y10\nM3 S1000\nG1 X20 Y10 F600\nM3 S0\n")
+    assert end_positions(lines)[1] == (None, None)  # G10 sets an offset, the pen does not move
+    assert line_durations(lines)[1] == 0.0
+    pre = [x.text for x in resume_prefix(lines, 5)]
+    assert pre[1] == "G0X20Y10" and "G10L20P1X5Y7" not in pre  # G54 is stored in GRBL: not repeated
+    g92 = prepare("G21 G90\nG92 X0 Y0\nG0 X10 Y10\nG1 X20 Y10 F600\n")
+    with pytest.raises(InputError, match="G92"):
+        resume_prefix(g92, 3)

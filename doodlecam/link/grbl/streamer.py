@@ -44,6 +44,7 @@ from doodlecam.link.grbl.protocol import (
     GcodeLine,
     GrblError,
     GrblStatus,
+    _is_offset,
     _is_pen,
     error_text,
     pen_up_line,
@@ -316,7 +317,7 @@ def end_positions(lines: list[GcodeLine]) -> list[tuple[float | None, float | No
     out, x, y = [], None, None
     for ln in lines:
         t = ln.text.upper()
-        if not (t.startswith("G4") or t.startswith("$")):
+        if not (t.startswith("G4") or t.startswith("$") or _is_offset(t)):
             for letter, val in _AXIS.findall(t):
                 if letter == "X":
                     x = float(val)
