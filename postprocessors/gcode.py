@@ -170,7 +170,8 @@ def _one_step_apart(p: np.ndarray, steps_per_mm: np.ndarray) -> np.ndarray:
         j = np.flatnonzero(keep)[-1]
         if j > 0:
             keep[j] = False
-        keep[-1] = True
+            keep[-1] = True
+        # else: the whole stroke is within one step of its start: no move at all (the pen makes a dot)
     return keep
 
 
