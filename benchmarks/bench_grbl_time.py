@@ -25,6 +25,7 @@ import argparse
 import subprocess
 import sys
 import tempfile
+import time
 from pathlib import Path
 
 import numpy as np
@@ -93,7 +94,11 @@ def main() -> int:
             drawing = fit_to_work_area(trace(ROOT / "samples" / "images" / f"{name}.png", settings), machine,
                                        settings.layout)
             job = plan_job(drawing, machine)
-            text = {f: GcodePost().write(job, GcodePost.resolve_options({"feeds": f})).decode() for f in ("cap", "plan")}
+            text, cpu = {}, {}
+            for f in ("cap", "plan"):
+                t0 = time.process_time()
+                text[f] = GcodePost().write(job, GcodePost.resolve_options({"feeds": f})).decode()
+                cpu[f] = time.process_time() - t0
             lines = polylines(text["plan"])
             src, out = Path(tmp) / f"{name}.svg", Path(tmp) / f"{name}.vpype.gcode"
             src.write_text(svg(lines, machine.width, machine.height))
@@ -107,11 +112,11 @@ def main() -> int:
             ratio = t["cap"] / t["vpype"]
             worst = max(worst, ratio)
             rows.append(f"| {name} | {len(job.strokes)} | {t['plan']:.1f} ({n['plan']}) | {t['vpype']:.1f} ({n['vpype']}) "
-                        f"| {t['cap']:.1f} ({n['cap']}) | {ratio:.3f} |")
+                        f"| {t['cap']:.1f} ({n['cap']}) | {ratio:.3f} | {cpu['cap']:.2f} / {cpu['plan']:.2f} |")
     print("GRBL 1.1 job time by doodlecam's planner model, s (G1 lines); doodlebot, $11=0.010, $1=25 ms, "
           "chord tolerance 0.05 mm\n")
-    print("| picture | strokes | feeds=plan | vpype-gcode F9000 | feeds=cap (default) | cap / vpype |")
-    print("|---|---|---|---|---|---|")
+    print("| picture | strokes | feeds=plan | vpype-gcode F9000 | feeds=cap (default) | cap / vpype | post CPU s cap / plan |")
+    print("|---|---|---|---|---|---|---|")
     print("\n".join(rows))
     return 0 if worst <= 0.9 else 1
 

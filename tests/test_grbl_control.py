@@ -288,3 +288,35 @@ def test_offset_lines_are_not_positions_and_g92_cannot_resume():
     g92 = prepare("G21 G90\nG92 X0 Y0\nG0 X10 Y10\nG1 X20 Y10 F600\n")
     with pytest.raises(InputError, match="G92"):
         resume_prefix(g92, 3)
+
+
+def test_emulator_pen_change_waits_for_the_planner_and_the_idle_delay():
+    """M3 S (outside laser mode) is answered only once motion has stopped and $1 (25 ms) has passed."""
+    from doodlecam.link.grbl.emulator import GrblConfig, GrblEmulator
+
+    emu = GrblEmulator(GrblConfig(speed=1.0))  # not started: time is stepped by hand
+    try:
+        emu._out.clear()
+        emu._line("G1X10F600", set())  # 1 s of motion
+        emu._line("M3S1000", set())
+        assert emu._out.count(b"ok") == 1 and emu.pending is not None  # the pen change waits
+
+        def step(seconds: float) -> None:
+            emu._last -= seconds
+            emu._advance()
+            if emu.pending is not None:
+                emu._try_pending()
+
+        step(1.0)
+        assert emu.pos[0] == pytest.approx(10.0) and emu.state == "Run" and emu._out.count(b"ok") == 1  # $1 runs
+        step(0.02)
+        assert emu._out.count(b"ok") == 1
+        step(0.01)
+        assert emu._out.count(b"ok") == 2 and emu.state == "Idle" and emu.modal["s"] == 1000
+        emu.settings[1] = 255  # motors always on: no delay
+        emu._line("G1X20", set())
+        emu._line("M3S0", set())
+        step(1.0 + 1e-6)
+        assert emu._out.count(b"ok") == 4
+    finally:
+        emu.stop()
