@@ -29,6 +29,8 @@ def test_soft_limits_live_in_negative_machine_space(emu_factory, tmp_path):
         assert ctl.status().state == "Alarm"  # homing enabled: locked until $H, as GRBL 1.1 starts
         r = ctl.command("G0X10Y10")
         assert not r.ok and r.code == 9  # G-code locked out during alarm
+        with pytest.raises(GrblError, match=r"error:9 .*GRBL is in alarm: home it .*machine --serial PORT home"):
+            ctl.zero()
         st = ctl.home()
         assert emu.received[-1] == "$H" and st.state == "Idle" and st.mpos == (-1.0, -1.0, -1.0)  # $27 pull-off
         # A positive target is outside GRBL's travel (-400..0): ALARM:2, as the firmware does

@@ -300,7 +300,8 @@ def sim_plc(host, port, machine, buffer_size, realtime, speed, loss, dup, reorde
 @click.option("--error-at", multiple=True, metavar="N:CODE", help="Answer the N-th received line with error:CODE.")
 @click.option("--alarm-at", multiple=True, metavar="N:CODE", help="Raise ALARM:CODE at the N-th received line.")
 @click.option("--vanish-at", type=int, metavar="N", help="Close the port after the N-th received line.")
-@click.option("--soft-limits", is_flag=True, help="Alarm on targets outside the travel ($20=1).")
+@click.option("--soft-limits", is_flag=True, help="Alarm on targets outside the travel ($20=1, with homing $22=1 as GRBL "
+              "requires: travel is -W..0, -H..0 in machine coordinates).")
 @click.option("--travel", default="400x300", show_default=True, metavar="WxH", help="Machine travel in mm ($130, $131).")
 @click.option("--link", "link_path", type=click.Path(path_type=Path), help="Also make a symlink with this name to the port.")
 def sim_grbl(speed, error_at, alarm_at, vanish_at, soft_limits, travel, link_path):
@@ -333,6 +334,9 @@ def sim_grbl(speed, error_at, alarm_at, vanish_at, soft_limits, travel, link_pat
         os.replace(tmp, link_path)
     emu.start()
     click.echo(f"GRBL emulator on {emu.port}" + (f" (also {link_path})" if link_path else "") + "; Ctrl-C stops")
+    if soft_limits:  # as GRBL 1.1: homing on, locked until $H, travel in negative machine space
+        click.echo(f"soft limits: machine travel X -{w:g}..0, Y -{h:g}..0; it starts in alarm: 'doodlecam machine "
+                   f"--serial {link_path or emu.port} home', then jog to the drawing's corner and 'zero'")
     sys.stdout.flush()
     _stop_on_sigterm()
     try:

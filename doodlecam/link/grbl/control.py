@@ -15,7 +15,7 @@ from dataclasses import dataclass
 from typing import Callable
 
 from doodlecam.link.grbl.port import GrblLink
-from doodlecam.link.grbl.protocol import GrblError, GrblStatus, alarm_advice, alarm_text, error_text
+from doodlecam.link.grbl.protocol import HOME, UNLOCK, GrblError, GrblStatus, alarm_advice, alarm_text, error_text
 from doodlecam.link.session import LinkError
 
 # Real-time bytes (GRBL 1.1 config.h CMD_*).
@@ -144,7 +144,10 @@ class Controller:
     def _must(self, text: str, what: str, timeout: float | None = None) -> Reply:
         r = self.command(text, timeout)
         if not r.ok:
-            raise GrblError(f"GRBL refused {what} ('{text}'): error:{r.code} {error_text(r.code)}")
+            hint = ""
+            if r.code in (8, 9) and self.status().state == "Alarm":
+                hint = f"; GRBL is in alarm: home it ($H: '{HOME}') or unlock it ($X: '{UNLOCK}') first"
+            raise GrblError(f"GRBL refused {what} ('{text}'): error:{r.code} {error_text(r.code)}{hint}")
         return r
 
     # ------------------------------------------------------------ commands

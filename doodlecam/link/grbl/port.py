@@ -273,16 +273,16 @@ class GrblLink:
             self.wait_banner(self.connect_timeout)
             st = self.fresh_status()
         if st.state == "Alarm":
-            raise GrblError(f"GRBL on {self.port} is in alarm state; home it with $H or unlock it with $X "
-                            "(e.g. in a serial terminal), then send again")
+            raise GrblError(f"GRBL on {self.port} is in alarm state; home it ($H: 'doodlecam machine --serial "
+                            f"{self.port} home') or unlock it ($X: '... unlock'), then send again")
         if st.state != "Idle":
             raise GrblError(f"GRBL on {self.port} is in {st.state} state; make it idle, then send again")
         # A soft reset while idle keeps the position and clears any half-received line.
         self.soft_reset()
         st = self.fresh_status()
         if st.state == "Alarm" or self.alarm_banner:
-            raise GrblError(f"GRBL on {self.port} starts in alarm state (homing enabled?); home it with $H or "
-                            "unlock it with $X, then send again")
+            raise GrblError(f"GRBL on {self.port} starts in alarm state (homing enabled?); home it ($H: 'doodlecam "
+                            f"machine --serial {self.port} home') or unlock it ($X: '... unlock'), then send again")
         return st
 
 

@@ -69,10 +69,15 @@ ALARMS: dict[int, str] = {
     10: "homing fail: on dual-axis machines, could not find the second limit switch",
 }
 
+HOME = "doodlecam machine --serial PORT home"
+UNLOCK = "doodlecam machine --serial PORT unlock"
+
 _ALARM_TODO = {
-    1: "check what hit the limit, then home with $H (or unlock with $X and re-zero)",
-    2: "the job leaves the machine's travel ($130/$131): fix the job or the settings, then unlock with $X",
-    3: "home with $H (or unlock with $X and re-zero) before running again",
+    1: f"check what hit the limit, then home ($H: '{HOME}'), or unlock ($X: '{UNLOCK}') and re-zero",
+    2: ("the job leaves the machine's travel (with soft limits GRBL's travel is -$130..0, -$131..0: set work zero "
+        f"with 'doodlecam machine --serial PORT zero' or convert with --post-opt gcode.work_offset=g10), then "
+        f"unlock ($X: '{UNLOCK}')"),
+    3: f"home ($H: '{HOME}'), or unlock ($X: '{UNLOCK}') and re-zero, before running again",
 }
 
 
@@ -85,7 +90,7 @@ def alarm_text(code: int) -> str:
 
 
 def alarm_advice(code: int) -> str:
-    return _ALARM_TODO.get(code, "fix the cause, then home with $H or unlock with $X")
+    return _ALARM_TODO.get(code, f"fix the cause, then home ($H: '{HOME}') or unlock ($X: '{UNLOCK}')")
 
 
 class GrblError(LinkError):
