@@ -294,7 +294,7 @@ class GcodePost(PostProcessor):
         # Dense points whose own chords stray at most `fine`: a chord within
         # e - fine - 0.0007 of them (rounding to 3 decimals) is within e of the spline.
         fine = 0.02 * tol
-        n0 = max(int(np.ceil(stroke.spline.length / max(tol, 0.05))) + 1, 9)
+        n0 = max(int(np.ceil(stroke.spline.length / 0.5)) + 1, 9)  # _refine adds points where the curve bends
         u = _refine(stroke.spline, np.linspace(0.0, 1.0, n0), fine)
         q = stroke.spline(u)
         for k, e in enumerate(tol * 0.5 ** np.arange(CAP_LEVELS)):
