@@ -322,3 +322,37 @@ def test_emulator_pen_change_waits_for_the_planner_and_the_idle_delay():
         assert emu._out.count(b"ok") == 4
     finally:
         emu.stop()
+
+
+def test_cli_console_on_a_terminal(emu_factory):
+    """`doodlecam machine console` with its keyboard on a pseudo-terminal: arrows jog, $$ decodes, q quits."""
+    import os
+    import subprocess
+    import sys
+
+    from test_grbl import ENV, ROOT
+
+    emu = emu_factory(speed=50.0)
+    master, slave = os.openpty()
+    cmd = [sys.executable, "-m", "doodlecam", "machine", "--serial", emu.port, "console", "--step", "5"]
+    p = subprocess.Popen(cmd, stdin=slave, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=ENV, cwd=ROOT)
+    try:
+        end = time.monotonic() + 20
+        while not emu.status_queries and time.monotonic() < end:  # the console is up and polling
+            time.sleep(0.01)
+        os.write(master, b"\x1b[C")  # right arrow
+        while not any(x.startswith("$J=") for x in emu.received) and time.monotonic() < end:
+            time.sleep(0.01)
+        os.write(master, b"$$\r")
+        while "$$" not in emu.received and time.monotonic() < end:
+            time.sleep(0.01)
+        time.sleep(0.3)
+        os.write(master, b"q")
+        out, err = p.communicate(timeout=20)
+    finally:
+        p.kill()
+        os.close(master)
+        os.close(slave)
+    assert p.returncode == 0, err
+    assert "$J=G21G91X5.000Y0.000F3000" in emu.received and emu.pos[0] == pytest.approx(5.0)
+    assert "$110=9000 (X-axis maximum rate, mm/min)" in out and "arrows jog" in out
