@@ -162,6 +162,31 @@ def test_cli_machine_commands_end_to_end(emu_factory, capsys):
 
 # ------------------------------------------------------------ controls during send
 
+def on_terminal(args: list[str], steps, timeout: float = 30.0):
+    """Run ``doodlecam ARGS`` with its keyboard on a pseudo-terminal; ``steps`` are (wait-until, keys)."""
+    import os
+    import subprocess
+    import sys
+
+    from test_grbl import ENV, ROOT
+
+    master, slave = os.openpty()
+    p = subprocess.Popen([sys.executable, "-m", "doodlecam", *args], stdin=slave, stdout=subprocess.PIPE,
+                         stderr=subprocess.PIPE, text=True, env=ENV, cwd=ROOT)
+    try:
+        end = time.monotonic() + timeout
+        for until, keys in steps:
+            while not until() and time.monotonic() < end:
+                time.sleep(0.01)
+            os.write(master, keys)
+        out, err = p.communicate(timeout=timeout)
+    finally:
+        p.kill()
+        os.close(master)
+        os.close(slave)
+    return p.returncode, out, err
+
+
 def _scripted(emu, plan):
     """controls(): each (condition(emu), command) fires once, in order, when its condition holds."""
     steps = list(plan)
@@ -247,33 +272,15 @@ def test_hold_resume_and_feed_override_during_send(emu_factory, tmp_path):
 
 def test_send_keys_from_a_terminal(emu_factory, tmp_path):
     """`doodlecam send` on a terminal: + raises the feed override, s stops cleanly with the pen up."""
-    import os
-    import subprocess
-    import sys
-
-    from test_grbl import ENV, ROOT, synth_gcode
+    from test_grbl import synth_gcode
 
     job = tmp_path / "k.gcode"
     job.write_text(synth_gcode(n_strokes=12, seg=40, seed=3))
     emu = emu_factory(speed=10.0)
-    master, slave = os.openpty()
-    cmd = [sys.executable, "-m", "doodlecam", "send", str(job), "--serial", emu.port, "--no-progress"]
-    p = subprocess.Popen(cmd, stdin=slave, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=ENV, cwd=ROOT)
-    try:
-        end = time.monotonic() + 30
-        while len(emu.received) < 60 and time.monotonic() < end:
-            time.sleep(0.01)
-        os.write(master, b"+")
-        while emu.overrides != 110 and time.monotonic() < end:
-            time.sleep(0.01)
-        os.write(master, b"s")
-        out, err = p.communicate(timeout=30)
-    finally:
-        p.kill()
-        os.close(master)
-        os.close(slave)
+    rc, out, err = on_terminal(["send", str(job), "--serial", emu.port, "--no-progress"],
+                               [(lambda: len(emu.received) >= 60, b"+"), (lambda: emu.overrides == 110, b"s")])
     assert emu.overrides == 110
-    assert p.returncode == 130 and "paused before" in err and "keys: p pause" in err and "Traceback" not in err
+    assert rc == 130 and "paused before" in err and "keys: p pause" in err and "Traceback" not in err
     assert emu.received[-1] == "M3S0" and emu.state == "Idle"
 
 
@@ -326,33 +333,20 @@ def test_emulator_pen_change_waits_for_the_planner_and_the_idle_delay():
 
 def test_cli_console_on_a_terminal(emu_factory):
     """`doodlecam machine console` with its keyboard on a pseudo-terminal: arrows jog, $$ decodes, q quits."""
-    import os
-    import subprocess
-    import sys
-
-    from test_grbl import ENV, ROOT
-
     emu = emu_factory(speed=50.0)
-    master, slave = os.openpty()
-    cmd = [sys.executable, "-m", "doodlecam", "machine", "--serial", emu.port, "console", "--step", "5"]
-    p = subprocess.Popen(cmd, stdin=slave, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=ENV, cwd=ROOT)
-    try:
-        end = time.monotonic() + 20
-        while not emu.status_queries and time.monotonic() < end:  # the console is up and polling
-            time.sleep(0.01)
-        os.write(master, b"\x1b[C")  # right arrow
-        while not any(x.startswith("$J=") for x in emu.received) and time.monotonic() < end:
-            time.sleep(0.01)
-        os.write(master, b"$$\r")
-        while "$$" not in emu.received and time.monotonic() < end:
-            time.sleep(0.01)
-        time.sleep(0.3)
-        os.write(master, b"q")
-        out, err = p.communicate(timeout=20)
-    finally:
-        p.kill()
-        os.close(master)
-        os.close(slave)
-    assert p.returncode == 0, err
+    settle = {}
+
+    def a_moment_after_dollars() -> bool:  # the $$ replies printed
+        if "$$" in emu.received:
+            settle.setdefault("t", time.monotonic())
+            return time.monotonic() - settle["t"] > 0.3
+        return False
+
+    rc, out, err = on_terminal(["machine", "--serial", emu.port, "console", "--step", "5"], [
+        (lambda: bool(emu.status_queries), b"\x1b[C"),  # the console is up and polling: right arrow
+        (lambda: any(x.startswith("$J=") for x in emu.received), b"$$\r"),
+        (a_moment_after_dollars, b"q"),
+    ], timeout=20)
+    assert rc == 0, err
     assert "$J=G21G91X5.000Y0.000F3000" in emu.received and emu.pos[0] == pytest.approx(5.0)
     assert "$110=9000 (X-axis maximum rate, mm/min)" in out and "arrows jog" in out
