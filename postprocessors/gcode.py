@@ -113,6 +113,25 @@ def _seg_dist2(q: np.ndarray, a: np.ndarray, b: np.ndarray) -> np.ndarray:
     return np.einsum("ij,ij->i", r, r)
 
 
+def _furthest(ok, lo: int, n: int, step: int) -> int:
+    """The largest j < n with ok(j), searching up from lo (ok) by doubling steps, then bisecting."""
+    while lo + step < n and ok(lo + step):
+        lo += step
+        step *= 2
+    hi = min(lo + step, n)  # ok(lo), not ok(hi) (or hi = n)
+    while hi - lo > 1:
+        mid = (lo + hi) // 2
+        if ok(mid):
+            lo = mid
+        else:
+            hi = mid
+    return lo
+
+
+def _chord_ok(q: np.ndarray, i: int, j: int, tol2: float) -> bool:
+    return j == i + 1 or bool(_seg_dist2(q[i + 1:j], q[i], q[j]).max() <= tol2)
+
+
 def _greedy_chords(q: np.ndarray, tol: float) -> np.ndarray:
     """Indices of the vertices of the longest chords through q (n, 2) from q[0] to q[-1], each within ``tol``.
 
@@ -126,30 +145,65 @@ def _greedy_chords(q: np.ndarray, tol: float) -> np.ndarray:
     out = [0]
     i = 0
     tol2 = tol * tol
-
-    def ok(j: int) -> bool:
-        return j == i + 1 or bool(_seg_dist2(q[i + 1:j], q[i], q[j]).max() <= tol2)
-
     reach = 1
     while i < n - 1:
         guess = min(i + reach, n - 1)
-        if ok(guess):  # ok(i + 1) always: no point between
-            good, step = guess, max(reach // 2, 1)
-            while good + step < n and ok(good + step):
-                good += step
-                step *= 2
-            lo, hi = good, min(good + step, n)  # ok(lo), not ok(hi) (or hi = n)
+        if _chord_ok(q, i, guess, tol2):  # always for i + 1: no point between
+            lo = _furthest(lambda j: _chord_ok(q, i, j, tol2), guess, n, max(reach // 2, 1))
         else:
-            lo, hi = i + 1, guess
-        while hi - lo > 1:
-            mid = (lo + hi) // 2
-            if ok(mid):
-                lo = mid
-            else:
-                hi = mid
+            lo = _furthest(lambda j: _chord_ok(q, i, j, tol2), i + 1, guess, 1)
         out.append(lo)
         reach, i = lo - i, lo
     return np.asarray(out)
+
+
+MAX_ARC_RADIUS = 2000.0  # mm: flatter pieces are chords
+MAX_ARC_SWEEP = 1.9 * np.pi
+
+
+def _arc_fit(q: np.ndarray, i: int, j: int, tol: float):
+    """The circle through q[i], q[mid], q[j] if every q[i..j] lies within ``tol`` of it, in one turning
+    direction: (centre, clockwise), else None."""
+    if j - i < 2:
+        return None
+    a = q[i]
+    b, c = q[(i + j) // 2] - a, q[j] - a
+    d = 2.0 * (b[0] * c[1] - b[1] * c[0])
+    if abs(d) < 1e-12:
+        return None
+    bb, cc = b @ b, c @ c
+    centre = a + np.array([c[1] * bb - b[1] * cc, b[0] * cc - c[0] * bb]) / d
+    r = float(np.hypot(*(a - centre)))
+    if r > MAX_ARC_RADIUS:
+        return None
+    rel = q[i:j + 1] - centre
+    if np.abs(np.hypot(rel[:, 0], rel[:, 1]) - r).max() > tol:
+        return None
+    inc = np.diff(np.unwrap(np.arctan2(rel[:, 1], rel[:, 0])))
+    if not ((inc > 0).all() or (inc < 0).all()) or abs(inc.sum()) > MAX_ARC_SWEEP:
+        return None
+    return centre, bool(inc[0] < 0)
+
+
+def _greedy_arcs(q: np.ndarray, tol: float) -> tuple[np.ndarray, dict[int, tuple]]:
+    """Vertices through q like _greedy_chords, but a piece that a circular arc within ``tol`` covers at least
+    twice as far as the longest chord becomes that arc: (indices, {segment k: (centre, clockwise)})."""
+    n, tol2 = len(q), tol * tol
+    out, arcs = [0], {}
+    i = 0
+    while i < n - 1:
+        jc = _furthest(lambda j: _chord_ok(q, i, j, tol2), i + 1, n, 1)
+        ja = _furthest(lambda j: _arc_fit(q, i, j, tol) is not None, i + 2, n, 1) if i + 2 < n and \
+            _arc_fit(q, i, i + 2, tol) is not None else i
+        if ja - i >= 2 * (jc - i) and ja > jc:
+            if np.hypot(*(q[-1] - q[ja])) < 0.5 and _arc_fit(q, i, n - 1, tol) is not None:
+                ja = n - 1  # no sliver of a segment after the arc
+            arcs[len(out) - 1] = _arc_fit(q, i, ja, tol)
+            i = ja
+        else:
+            i = jc
+        out.append(i)
+    return np.asarray(out), arcs
 
 
 def _one_step_apart(p: np.ndarray, steps_per_mm: np.ndarray) -> np.ndarray:
@@ -183,7 +237,27 @@ def pen_feed_cap(machine, max_feed: float = 0.0) -> float:
     return float(max_feed) if max_feed > 0 else 60.0 * v
 
 
-def _serial_keeps_up(p: np.ndarray, block_times: np.ndarray, baud: int, window: int = 15) -> bool:
+def _expand_arcs(p: np.ndarray, arcs: dict, arc_tolerance: float) -> tuple[np.ndarray, np.ndarray]:
+    """The blocks GRBL plans for a polyline with arcs: their end points (start first) and the bytes of the line
+    each block comes from (all on an arc's first block)."""
+    from doodlecam.link.grbl.timing import arc_points
+
+    pts, nbytes = [p[:1]], []
+    for k in range(len(p) - 1):
+        x, y = p[k + 1]
+        if k in arcs:
+            (i, j), cw = arcs[k]
+            seg = arc_points(p[k], p[k + 1], p[k] + (i, j), cw, arc_tolerance)
+            nbytes += [len(f"G2X{_num(x)}Y{_num(y)}I{_num(i)}J{_num(j)}") + 1] + [0] * (len(seg) - 1)
+        else:
+            seg = p[k + 1:k + 2]
+            nbytes.append(len(f"G1X{_num(x)}Y{_num(y)}") + 1)
+        pts.append(seg)
+    return np.vstack(pts), np.asarray(nbytes, float)
+
+
+def _serial_keeps_up(p: np.ndarray, block_times: np.ndarray, baud: int, window: int = 15,
+                     nbytes: np.ndarray | None = None) -> bool:
     """Can a character-counting sender at ``baud`` keep GRBL's planner full through these blocks?
 
     Every ``window`` consecutive blocks (the planned look-ahead) must take at
@@ -193,7 +267,8 @@ def _serial_keeps_up(p: np.ndarray, block_times: np.ndarray, baud: int, window: 
     """
     if baud <= 0 or len(block_times) < window:
         return True
-    nbytes = np.array([len(f"G1X{_num(x)}Y{_num(y)}") + 1 for x, y in p[1:].tolist()], float)
+    if nbytes is None:
+        nbytes = np.array([len(f"G1X{_num(x)}Y{_num(y)}") + 1 for x, y in p[1:].tolist()], float)
     slack = np.concatenate([[0.0], np.cumsum(block_times - nbytes * 10.0 / baud)])
     return bool((slack[window:] - slack[:-window]).min() >= 0.0)
 
@@ -222,6 +297,9 @@ class GcodePost(PostProcessor):
                "slower axis' max_velocity) x 60"),
         Option("junction_deviation", float, 0.01, "grbl: the $11 (mm) the estimate assumes"),
         Option("idle_delay", int, 25, "grbl: the $1 stepper idle delay (ms) the estimate assumes; 255 = motors always on"),
+        Option("arcs", bool, False, "feeds = cap: write a piece as one G2/G3 arc where a circle within "
+               "chord_tolerance covers at least twice as far as the longest chord and GRBL's model (which cuts arcs "
+               "into $12 = 0.002 mm chords) runs the stroke faster"),
         Option("baud", int, 115200, "feeds = cap: the serial rate (baud) the chords must not outrun (GRBL's 15 planned "
                "blocks must take longer than sending their lines); 0 = no limit"),
         Option("work_offset", str, "none", "grbl: none; g10: G10 L20 P1 makes the pen's position at the start the "
@@ -254,7 +332,7 @@ class GcodePost(PostProcessor):
             if not v.strip() or "\n" in v or "\r" in v or len(v) > d.max_line or not v.isascii():
                 raise PluginError(f"postprocessor 'gcode': option '{key}' must be one ASCII line of at most {d.max_line} characters, got {v!r}")
         defaults = {x.name: x.default for x in self.options}
-        for key in ("feeds", "max_feed", "junction_deviation", "idle_delay", "work_offset", "baud"):
+        for key in ("feeds", "max_feed", "junction_deviation", "idle_delay", "work_offset", "baud", "arcs"):
             o.setdefault(key, defaults[key])
         if o["feeds"] not in ("cap", "plan"):
             raise PluginError(f"postprocessor 'gcode': option 'feeds' must be cap or plan, got {o['feeds']!r}")
@@ -284,6 +362,27 @@ class GcodePost(PostProcessor):
         u = _refine(stroke.spline, u, max(tol - 1e-3, 0.5 * tol))
         return u
 
+    @staticmethod
+    def _dense(stroke, tol: float):
+        """Dense points (u, q) whose own chords stray at most ``fine`` from the spline: a chord within
+        e - fine - 0.0007 of them (rounding to 3 decimals) is within e of the spline."""
+        fine = 0.02 * tol
+        n0 = max(int(np.ceil(stroke.spline.length / 0.5)) + 1, 9)  # _refine adds points where the curve bends
+        u = _refine(stroke.spline, np.linspace(0.0, 1.0, n0), fine)
+        return u, stroke.spline(u), fine
+
+    def _arc_candidate(self, stroke, tol: float, spm: np.ndarray):
+        """feeds = cap, arcs: vertices (rounded) and {segment: (I, J, clockwise)}, or None."""
+        u, q, fine = self._dense(stroke, tol)
+        # GRBL cuts an arc into chords $12 = 0.002 mm inside it; centre and ends are rounded to 0.001
+        idx, arcs = _greedy_arcs(q, tol - fine - 0.004)
+        if not arcs:
+            return None
+        p = np.round(q[idx], 3)
+        if not _one_step_apart(p, spm).all():
+            return None
+        return p, {k: (np.round(c - p[k], 3), cw) for k, (c, cw) in arcs.items()}
+
     def _cap_candidates(self, stroke, tol: float):
         """feeds = cap: polylines of the longest chords within tol, tol/2, tol/4 ... (u values of their vertices).
 
@@ -291,12 +390,7 @@ class GcodePost(PostProcessor):
         as the turn grows, while shorter ones starve its 15-block look-ahead: which
         is faster depends on the curve, so the caller times each with GRBL's model.
         """
-        # Dense points whose own chords stray at most `fine`: a chord within
-        # e - fine - 0.0007 of them (rounding to 3 decimals) is within e of the spline.
-        fine = 0.02 * tol
-        n0 = max(int(np.ceil(stroke.spline.length / 0.5)) + 1, 9)  # _refine adds points where the curve bends
-        u = _refine(stroke.spline, np.linspace(0.0, 1.0, n0), fine)
-        q = stroke.spline(u)
+        u, q, fine = self._dense(stroke, tol)
         for k, e in enumerate(tol * 0.5 ** np.arange(CAP_LEVELS)):
             room = e - fine - 7.1e-4
             if room < 0.25 * e and k:
@@ -304,8 +398,9 @@ class GcodePost(PostProcessor):
             yield u[_greedy_chords(q, max(room, 0.25 * e))]
 
     def _stroke_points(self, stroke, dt: float, tol: float, min_feed: float, mode: str, cap: float, machine,
-                       grbl, baud: int):
-        """Rounded G1 points (n, 2) and the feed (mm/min) of each of the n-1 segments."""
+                       grbl, baud: int, arcs: bool = False):
+        """Rounded end points (n, 2), the feed (mm/min) of each of the n-1 segments, and the arcs among them
+        ({segment: ((I, J), clockwise)})."""
         prof = stroke.profile
         if prof is None:
             raise OutputError("job is not planned (a stroke has no feed profile); plan it before writing G-code")
@@ -323,7 +418,15 @@ class GcodePost(PostProcessor):
                 if best is not None and (bt.sum() >= best_t or not _serial_keeps_up(p, bt, baud)):
                     break  # finer chords stopped paying (the gain is single-peaked in practice) or outrun the line
                 best, best_t = p, bt.sum()
-            return best, np.full(len(best) - 1, feed)
+            if arcs:
+                cand = self._arc_candidate(stroke, tol, spm)
+                if cand is not None:
+                    p, arc = cand
+                    pts, nbytes = _expand_arcs(p, arc, grbl.arc_tolerance)
+                    bt = _segment_time(np.c_[pts, np.zeros(len(pts))], np.full(len(pts) - 1, feed / 60.0), grbl)
+                    if bt.sum() < best_t and _serial_keeps_up(pts, bt, baud, nbytes=nbytes):
+                        return p, np.full(len(p) - 1, feed), arc
+            return best, np.full(len(best) - 1, feed), {}
         u = self._plan_points(stroke, dt, tol, min_feed)
         p = np.round(stroke.spline(u), 3)
         keep = _one_step_apart(p, spm)  # also drops moves that round to zero length
@@ -332,7 +435,7 @@ class GcodePost(PostProcessor):
         with np.errstate(divide="ignore", invalid="ignore"):
             feed = np.where(dtu > 0, 60.0 * chord / dtu, np.inf)
         # never above the pen-speed cap (a very short last segment has a tiny planned time)
-        return p, np.clip(feed, min_feed, max(cap, min_feed))
+        return p, np.clip(feed, min_feed, max(cap, min_feed)), {}
 
     def write(self, job, options: dict[str, Any]) -> bytes:
         d, options = self._resolve(options)
@@ -347,7 +450,7 @@ class GcodePost(PostProcessor):
 
         grbl = GrblSettings.from_machine(m, float(options["junction_deviation"]), int(options["idle_delay"]))
         paths = [self._stroke_points(s, dts[i] if dts else m.delta_time, tol, min_feed, options["feeds"], cap, m,
-                                     grbl, int(options["baud"])) for i, s in enumerate(job.strokes)]
+                                     grbl, int(options["baud"]), bool(options["arcs"])) for i, s in enumerate(job.strokes)]
         home = job.travels[-1].end if job.travels else np.asarray(m.home, float)
 
         from doodlecam.link.grbl.timing import parse_gcode
@@ -369,22 +472,28 @@ class GcodePost(PostProcessor):
                 line(f"G4 P{int(round(delay * 1000.0))}" if d.dwell_ms else f"G4 P{_num(delay)}")
 
         pen(options["pen_up"], m.pen.up_delay)
-        for p, feed in paths:
+        for p, feed, arc in paths:
             body.append(f"G0 X{_num(p[0, 0])} Y{_num(p[0, 1])}")
             program.append(("G0", p[0, 0], p[0, 1], None, None))
             pen(options["pen_down"], m.pen.down_delay)
             last_f = ""
-            for (x, y), f in zip(p[1:].tolist(), feed.tolist()):
+            for k, ((x, y), f) in enumerate(zip(p[1:].tolist(), feed.tolist())):
                 fs = _num(max(f, 0.1), 1)  # never print F0
-                body.append(f"G1 X{_num(x)} Y{_num(y)}" + (f" F{fs}" if fs != last_f else ""))
-                program.append(("G1", x, y, None, float(fs) if fs != last_f else None))
+                fword = f" F{fs}" if fs != last_f else ""
+                if k in arc:
+                    (i, j), cw = arc[k]
+                    body.append(f"G{2 if cw else 3} X{_num(x)} Y{_num(y)} I{_num(i)} J{_num(j)}" + fword)
+                    program.append((f"G{2 if cw else 3}", x, y, None, float(i), float(j), float(fs) if fword else None))
+                else:
+                    body.append(f"G1 X{_num(x)} Y{_num(y)}" + fword)
+                    program.append(("G1", x, y, None, float(fs) if fword else None))
                 last_f = fs
             pen(options["pen_up"], m.pen.up_delay)
         body.append(f"G0 X{_num(home[0])} Y{_num(home[1])}")
         program.append(("G0", float(np.round(home[0], 3)), float(np.round(home[1], 3)), None, None))
         line(options["program_end"])
 
-        pts = [p for p, _ in paths] + [np.asarray([home])]
+        pts = [p for p, _, _ in paths] + [np.asarray([home])]
         lo, hi = np.concatenate(pts).min(0), np.concatenate(pts).max(0)
         name = "".join(c if c.isascii() and c.isprintable() else "?" for c in m.name)
         head = [

@@ -98,7 +98,8 @@ def console(ctx, step, feed):
 
     if not sys.stdin.isatty():
         raise InputError("the console needs a terminal; use 'doodlecam machine --serial PORT status|jog|home' in scripts")
-    with _controller(ctx) as ctl, raw_keys() as getch:
+    # keys first: what is typed while the port opens waits, unechoed, for the console
+    with raw_keys() as getch, _controller(ctx) as ctl:
         run_console(ctl, getch, lambda s: click.echo("\r" + s + "\x1b[K"), step=step, feed=feed)
 
 

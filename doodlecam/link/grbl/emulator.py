@@ -450,6 +450,26 @@ class GrblEmulator:
             return
         self._reply("ok")
 
+    @staticmethod
+    def _arc_length(start, end, offset: dict, clockwise: bool) -> float:
+        """Length (mm) of an XY arc given by its centre offset (I, J), checked as gcode.c does."""
+        import math
+
+        if not offset:
+            raise _GcodeError(35)  # no radius or offset words
+        cx, cy = start[0] + offset.get("I", 0.0), start[1] + offset.get("J", 0.0)
+        r0, r1 = start[0] - cx, start[1] - cy
+        t0, t1 = end[0] - cx, end[1] - cy
+        radius, delta_r = math.hypot(r0, r1), abs(math.hypot(t0, t1) - math.hypot(r0, r1))
+        if delta_r > 0.005 and (delta_r > 0.5 or delta_r > 0.001 * radius):
+            raise _GcodeError(33)  # the target is not on the circle
+        theta = math.atan2(r0 * t1 - r1 * t0, r0 * t0 + r1 * t1)
+        if clockwise and theta >= -5e-7:
+            theta -= 2 * math.pi
+        elif not clockwise and theta <= 5e-7:
+            theta += 2 * math.pi
+        return math.hypot(abs(theta) * radius, end[2] - start[2])
+
     def _outside(self, end) -> bool:
         """GRBL 1.1's soft limit check (no HOMING_FORCE_SET_ORIGIN): machine travel is -$13x..0."""
         return bool(self.settings.get(20)) and not all(-float(self.settings[130 + i]) <= end[i] <= 0.0
@@ -500,12 +520,13 @@ class GrblEmulator:
         sync = False
         seen = set()
         nonmodal = None  # G10 or G92
+        offset: dict[str, float] = {}  # I, J of an arc
         in_machine = False  # G53
         lval = None
         for letter, val in words:
             v = float(val)
             if letter == "G":
-                if v in (0, 1):
+                if v in (0, 1, 2, 3):
                     if motion is not None:
                         raise _GcodeError(21)
                     motion = int(v)
@@ -539,11 +560,11 @@ class GrblEmulator:
                     m["end"] = True
                 else:
                     raise _GcodeError(20)
-            elif letter in "XYZ":
+            elif letter in "XYZIJ":
                 if letter in seen:
                     raise _GcodeError(25)
                 seen.add(letter)
-                target[letter] = v * (25.4 if m["inch"] else 1.0)
+                (offset if letter in "IJ" else target)[letter] = v * (25.4 if m["inch"] else 1.0)
             elif letter == "F":
                 m["feed"] = v * (25.4 if m["inch"] else 1.0)
             elif letter == "S":
@@ -597,16 +618,20 @@ class GrblEmulator:
                         end[i] = target[k]
                     else:
                         end[i] = target[k] + wco[i] if m["abs"] else end[i] + target[k]
-            if motion == 1 and not m["feed"]:
+            if motion in (1, 2, 3) and not m["feed"]:
                 raise _GcodeError(22)
-            if self._outside(end):
+            if self._outside(end):  # (an arc's bulge is not checked against the travel here)
                 return ("alarm", 2)
-            rate = m["feed"] if motion == 1 else float(self.settings[110])
+            rate = m["feed"] if motion else float(self.settings[110])
             start = self._end_pos()
             length = sum((a - b) ** 2 for a, b in zip(end, start)) ** 0.5
+            if motion in (2, 3):
+                length = self._arc_length(start, end, offset, motion == 2)
             block = _Block(tuple(start), tuple(end), 60.0 * length / rate, n, rapid=motion == 0)
         elif motion == 1 and not m["feed"]:
             raise _GcodeError(22)
+        elif offset:
+            raise _GcodeError(36)  # I/J without an arc
         end_prog = m.pop("end", False)
         if end_prog:
             m.update(motion=1 if m["motion"] else 0, abs=True, spindle=5)
