@@ -1,11 +1,21 @@
 """G-code post-processor for pen plotters: GRBL, Marlin and LinuxCNC dialects.
 
-Each stroke becomes short G1 segments along its spline. Segment ends sit at
-the planned sample instants, split further until every chord stays within
-``chord_tolerance`` of the spline. Each segment's feed is its chord length
-over the planned time between its ends, so a controller that follows F
-reproduces the time-optimal profile (the firmware's own planner smooths the
-joins; ``doodlecam.link.grbl.timing`` estimates how long GRBL 1.1 really takes).
+Each stroke becomes G1 segments along its spline, every chord within
+``chord_tolerance`` of it, in one of two modes (``feeds``):
+
+* ``cap`` (default): the longest chords within the tolerance (or a half,
+  quarter ... of it), all at the pen-speed cap; the firmware's planner sets
+  the speeds. Per stroke the polyline that ``doodlecam.link.grbl.timing``
+  (GRBL 1.1's planner) runs fastest is written, among those a serial line at
+  ``baud`` can feed.
+* ``plan``: segment ends at the planned sample instants, split further until
+  every chord is within the tolerance; each feed is the chord over the
+  planned time between its ends, so a controller that follows F reproduces
+  the time-optimal profile and its true acceleration limits on curves.
+
+No segment is shorter than one motor step (GRBL drops those) and no F is
+above the pen-speed cap. The GRBL header states the model's job time and the
+``$`` settings it assumes.
 
 Dialects (``dialect``; every line stays within the firmware's line limit):
 
@@ -31,6 +41,7 @@ import numpy as np
 from doodlecam.api import Option, PostProcessor
 from doodlecam.errors import OutputError, PluginError
 
+CAP_LEVELS = 5  # chord tolerances tried for feeds = cap: tol, tol/2, ... tol/16
 MAX_LINE = 79  # GRBL's line buffer is 80 bytes including the terminating NUL
 
 
@@ -90,9 +101,181 @@ def _refine(spline, u: np.ndarray, tol: float, max_rounds: int = 30) -> np.ndarr
     return u
 
 
+def _seg_dist2(q: np.ndarray, a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Squared distance (mm²) of each point of q (n, 2) from the segment a-b (few NumPy calls: this is the hot loop)."""
+    d = b - a
+    dd = float(d @ d)
+    qa = q - a
+    s = qa @ d
+    if dd > 0:
+        s = np.minimum(np.maximum(s / dd, 0.0), 1.0)
+    r = qa - np.multiply.outer(s, d)
+    return np.einsum("ij,ij->i", r, r)
+
+
+def _furthest(ok, lo: int, n: int, step: int) -> int:
+    """The largest j < n with ok(j), searching up from lo (ok) by doubling steps, then bisecting."""
+    while lo + step < n and ok(lo + step):
+        lo += step
+        step *= 2
+    hi = min(lo + step, n)  # ok(lo), not ok(hi) (or hi = n)
+    while hi - lo > 1:
+        mid = (lo + hi) // 2
+        if ok(mid):
+            lo = mid
+        else:
+            hi = mid
+    return lo
+
+
+def _chord_ok(q: np.ndarray, i: int, j: int, tol2: float) -> bool:
+    return j == i + 1 or bool(_seg_dist2(q[i + 1:j], q[i], q[j]).max() <= tol2)
+
+
+def _greedy_chords(q: np.ndarray, tol: float) -> np.ndarray:
+    """Indices of the vertices of the longest chords through q (n, 2) from q[0] to q[-1], each within ``tol``.
+
+    From each vertex the chord reaches as far along q as it can (a search over
+    the dense points that starts from the previous chord's reach, grows it
+    exponentially, then bisects), so the polyline has the fewest vertices
+    whenever a chord within the tolerance has every sub-chord within it too (the
+    case on pieces without an inflection).
+    """
+    n = len(q)
+    out = [0]
+    i = 0
+    tol2 = tol * tol
+    reach = 1
+    while i < n - 1:
+        guess = min(i + reach, n - 1)
+        if _chord_ok(q, i, guess, tol2):  # always for i + 1: no point between
+            lo = _furthest(lambda j: _chord_ok(q, i, j, tol2), guess, n, max(reach // 2, 1))
+        else:
+            lo = _furthest(lambda j: _chord_ok(q, i, j, tol2), i + 1, guess, 1)
+        out.append(lo)
+        reach, i = lo - i, lo
+    return np.asarray(out)
+
+
+MAX_ARC_RADIUS = 2000.0  # mm: flatter pieces are chords
+MAX_ARC_SWEEP = 1.9 * np.pi
+
+
+def _arc_fit(q: np.ndarray, i: int, j: int, tol: float):
+    """The circle through q[i], q[mid], q[j] if every q[i..j] lies within ``tol`` of it, in one turning
+    direction: (centre, clockwise), else None."""
+    if j - i < 2:
+        return None
+    a = q[i]
+    b, c = q[(i + j) // 2] - a, q[j] - a
+    d = 2.0 * (b[0] * c[1] - b[1] * c[0])
+    if abs(d) < 1e-12:
+        return None
+    bb, cc = b @ b, c @ c
+    centre = a + np.array([c[1] * bb - b[1] * cc, b[0] * cc - c[0] * bb]) / d
+    r = float(np.hypot(*(a - centre)))
+    if r > MAX_ARC_RADIUS:
+        return None
+    rel = q[i:j + 1] - centre
+    if np.abs(np.hypot(rel[:, 0], rel[:, 1]) - r).max() > tol:
+        return None
+    inc = np.diff(np.unwrap(np.arctan2(rel[:, 1], rel[:, 0])))
+    if not ((inc > 0).all() or (inc < 0).all()) or abs(inc.sum()) > MAX_ARC_SWEEP:
+        return None
+    return centre, bool(inc[0] < 0)
+
+
+def _greedy_arcs(q: np.ndarray, tol: float) -> tuple[np.ndarray, dict[int, tuple]]:
+    """Vertices through q like _greedy_chords, but a piece that a circular arc within ``tol`` covers at least
+    twice as far as the longest chord becomes that arc: (indices, {segment k: (centre, clockwise)})."""
+    n, tol2 = len(q), tol * tol
+    out, arcs = [0], {}
+    i = 0
+    while i < n - 1:
+        jc = _furthest(lambda j: _chord_ok(q, i, j, tol2), i + 1, n, 1)
+        ja = _furthest(lambda j: _arc_fit(q, i, j, tol) is not None, i + 2, n, 1) if i + 2 < n and \
+            _arc_fit(q, i, i + 2, tol) is not None else i
+        if ja - i >= 2 * (jc - i) and ja > jc:
+            if np.hypot(*(q[-1] - q[ja])) < 0.5 and _arc_fit(q, i, n - 1, tol) is not None:
+                ja = n - 1  # no sliver of a segment after the arc
+            arcs[len(out) - 1] = _arc_fit(q, i, ja, tol)
+            i = ja
+        else:
+            i = jc
+        out.append(i)
+    return np.asarray(out), arcs
+
+
+def _one_step_apart(p: np.ndarray, steps_per_mm: np.ndarray) -> np.ndarray:
+    """Keep-mask of points (n, 2) that move at least one motor step from the previous kept one.
+
+    GRBL drops a block whose target rounds to the same steps (so no F word of it
+    means anything); the last point is always kept, in place of the one before.
+    """
+    st = np.round(p * steps_per_mm).astype(np.int64)
+    keep = np.ones(len(p), bool)
+    last = st[0]
+    for k in range(1, len(p)):  # sequential: compares with the last point kept
+        if (st[k] == last).all():
+            keep[k] = False
+        else:
+            last = st[k]
+    if len(p) > 1 and not keep[-1]:
+        j = np.flatnonzero(keep)[-1]
+        if j > 0:
+            keep[j] = False
+            keep[-1] = True
+        # else: the whole stroke is within one step of its start: no move at all (the pen makes a dot)
+    return keep
+
+
+def pen_feed_cap(machine, max_feed: float = 0.0) -> float:
+    """The fastest pen-down feed (mm/min): ``max_feed`` if given, else the pen-speed cap, else the slower axis."""
+    v = min(machine.x.max_velocity, machine.y.max_velocity)
+    if machine.pen.max_speed:
+        v = min(v, machine.pen.max_speed)
+    return float(max_feed) if max_feed > 0 else 60.0 * v
+
+
+def _expand_arcs(p: np.ndarray, arcs: dict, arc_tolerance: float) -> tuple[np.ndarray, np.ndarray]:
+    """The blocks GRBL plans for a polyline with arcs: their end points (start first) and the bytes of the line
+    each block comes from (all on an arc's first block)."""
+    from doodlecam.link.grbl.timing import arc_points
+
+    pts, nbytes = [p[:1]], []
+    for k in range(len(p) - 1):
+        x, y = p[k + 1]
+        if k in arcs:
+            (i, j), cw = arcs[k]
+            seg = arc_points(p[k], p[k + 1], p[k] + (i, j), cw, arc_tolerance)
+            nbytes += [len(f"G2X{_num(x)}Y{_num(y)}I{_num(i)}J{_num(j)}") + 1] + [0] * (len(seg) - 1)
+        else:
+            seg = p[k + 1:k + 2]
+            nbytes.append(len(f"G1X{_num(x)}Y{_num(y)}") + 1)
+        pts.append(seg)
+    return np.vstack(pts), np.asarray(nbytes, float)
+
+
+def _serial_keeps_up(p: np.ndarray, block_times: np.ndarray, baud: int, window: int = 15,
+                     nbytes: np.ndarray | None = None) -> bool:
+    """Can a character-counting sender at ``baud`` keep GRBL's planner full through these blocks?
+
+    Every ``window`` consecutive blocks (the planned look-ahead) must take at
+    least as long as their lines take on the wire (10 bits per byte, spaces
+    stripped as the streamer sends them); otherwise the planner runs dry and
+    GRBL brakes to a stop at its last block.
+    """
+    if baud <= 0 or len(block_times) < window:
+        return True
+    if nbytes is None:
+        nbytes = np.array([len(f"G1X{_num(x)}Y{_num(y)}") + 1 for x, y in p[1:].tolist()], float)
+    slack = np.concatenate([[0.0], np.cumsum(block_times - nbytes * 10.0 / baud)])
+    return bool((slack[window:] - slack[:-window]).min() >= 0.0)
+
+
 class GcodePost(PostProcessor):
     name = "gcode"
-    summary = "G-code (GRBL, Marlin, LinuxCNC): G0 travels, G1 strokes whose feeds follow the planned profile"
+    summary = "G-code (GRBL, Marlin, LinuxCNC): G0 travels, G1 strokes at the pen-speed cap or the planned feeds"
     extension = ".gcode"
     options = (
         Option("dialect", str, "grbl", "firmware: sets line limit, pen commands, dwell units, preamble", tuple(DIALECTS)),
@@ -107,6 +290,21 @@ class GcodePost(PostProcessor):
         Option("min_feed", float, 10.0, "smallest feed (mm/min) written, so no segment has F0"),
         Option("program_end", str, "", "last line of the program; empty = the dialect's (grbl, linuxcnc: M2; marlin: M84)"),
         Option("estimate", bool, True, "grbl: put GRBL 1.1's own job time (planner model, doodlecam.link.grbl.timing) in the header"),
+        Option("feeds", str, "cap", "cap: the longest chords within chord_tolerance at one feed, the pen-speed cap, and the "
+               "firmware's planner sets the speeds (fastest on GRBL); plan: feeds follow the time-optimal plan, which keeps "
+               "the true acceleration limits on curves (for controllers that follow F literally)", ("cap", "plan")),
+        Option("max_feed", float, 0.0, "highest feed (mm/min) written; 0 = the pen-speed cap (pen.max_speed, else the "
+               "slower axis' max_velocity) x 60"),
+        Option("junction_deviation", float, 0.01, "grbl: the $11 (mm) the estimate assumes"),
+        Option("idle_delay", int, 25, "grbl: the $1 stepper idle delay (ms) the estimate assumes; 255 = motors always on"),
+        Option("arcs", bool, False, "feeds = cap: write a piece as one G2/G3 arc where a circle within "
+               "chord_tolerance covers at least twice as far as the longest chord and GRBL's model (which cuts arcs "
+               "into $12 = 0.002 mm chords) runs the stroke faster"),
+        Option("baud", int, 115200, "feeds = cap: the serial rate (baud) the chords must not outrun (GRBL's 15 planned "
+               "blocks must take longer than sending their lines); 0 = no limit"),
+        Option("work_offset", str, "none", "grbl: none; g10: G10 L20 P1 makes the pen's position at the start the "
+               "profile's home (stored, for machines with soft limits in negative space); g92: the same with G92 "
+               "(forgotten at a reset: such a job cannot resume)", ("none", "g10", "g92")),
     )
 
     def _resolve(self, options: dict[str, Any]) -> tuple[Dialect, dict[str, Any]]:
@@ -133,6 +331,20 @@ class GcodePost(PostProcessor):
             v = o[key]
             if not v.strip() or "\n" in v or "\r" in v or len(v) > d.max_line or not v.isascii():
                 raise PluginError(f"postprocessor 'gcode': option '{key}' must be one ASCII line of at most {d.max_line} characters, got {v!r}")
+        defaults = {x.name: x.default for x in self.options}
+        for key in ("feeds", "max_feed", "junction_deviation", "idle_delay", "work_offset", "baud", "arcs"):
+            o.setdefault(key, defaults[key])
+        if o["feeds"] not in ("cap", "plan"):
+            raise PluginError(f"postprocessor 'gcode': option 'feeds' must be cap or plan, got {o['feeds']!r}")
+        if o["work_offset"] not in ("none", "g10", "g92"):
+            raise PluginError(f"postprocessor 'gcode': option 'work_offset' must be none, g10 or g92, got {o['work_offset']!r}")
+        if o["work_offset"] == "g10" and d.name == "marlin":
+            raise PluginError("postprocessor 'gcode': Marlin's G10 is a retract, not a work offset; use work_offset=g92")
+        if not (0 <= o["idle_delay"] <= 255):
+            raise PluginError(f"postprocessor 'gcode': option 'idle_delay' must be 0..255 ms ($1), got {o['idle_delay']!r}")
+        for key in ("max_feed", "junction_deviation", "baud"):
+            if not o[key] >= 0:
+                raise PluginError(f"postprocessor 'gcode': option '{key}' must not be negative, got {o[key]!r}")
         for key in ("chord_tolerance", "min_feed", "z_feed"):
             if not o[key] > 0:
                 raise PluginError(f"postprocessor 'gcode': option '{key}' must be positive, got {o[key]!r}")
@@ -140,39 +352,105 @@ class GcodePost(PostProcessor):
             raise PluginError(f"postprocessor 'gcode': option 'z_up' ({o['z_up']}) must be above 'z_down' ({o['z_down']})")
         return d, o
 
-    def _stroke_points(self, stroke, dt: float, tol: float, min_feed: float):
-        """Rounded G1 points (n, 2) and the feed (mm/min) of each of the n-1 segments."""
+    def _plan_points(self, stroke, dt: float, tol: float, min_feed: float):
+        """feeds = plan: G1 points at the planned sample instants, refined to the tolerance, and the
+        feed (mm/min) of each segment: its chord over the planned time between its ends."""
         prof = stroke.profile
-        if prof is None:
-            raise OutputError("job is not planned (a stroke has no feed profile); plan it before writing G-code")
         t = np.append(np.arange(0.0, prof.duration, dt), prof.duration)
         u = np.unique(np.append(prof.state_at(t)[0], [0.0, 1.0]))
         # Leave room for rounding the coordinates to 3 decimals (<= 0.0007 mm).
         u = _refine(stroke.spline, u, max(tol - 1e-3, 0.5 * tol))
+        return u
+
+    @staticmethod
+    def _dense(stroke, tol: float):
+        """Dense points (u, q) whose own chords stray at most ``fine`` from the spline: a chord within
+        e - fine - 0.0007 of them (rounding to 3 decimals) is within e of the spline."""
+        fine = 0.02 * tol
+        n0 = max(int(np.ceil(stroke.spline.length / 0.5)) + 1, 9)  # _refine adds points where the curve bends
+        u = _refine(stroke.spline, np.linspace(0.0, 1.0, n0), fine)
+        return u, stroke.spline(u), fine
+
+    def _arc_candidate(self, stroke, tol: float, spm: np.ndarray):
+        """feeds = cap, arcs: vertices (rounded) and {segment: (I, J, clockwise)}, or None."""
+        u, q, fine = self._dense(stroke, tol)
+        # GRBL cuts an arc into chords $12 = 0.002 mm inside it; centre and ends are rounded to 0.001
+        idx, arcs = _greedy_arcs(q, tol - fine - 0.004)
+        if not arcs:
+            return None
+        p = np.round(q[idx], 3)
+        if not _one_step_apart(p, spm).all():
+            return None
+        return p, {k: (np.round(c - p[k], 3), cw) for k, (c, cw) in arcs.items()}
+
+    def _cap_candidates(self, stroke, tol: float):
+        """feeds = cap: polylines of the longest chords within tol, tol/2, tol/4 ... (u values of their vertices).
+
+        Longer chords turn more at each junction, and GRBL's junction speed falls
+        as the turn grows, while shorter ones starve its 15-block look-ahead: which
+        is faster depends on the curve, so the caller times each with GRBL's model.
+        """
+        u, q, fine = self._dense(stroke, tol)
+        for k, e in enumerate(tol * 0.5 ** np.arange(CAP_LEVELS)):
+            room = e - fine - 7.1e-4
+            if room < 0.25 * e and k:
+                return
+            yield u[_greedy_chords(q, max(room, 0.25 * e))]
+
+    def _stroke_points(self, stroke, dt: float, tol: float, min_feed: float, mode: str, cap: float, machine,
+                       grbl, baud: int, arcs: bool = False):
+        """Rounded end points (n, 2), the feed (mm/min) of each of the n-1 segments, and the arcs among them
+        ({segment: ((I, J), clockwise)})."""
+        prof = stroke.profile
+        if prof is None:
+            raise OutputError("job is not planned (a stroke has no feed profile); plan it before writing G-code")
+        spm = np.array([machine.x.steps_per_mm, machine.y.steps_per_mm])
+        if mode == "cap":
+            from doodlecam.link.grbl.timing import _segment_time
+
+            feed = max(cap, min_feed)
+            best, best_t = None, np.inf
+            for u in self._cap_candidates(stroke, tol):  # coarse to fine
+                p = np.round(stroke.spline(u), 3)
+                p = p[_one_step_apart(p, spm)]
+                # a stroke runs from rest to rest (the pen commands empty GRBL's planner)
+                bt = _segment_time(np.c_[p, np.zeros(len(p))], np.full(len(p) - 1, feed / 60.0), grbl)
+                if best is not None and (bt.sum() >= best_t or not _serial_keeps_up(p, bt, baud)):
+                    break  # finer chords stopped paying (the gain is single-peaked in practice) or outrun the line
+                best, best_t = p, bt.sum()
+            if arcs:
+                cand = self._arc_candidate(stroke, tol, spm)
+                if cand is not None:
+                    p, arc = cand
+                    pts, nbytes = _expand_arcs(p, arc, grbl.arc_tolerance)
+                    bt = _segment_time(np.c_[pts, np.zeros(len(pts))], np.full(len(pts) - 1, feed / 60.0), grbl)
+                    if bt.sum() < best_t and _serial_keeps_up(pts, bt, baud, nbytes=nbytes):
+                        return p, np.full(len(p) - 1, feed), arc
+            return best, np.full(len(best) - 1, feed), {}
+        u = self._plan_points(stroke, dt, tol, min_feed)
         p = np.round(stroke.spline(u), 3)
-        keep = np.ones(len(p), bool)
-        keep[1:] = np.any(p[1:] != p[:-1], axis=1)  # drop moves that round to zero length
-        if not keep[-1]:  # always end exactly at u = 1
-            j = np.flatnonzero(keep)[-1]
-            if j > 0:
-                keep[j], keep[-1] = False, True
+        keep = _one_step_apart(p, spm)  # also drops moves that round to zero length
         p, tu = p[keep], _t_of_u(prof, u[keep])
         chord, dtu = np.linalg.norm(np.diff(p, axis=0), axis=1), np.diff(tu)
         with np.errstate(divide="ignore", invalid="ignore"):
             feed = np.where(dtu > 0, 60.0 * chord / dtu, np.inf)
-        feed = np.maximum(feed, min_feed)
-        if np.isinf(feed).any():  # a zero-time segment (degenerate profile): use the fastest finite feed
-            finite = feed[np.isfinite(feed)]
-            feed[np.isinf(feed)] = finite.max() if len(finite) else min_feed
-        return p, feed
+        # never above the pen-speed cap (a very short last segment has a tiny planned time)
+        return p, np.clip(feed, min_feed, max(cap, min_feed)), {}
 
     def write(self, job, options: dict[str, Any]) -> bytes:
         d, options = self._resolve(options)
         m = job.machine
         tol, min_feed = float(options["chord_tolerance"]), float(options["min_feed"])
+        if tol < 2e-3:
+            raise PluginError(f"postprocessor 'gcode': option 'chord_tolerance' must be at least 0.002 mm (coordinates "
+                              f"are written to 0.001 mm), got {tol!r}")
+        cap = pen_feed_cap(m, float(options["max_feed"]))
         dts = [s.delta_time for s in job.samples] if len(job.samples) == len(job.strokes) else []
-        paths = [self._stroke_points(s, dts[i] if dts else m.delta_time, tol, min_feed)
-                 for i, s in enumerate(job.strokes)]
+        from doodlecam.link.grbl.timing import GrblSettings
+
+        grbl = GrblSettings.from_machine(m, float(options["junction_deviation"]), int(options["idle_delay"]))
+        paths = [self._stroke_points(s, dts[i] if dts else m.delta_time, tol, min_feed, options["feeds"], cap, m,
+                                     grbl, int(options["baud"]), bool(options["arcs"])) for i, s in enumerate(job.strokes)]
         home = job.travels[-1].end if job.travels else np.asarray(m.home, float)
 
         from doodlecam.link.grbl.timing import parse_gcode
@@ -194,22 +472,28 @@ class GcodePost(PostProcessor):
                 line(f"G4 P{int(round(delay * 1000.0))}" if d.dwell_ms else f"G4 P{_num(delay)}")
 
         pen(options["pen_up"], m.pen.up_delay)
-        for p, feed in paths:
+        for p, feed, arc in paths:
             body.append(f"G0 X{_num(p[0, 0])} Y{_num(p[0, 1])}")
             program.append(("G0", p[0, 0], p[0, 1], None, None))
             pen(options["pen_down"], m.pen.down_delay)
             last_f = ""
-            for (x, y), f in zip(p[1:].tolist(), feed.tolist()):
+            for k, ((x, y), f) in enumerate(zip(p[1:].tolist(), feed.tolist())):
                 fs = _num(max(f, 0.1), 1)  # never print F0
-                body.append(f"G1 X{_num(x)} Y{_num(y)}" + (f" F{fs}" if fs != last_f else ""))
-                program.append(("G1", x, y, None, float(fs) if fs != last_f else None))
+                fword = f" F{fs}" if fs != last_f else ""
+                if k in arc:
+                    (i, j), cw = arc[k]
+                    body.append(f"G{2 if cw else 3} X{_num(x)} Y{_num(y)} I{_num(i)} J{_num(j)}" + fword)
+                    program.append((f"G{2 if cw else 3}", x, y, None, float(i), float(j), float(fs) if fword else None))
+                else:
+                    body.append(f"G1 X{_num(x)} Y{_num(y)}" + fword)
+                    program.append(("G1", x, y, None, float(fs) if fword else None))
                 last_f = fs
             pen(options["pen_up"], m.pen.up_delay)
         body.append(f"G0 X{_num(home[0])} Y{_num(home[1])}")
         program.append(("G0", float(np.round(home[0], 3)), float(np.round(home[1], 3)), None, None))
         line(options["program_end"])
 
-        pts = [p for p, _ in paths] + [np.asarray([home])]
+        pts = [p for p, _, _ in paths] + [np.asarray([home])]
         lo, hi = np.concatenate(pts).min(0), np.concatenate(pts).max(0)
         name = "".join(c if c.isascii() and c.isprintable() else "?" for c in m.name)
         head = [
@@ -221,17 +505,23 @@ class GcodePost(PostProcessor):
         if d.name != "grbl" or options["pen"] != "servo":
             head.append(f"; dialect {d.name} ({d.firmware}), pen by {options['pen']}")
         if estimate:
-            est = self._grbl_estimate(m, program)
-            if est is not None:
-                head.append(f"; GRBL 1.1 estimate {est:.1f} s (planner model: junctions, 16-block look-ahead)")
+            from doodlecam.link.grbl.timing import estimate_program
+
+            gs = grbl
+            est = estimate_program(program, gs, start=tuple(m.home)).total
+            head.append(f"; GRBL 1.1 estimate {est:.1f} s (planner model, see doodlecam.link.grbl.timing)")
+            words = [f"{k}={_num(v, 3)}" for k, v in gs.dollars().items() if k not in ("$102", "$112", "$122")]
+            head.append("; assumes " + " ".join(words[:4]))  # split: GRBL lines are at most 79 characters
+            head.append("; assumes " + " ".join(words[4:]))
+        head.append(f"; feeds {options['feeds']}: " + ("longest chords at F" + _num(cap, 1) if options["feeds"] == "cap"
+                                                        else "the planned profile's"))
         preamble = list(d.preamble)
+        if options["work_offset"] != "none":
+            # The pen stands on the profile's home point: make that its work coordinates, so a
+            # GRBL with soft limits (machine travel in negative space) runs the positive job.
+            preamble.append(("G10 L20 P1" if options["work_offset"] == "g10" else "G92")
+                            + f" X{_num(m.home[0])} Y{_num(m.home[1])}")
         if d.name == "linuxcnc":
             preamble.append(f"G64 P{_num(tol)}")  # blend corners within the chord tolerance
         lines = [h[:d.max_line] for h in head] + preamble + body
         return ("\n".join(lines) + "\n").encode("ascii")
-
-    @staticmethod
-    def _grbl_estimate(machine, program: list[tuple]) -> float:
-        from doodlecam.link.grbl.timing import GrblSettings, estimate_program
-
-        return estimate_program(program, GrblSettings.from_machine(machine), start=tuple(machine.home)).total

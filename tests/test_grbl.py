@@ -246,10 +246,19 @@ def test_alarm_stops_the_job_and_explains_recovery(emu_factory, tmp_path):
 
 def test_soft_limit_alarm_from_the_emulator(emu_factory, tmp_path):
     job = tmp_path / "s.gcode"
-    job.write_text("G21 G90\nG0 X10 Y10\nG0 X900 Y10\nG0 X0 Y0\n")
+    job.write_text("G21 G90\nG0 X-10 Y-10\nG0 X-900 Y-10\nG0 X0 Y0\n")  # GRBL's travel is negative
     emu = emu_factory(speed=50.0, soft_limits=True, travel=(400.0, 300.0))
+    with pytest.raises(GrblError, match=r"alarm state.*\$H"):  # soft limits need homing: locked at power-up
+        bounded(lambda: send_gcode(emu.port, job, state_file=None))
+    from doodlecam.link.grbl.control import Controller
+    from doodlecam.link.grbl.port import GrblLink
+
+    with GrblLink(emu.port) as link:
+        Controller(link).attach()
+        Controller(link).home()
     with pytest.raises(GrblError, match=r"ALARM:2 .*exceeds machine travel"):
         bounded(lambda: send_gcode(emu.port, job, state_file=None))
+    assert emu.received[-1] == "G0X-900Y-10"  # refused at the line that leaves the travel
 
 
 def test_check_mode_lists_every_error_and_moves_nothing(emu_factory, tmp_path):

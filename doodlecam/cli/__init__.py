@@ -23,6 +23,7 @@ LAZY_COMMANDS: dict[str, str] = {
     "inspect": "doodlecam.cli.inspect:inspect",
     "send": "doodlecam.cli.send:send",
     "sim": "doodlecam.cli.send:sim",
+    "machine": "doodlecam.cli.machine:machine",
     "plot": "doodlecam.cli.plot:plot",
     "motion": "doodlecam.cli.motion:motion",
     "learn": "doodlecam.cli.motion:learn",

@@ -6,6 +6,7 @@ import any of this.
 
 from __future__ import annotations
 
+import contextlib
 import sys
 import time
 from pathlib import Path
@@ -141,8 +142,9 @@ def send(job, udp, serial_port, baud, check, restart, cancel, again, machine, fr
             result = transport.send(job, udp, options, restart=restart, cancel=cancel, again=again, progress=bar,
                                     log=bar.log)
         else:
-            result = transport.send(job, serial_port, options, restart=restart, check=check, from_line=from_line,
-                                    progress=bar, log=bar.log)
+            with _grbl_keys(transport, check, bar.log) as keys:
+                result = transport.send(job, serial_port, options, restart=restart, check=check, from_line=from_line,
+                                        progress=bar, log=bar.log, **keys)
     except Paused as e:
         bar.close()
         click.echo(f"doodlecam: {e}", err=True)
@@ -150,6 +152,25 @@ def send(job, udp, serial_port, baud, check, restart, cancel, again, machine, fr
     finally:
         bar.close()
     _report(job, kind, result, check, cancel)
+
+
+GRBL_KEYS = {"p": "pause", " ": "pause", "r": "resume", "~": "resume", "!": "hold", "+": "feed+", "-": "feed-",
+             "=": "feed=", "s": "stop"}
+
+
+@contextlib.contextmanager
+def _grbl_keys(transport, check: bool, log):
+    """Keys that control a GRBL send from a terminal (pause/resume, hold, feed override, stop); {} otherwise."""
+    import inspect
+
+    if check or not sys.stdin.isatty() or "controls" not in inspect.signature(transport.send).parameters:
+        yield {}
+        return
+    from doodlecam.cli.machine import raw_keys
+
+    log("keys: p pause (pen up) | r resume | ! hold | ~ cycle start | + - = feed override | s stop")
+    with raw_keys() as getch:
+        yield {"controls": lambda: GRBL_KEYS.get(getch() or "")}
 
 
 def _plc_plan(job: Path):
@@ -298,7 +319,8 @@ def sim_plc(host, port, machine, buffer_size, realtime, speed, loss, dup, reorde
 @click.option("--error-at", multiple=True, metavar="N:CODE", help="Answer the N-th received line with error:CODE.")
 @click.option("--alarm-at", multiple=True, metavar="N:CODE", help="Raise ALARM:CODE at the N-th received line.")
 @click.option("--vanish-at", type=int, metavar="N", help="Close the port after the N-th received line.")
-@click.option("--soft-limits", is_flag=True, help="Alarm on targets outside the travel ($20=1).")
+@click.option("--soft-limits", is_flag=True, help="Alarm on targets outside the travel ($20=1, with homing $22=1 as GRBL "
+              "requires: travel is -W..0, -H..0 in machine coordinates).")
 @click.option("--travel", default="400x300", show_default=True, metavar="WxH", help="Machine travel in mm ($130, $131).")
 @click.option("--link", "link_path", type=click.Path(path_type=Path), help="Also make a symlink with this name to the port.")
 def sim_grbl(speed, error_at, alarm_at, vanish_at, soft_limits, travel, link_path):
@@ -331,6 +353,9 @@ def sim_grbl(speed, error_at, alarm_at, vanish_at, soft_limits, travel, link_pat
         os.replace(tmp, link_path)
     emu.start()
     click.echo(f"GRBL emulator on {emu.port}" + (f" (also {link_path})" if link_path else "") + "; Ctrl-C stops")
+    if soft_limits:  # as GRBL 1.1: homing on, locked until $H, travel in negative machine space
+        click.echo(f"soft limits: machine travel X -{w:g}..0, Y -{h:g}..0; it starts in alarm: 'doodlecam machine "
+                   f"--serial {link_path or emu.port} home', then jog to the drawing's corner and 'zero'")
     sys.stdout.flush()
     _stop_on_sigterm()
     try:

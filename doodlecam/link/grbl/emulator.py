@@ -14,8 +14,19 @@ hardware and to test the streamer over real serial I/O:
 * real-time commands ``?`` (status report), ``!`` (feed hold), ``~``
   (resume), 0x18 (soft reset; alarm 3 if moving), picked off before the ring;
 * ``$C`` check mode, ``$X`` unlock, ``$H`` homing, ``$$`` / ``$x=val``;
-* simulated motion time (G0 at the rapid rate, G1 at F, G4 dwells), sped up
-  by ``speed``; soft limits when enabled;
+* simulated motion time (G0 at the rapid rate, G1 at F times the feed
+  override, G4 dwells), sped up by ``speed``, and the ``$1`` stepper idle
+  delay each time motion stops (GRBL's ``st_go_idle``);
+* a pen change (``M3``/``M5``/``S``) and ``G10`` synchronise: they wait until
+  the planner is empty, as the firmware does outside laser mode;
+* soft limits as GRBL 1.1 checks them (without ``HOMING_FORCE_SET_ORIGIN``):
+  machine travel is ``-$130 <= x <= 0``, ``-$131 <= y <= 0``; a G-code target
+  outside raises ``ALARM:2``, a jog target outside is refused with
+  ``error:15``; soft limits need homing ($22=1), so the machine starts in
+  alarm until ``$H`` (which leaves it at ``-$27`` on each axis) or ``$X``;
+* work offsets: ``G10 L2/L20 P1`` (G54), ``G92``; ``WCO`` in status reports;
+* jogging ``$J=...`` (state Jog, cancelled by 0x85), feed overrides 0x90..0x94
+  (``Ov:`` in status reports);
 * injectable errors and alarms at the N-th received line, and a port that
   vanishes after the N-th line.
 """
@@ -51,6 +62,9 @@ class GrblConfig:
     soft_limits: bool = False  # $20
     report_mask: int = 1  # $10: 1 = MPos, +2 = Bf (buffer state)
     hold_time: float = 0.05  # simulated s of deceleration before Hold:0
+    homing: bool | None = None  # $22; None = on when soft_limits (GRBL refuses $20=1 without it)
+    idle_delay_ms: int = 25  # $1
+    homing_time: float = 2.0  # simulated s a homing cycle takes
 
 
 @dataclass
@@ -60,6 +74,7 @@ class _Block:
     duration: float  # simulated s
     line: int
     dwell: bool = False
+    rapid: bool = False  # G0: the feed override does not apply
 
 
 class GrblEmulator:
@@ -74,7 +89,9 @@ class GrblEmulator:
         tty.setraw(self.slave)  # no echo, no CR/LF translation: bytes as a UART sees them
         os.set_blocking(self.master, False)
         self.port = os.ttyname(self.slave)
-        self.settings = {0: 10, 1: 25, 10: self.cfg.report_mask, 20: int(self.cfg.soft_limits), 21: 0, 22: 0,
+        homing = self.cfg.soft_limits if self.cfg.homing is None else self.cfg.homing
+        self.settings = {0: 10, 1: self.cfg.idle_delay_ms, 10: self.cfg.report_mask, 11: 0.010,
+                         20: int(self.cfg.soft_limits), 21: 0, 22: int(homing), 27: 1.0,
                          100: 80.0, 101: 80.0, 110: self.cfg.rapid, 111: self.cfg.rapid, 120: 2000.0, 121: 2000.0,
                          130: self.cfg.travel[0], 131: self.cfg.travel[1]}
         # observable by tests
@@ -98,6 +115,8 @@ class GrblEmulator:
 
     def start(self) -> "GrblEmulator":
         self._reply(f"\r\n{BANNER}")
+        if self.state == "Alarm":
+            self._reply("[MSG:'$H'|'$X' to unlock]")
         self._thread = threading.Thread(target=self._run, name="grblsim", daemon=True)
         self._thread.start()
         return self
@@ -120,8 +139,14 @@ class GrblEmulator:
 
     def _init_machine(self, power_up: bool = False) -> None:
         if power_up:
-            self.state = "Idle"
+            # homing enabled: GRBL starts locked in alarm until $H or $X (HOMING_INIT_LOCK)
+            self.state = "Alarm" if self.settings.get(22) else "Idle"
             self.pos = [0.0, 0.0, 0.0]
+            self.g54 = [0.0, 0.0, 0.0]  # stored work offset (EEPROM)
+            self.overrides = 100  # feed override, %
+        self.g92 = [0.0, 0.0, 0.0]  # G92 is forgotten on reset (GRBL 1.1 does not store it)
+        self.idle_left = 0.0  # simulated s of the $1 delay still to wait
+        self.jogging = False
         self.planner: deque[_Block] = deque()
         self.block_t = 0.0  # simulated s into the head block
         self.line = bytearray()
@@ -189,8 +214,17 @@ class GrblEmulator:
             if self.state == "Hold":
                 self.hold = None
                 self.state = "Run" if self.planner else "Idle"
+        elif b == 0x85:  # jog cancel: drop the jog motion, keep the position
+            if self.jogging:
+                self.planner.clear()
+                self.block_t = 0.0
+                self.jogging = False
+                self.state = "Idle"
+        elif 0x90 <= b <= 0x94:  # feed override: 100 %, +10, -10, +1, -1 (GRBL keeps 10..200 %)
+            step = {0x90: None, 0x91: 10, 0x92: -10, 0x93: 1, 0x94: -1}[b]
+            self.overrides = 100 if step is None else min(200, max(10, self.overrides + step))
         elif b >= 0x80:
-            pass  # overrides: accepted, ignored
+            pass  # other overrides: accepted, ignored
         elif len(self._rx) >= RX_BUFFER_SIZE - 1:
             self.overruns += 1  # the firmware drops the byte
             self.log(f"OVERRUN: dropped byte {b:#04x} (receive buffer full)")
@@ -220,12 +254,14 @@ class GrblEmulator:
             if self.hold > 0:
                 self.hold = max(0.0, self.hold - dt)
             return
-        while self.planner and dt > 0 and self.state in ("Run", "Idle"):
-            self.state = "Run"
+        while self.planner and dt > 0 and self.state in ("Run", "Idle", "Jog", "Home"):
+            if self.state == "Idle":
+                self.state = "Run"
             blk = self.planner[0]
-            left = blk.duration - self.block_t
+            rate = 1.0 if blk.dwell or blk.rapid else self.overrides / 100.0
+            left = (blk.duration - self.block_t) / rate
             if dt < left:
-                self.block_t += dt
+                self.block_t += dt * rate
                 f = self.block_t / blk.duration if blk.duration > 0 else 1.0
                 self.pos = [a + (b - a) * f for a, b in zip(blk.start, blk.end)]
                 return
@@ -234,8 +270,15 @@ class GrblEmulator:
             self.planner.popleft()
             self.block_t = 0.0
             self.executed.append(blk.line)
-        if not self.planner and self.state == "Run":
+            if not self.planner and not blk.dwell and int(self.settings.get(1, 25)) < 255:
+                self.idle_left = int(self.settings.get(1, 25)) / 1000.0  # st_go_idle: delay_ms($1)
+        if self.idle_left > 0:
+            self.idle_left = max(0.0, self.idle_left - dt)
+            if self.idle_left > 0:
+                return
+        if not self.planner and self.state in ("Run", "Jog"):
             self.state = "Idle"
+            self.jogging = False
 
     def _status(self) -> str:
         st = self.state
@@ -249,6 +292,10 @@ class GrblEmulator:
             parts.append(f"Bf:{PLANNER_BLOCKS - len(self.planner)},{RX_BUFFER_SIZE - 1 - len(self._rx)}")
         feed = self.modal["feed"] or 0.0
         parts.append(f"FS:{feed if self.state == 'Run' else 0:.0f},{self.modal['s']:.0f}")
+        wco = self.wco
+        if any(wco):  # GRBL sends WCO every 10-30 reports; every report is as valid
+            parts.append("WCO:" + ",".join(f"{v:.3f}" for v in wco))
+        parts.append(f"Ov:{self.overrides},100,100")
         return "<" + "|".join(parts) + ">"
 
     # ------------------------------------------------------------ protocol
@@ -356,11 +403,35 @@ class GrblEmulator:
                 self.state = "Idle"
                 self._reply("[MSG:Caution: Unlocked]")
         elif line == "$H":
+            if not self.settings.get(22):
+                self._reply("error:5")
+                return
             if busy:
                 self._reply("error:8")
                 return
-            self.pos = [0.0, 0.0, 0.0]
-            self.state = "Idle"
+            # homes towards +X +Y +Z (the default $23) and pulls off by $27: machine travel is negative
+            pull = float(self.settings.get(27, 1.0))
+            self.planner.append(_Block(tuple(self.pos), (-pull, -pull, -pull), self.cfg.homing_time, len(self.received),
+                                       rapid=True))
+            self.state = "Home"
+            self.pending = ("homing",)
+            return
+        elif line == "$#":
+            for name, v in (("G54", self.g54), ("G92", self.g92)):
+                self._reply(f"[{name}:" + ",".join(f"{x:.3f}" for x in v) + "]")
+            self._reply("[TLO:0.000]")
+        elif line.startswith("$J="):
+            if self.state not in ("Idle", "Jog") or self.check:
+                self._reply("error:8")
+                return
+            try:
+                blk = self._jog(line[3:])
+            except _GcodeError as e:
+                self._reply(f"error:{e.code}")
+                return
+            if blk is not None:
+                self.planner.append(blk)
+                self.state, self.jogging = "Jog", True
         elif line == "$G":
             m = self.modal
             self._reply(f"[GC:G{m['motion']} G54 G17 {'G20' if m['inch'] else 'G21'} {'G90' if m['abs'] else 'G91'} "
@@ -379,6 +450,65 @@ class GrblEmulator:
             return
         self._reply("ok")
 
+    @staticmethod
+    def _arc_length(start, end, offset: dict, clockwise: bool) -> float:
+        """Length (mm) of an XY arc given by its centre offset (I, J), checked as gcode.c does."""
+        import math
+
+        if not offset:
+            raise _GcodeError(35)  # no radius or offset words
+        cx, cy = start[0] + offset.get("I", 0.0), start[1] + offset.get("J", 0.0)
+        r0, r1 = start[0] - cx, start[1] - cy
+        t0, t1 = end[0] - cx, end[1] - cy
+        radius, delta_r = math.hypot(r0, r1), abs(math.hypot(t0, t1) - math.hypot(r0, r1))
+        if delta_r > 0.005 and (delta_r > 0.5 or delta_r > 0.001 * radius):
+            raise _GcodeError(33)  # the target is not on the circle
+        theta = math.atan2(r0 * t1 - r1 * t0, r0 * t0 + r1 * t1)
+        if clockwise and theta >= -5e-7:
+            theta -= 2 * math.pi
+        elif not clockwise and theta <= 5e-7:
+            theta += 2 * math.pi
+        return math.hypot(abs(theta) * radius, end[2] - start[2])
+
+    def _outside(self, end) -> bool:
+        """GRBL 1.1's soft limit check (no HOMING_FORCE_SET_ORIGIN): machine travel is -$13x..0."""
+        return bool(self.settings.get(20)) and not all(-float(self.settings[130 + i]) <= end[i] <= 0.0
+                                                        for i in range(2))
+
+    def _jog(self, text: str) -> "_Block | None":
+        """A $J= jog line: G90/G91, G20/G21, G53, X Y Z and a required F."""
+        words = _WORD.findall(text)
+        if not words or "".join(a + b for a, b in words) != text:
+            raise _GcodeError(16)
+        absolute, inch, machine, target, feed = True, self.modal["inch"], False, {}, None
+        for letter, val in words:
+            v = float(val)
+            if letter == "G" and v in (90, 91):
+                absolute = v == 90
+            elif letter == "G" and v in (20, 21):
+                inch = v == 20
+            elif letter == "G" and v == 53:
+                machine = True
+            elif letter in "XYZ":
+                target[letter] = v
+            elif letter == "F":
+                feed = v
+            else:
+                raise _GcodeError(16)
+        if feed is None or feed <= 0:
+            raise _GcodeError(22)
+        k = 25.4 if inch else 1.0
+        start = self._end_pos()
+        end = list(start)
+        for i, a in enumerate("XYZ"):
+            if a in target:
+                v = target[a] * k
+                end[i] = v if machine else (v + self.wco[i] if absolute else start[i] + v)
+        if self._outside(end):
+            raise _GcodeError(15)
+        length = sum((a - b) ** 2 for a, b in zip(end, start)) ** 0.5
+        return _Block(tuple(start), tuple(end), 60.0 * length / (feed * k), len(self.received)) if length else None
+
     def _parse(self, line: str, n: int):
         words = _WORD.findall(line)
         if "".join(a + b for a, b in words) != line:
@@ -389,15 +519,26 @@ class GrblEmulator:
         dwell = None
         sync = False
         seen = set()
+        nonmodal = None  # G10 or G92
+        offset: dict[str, float] = {}  # I, J of an arc
+        in_machine = False  # G53
+        lval = None
         for letter, val in words:
             v = float(val)
             if letter == "G":
-                if v in (0, 1):
+                if v in (0, 1, 2, 3):
                     if motion is not None:
                         raise _GcodeError(21)
                     motion = int(v)
                 elif v == 4:
                     dwell = -1.0
+                elif v in (10, 92, 53):
+                    if v != 53 and nonmodal is not None:
+                        raise _GcodeError(21)
+                    if v == 53:
+                        in_machine = True
+                    else:
+                        nonmodal = int(v)
                 elif v == 90:
                     m["abs"] = True
                 elif v == 91:
@@ -419,20 +560,28 @@ class GrblEmulator:
                     m["end"] = True
                 else:
                     raise _GcodeError(20)
-            elif letter in "XYZ":
+            elif letter in "XYZIJ":
                 if letter in seen:
                     raise _GcodeError(25)
                 seen.add(letter)
-                target[letter] = v * (25.4 if m["inch"] else 1.0)
+                (offset if letter in "IJ" else target)[letter] = v * (25.4 if m["inch"] else 1.0)
             elif letter == "F":
                 m["feed"] = v * (25.4 if m["inch"] else 1.0)
             elif letter == "S":
                 m["s"] = v
                 sync = True
             elif letter == "P":
+                if nonmodal == 10:
+                    if v not in (0, 1):
+                        raise _GcodeError(29)  # only G54 is modelled
+                    continue
                 if dwell is None:
                     raise _GcodeError(36)
                 dwell = v
+            elif letter == "L":
+                if nonmodal != 10:
+                    raise _GcodeError(36)
+                lval = v
             elif letter == "N":
                 pass
             else:
@@ -442,23 +591,47 @@ class GrblEmulator:
         if motion is not None:
             m["motion"] = motion
         block = None
+        if nonmodal is not None:  # an offset: the axis words set it, nothing moves
+            if nonmodal == 10 and lval not in (2, 20):
+                raise _GcodeError(28)
+            if not target:
+                raise _GcodeError(26)
+            here = self._end_pos()
+            for i, k in enumerate("XYZ"):
+                if k in target:
+                    if nonmodal == 92:
+                        self.g92[i] = here[i] - self.g54[i] - target[k]
+                    elif lval == 2:
+                        self.g54[i] = target[k]
+                    else:  # L20: the current position gets these work coordinates
+                        self.g54[i] = here[i] - self.g92[i] - target[k]
+            target = {}
+            sync = sync or nonmodal == 10  # GRBL writes G54 to EEPROM only with the planner empty
         if target:
             if motion is None:
                 motion = m["motion"]
             end = list(self._end_pos())
+            wco = self.wco
             for i, k in enumerate("XYZ"):
                 if k in target:
-                    end[i] = target[k] if m["abs"] else end[i] + target[k]
-            if motion == 1 and not m["feed"]:
+                    if in_machine:
+                        end[i] = target[k]
+                    else:
+                        end[i] = target[k] + wco[i] if m["abs"] else end[i] + target[k]
+            if motion in (1, 2, 3) and not m["feed"]:
                 raise _GcodeError(22)
-            if self.settings.get(20) and not (0 <= end[0] <= self.settings[130] and 0 <= end[1] <= self.settings[131]):
+            if self._outside(end):  # (an arc's bulge is not checked against the travel here)
                 return ("alarm", 2)
-            rate = m["feed"] if motion == 1 else float(self.settings[110])
+            rate = m["feed"] if motion else float(self.settings[110])
             start = self._end_pos()
             length = sum((a - b) ** 2 for a, b in zip(end, start)) ** 0.5
-            block = _Block(tuple(start), tuple(end), 60.0 * length / rate, n)
+            if motion in (2, 3):
+                length = self._arc_length(start, end, offset, motion == 2)
+            block = _Block(tuple(start), tuple(end), 60.0 * length / rate, n, rapid=motion == 0)
         elif motion == 1 and not m["feed"]:
             raise _GcodeError(22)
+        elif offset:
+            raise _GcodeError(36)  # I/J without an arc
         end_prog = m.pop("end", False)
         if end_prog:
             m.update(motion=1 if m["motion"] else 0, abs=True, spindle=5)
@@ -466,6 +639,11 @@ class GrblEmulator:
         if n in self.cfg.alarm_at:
             return ("alarm", self.cfg.alarm_at[n])
         return ("exec", block, sync or dwell is not None or end_prog, dwell, end_prog, n)
+
+    @property
+    def wco(self) -> list[float]:
+        """Work coordinate offset: machine = work + WCO (G54 + G92)."""
+        return [a + b for a, b in zip(self.g54, self.g92)]
 
     def _end_pos(self) -> tuple[float, float, float]:
         return self.planner[-1].end if self.planner else tuple(self.pos)
@@ -483,12 +661,19 @@ class GrblEmulator:
             self.pending = None
             self._alarm(rest[0])
             return True
+        if kind == "homing":  # $H answers when the cycle is over
+            if self.planner:
+                return False
+            self.pending = None
+            self.state = "Idle"
+            self._reply("ok")
+            return True
         block, sync, dwell, end_prog, n = rest
         if self.check:
             self.pending = None
             self._reply("ok")
             return True
-        if sync and (self.planner or self.hold is not None):
+        if sync and (self.planner or self.hold is not None or self.idle_left > 0):
             return False  # protocol_buffer_synchronize(): wait for motion to finish
         if block is not None and len(self.planner) >= PLANNER_BLOCKS:
             return False  # planner full: GRBL waits before answering, the ring fills up

@@ -245,11 +245,10 @@ class GrblLink:
 
     # ------------------------------------------------------------ session
 
-    def connect(self) -> GrblStatus:
-        """Make sure GRBL answers, wait for a previous job to finish, start from a clean reset."""
+    def first_status(self) -> GrblStatus:
+        """GRBL's first status report after opening the port, in whatever state it is."""
         end = time.monotonic() + self.connect_timeout
-        st = None
-        while time.monotonic() < end and st is None:
+        while time.monotonic() < end:
             try:
                 ev = self.next_event(end - time.monotonic())
             except LinkError as e:
@@ -257,10 +256,13 @@ class GrblLink:
                     break
                 raise
             if ev and ev[0] == "status":
-                st = ev[1]
-        if st is None:
-            raise LinkError(f"no answer from GRBL on {self.port} within {self.connect_timeout:g} s; check the port, the "
-                            "baud rate (--baud) and that the controller runs GRBL")
+                return ev[1]
+        raise LinkError(f"no answer from GRBL on {self.port} within {self.connect_timeout:g} s; check the port, the "
+                        "baud rate (--baud) and that the controller runs GRBL")
+
+    def connect(self) -> GrblStatus:
+        """Make sure GRBL answers, wait for a previous job to finish, start from a clean reset."""
+        st = self.first_status()
         if st.state in ("Run", "Jog", "Home"):
             self.log("GRBL is still moving (a previous job?); waiting for it to finish")
             st = self.wait_idle()
@@ -271,16 +273,16 @@ class GrblLink:
             self.wait_banner(self.connect_timeout)
             st = self.fresh_status()
         if st.state == "Alarm":
-            raise GrblError(f"GRBL on {self.port} is in alarm state; home it with $H or unlock it with $X "
-                            "(e.g. in a serial terminal), then send again")
+            raise GrblError(f"GRBL on {self.port} is in alarm state; home it ($H: 'doodlecam machine --serial "
+                            f"{self.port} home') or unlock it ($X: '... unlock'), then send again")
         if st.state != "Idle":
             raise GrblError(f"GRBL on {self.port} is in {st.state} state; make it idle, then send again")
         # A soft reset while idle keeps the position and clears any half-received line.
         self.soft_reset()
         st = self.fresh_status()
         if st.state == "Alarm" or self.alarm_banner:
-            raise GrblError(f"GRBL on {self.port} starts in alarm state (homing enabled?); home it with $H or "
-                            "unlock it with $X, then send again")
+            raise GrblError(f"GRBL on {self.port} starts in alarm state (homing enabled?); home it ($H: 'doodlecam "
+                            f"machine --serial {self.port} home') or unlock it ($X: '... unlock'), then send again")
         return st
 
 

@@ -69,10 +69,15 @@ ALARMS: dict[int, str] = {
     10: "homing fail: on dual-axis machines, could not find the second limit switch",
 }
 
+HOME = "doodlecam machine --serial PORT home"
+UNLOCK = "doodlecam machine --serial PORT unlock"
+
 _ALARM_TODO = {
-    1: "check what hit the limit, then home with $H (or unlock with $X and re-zero)",
-    2: "the job leaves the machine's travel ($130/$131): fix the job or the settings, then unlock with $X",
-    3: "home with $H (or unlock with $X and re-zero) before running again",
+    1: f"check what hit the limit, then home ($H: '{HOME}'), or unlock ($X: '{UNLOCK}') and re-zero",
+    2: ("the job leaves the machine's travel (with soft limits GRBL's travel is -$130..0, -$131..0: set work zero "
+        f"with 'doodlecam machine --serial PORT zero' or convert with --post-opt gcode.work_offset=g10), then "
+        f"unlock ($X: '{UNLOCK}')"),
+    3: f"home ($H: '{HOME}'), or unlock ($X: '{UNLOCK}') and re-zero, before running again",
 }
 
 
@@ -85,7 +90,7 @@ def alarm_text(code: int) -> str:
 
 
 def alarm_advice(code: int) -> str:
-    return _ALARM_TODO.get(code, "fix the cause, then home with $H or unlock with $X")
+    return _ALARM_TODO.get(code, f"fix the cause, then home ($H: '{HOME}') or unlock ($X: '{UNLOCK}')")
 
 
 class GrblError(LinkError):
@@ -132,6 +137,11 @@ def _is_pen(text: str) -> bool:
     return bool(_SPINDLE.search(text.upper())) and not re.search(r"G0*[0-3](?!\d)", text.upper())
 
 
+def _is_offset(text: str) -> bool:
+    """G10 / G92: axis words that set an offset and move nothing."""
+    return bool(re.search(r"G(?:10|92)(?![\d.])", text.upper()))
+
+
 def _is_g0(text: str) -> bool:
     return bool(re.match(r"G0*0(?!\d)", text.upper()))
 
@@ -160,6 +170,11 @@ def resume_prefix(lines: list[GcodeLine], k: int) -> list[GcodeLine]:
     units, absolute, feed, pen, dwell, pos = "G21", True, None, None, None, {}
     for ln in lines[:k]:
         t = ln.text.upper()
+        if _is_offset(t):
+            if re.search(r"G92(?![\d.])", t):
+                raise InputError(f"line {ln.lineno} sets the origin with G92, which the reset before a resume "
+                                 "clears; restart the job from the beginning (G10 L20 keeps it: work_offset=g10)")
+            continue
         for g in re.findall(r"G0*(\d+(?:\.\d+)?)", t):
             if g in ("20", "21"):
                 units = "G" + g
@@ -204,7 +219,7 @@ def line_durations(lines: list[GcodeLine]) -> list[float]:
         if t.startswith("G4"):
             m = re.search(r"P([\d.]+)", t)
             d = float(m.group(1)) if m else 0.0
-        elif not t.startswith("$"):
+        elif not t.startswith("$") and not _is_offset(t):
             g = re.match(r"G0*([01])(?!\d)", t)
             if g:
                 mode = int(g.group(1))

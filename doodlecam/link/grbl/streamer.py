@@ -14,6 +14,14 @@ GRBL's rules (doc/markdown/interface.md, "Streaming protocol"), all kept here:
   reported); ``ALARM:N`` stops it and says how to recover ($X / $H);
 * ``$C`` check mode parses the whole file without moving, as a dry run.
 
+Controls while streaming (``controls()`` returns one of these or None):
+``pause`` stops sending, lets GRBL finish what it has and lifts the pen
+(the file's own pen-up command); ``resume`` puts the pen back down where it
+was (``resume_prefix``) and goes on, so every file line is still sent once;
+``hold`` / ``start`` are GRBL's feed hold ``!`` and cycle start ``~`` (an
+immediate stop, the pen stays as it is); ``feed+``, ``feed-``, ``feed=``
+the feed override bytes 0x91, 0x92, 0x90; ``stop`` is Ctrl-C's clean stop.
+
 The code tables are GRBL 1.1's (doc/csv/error_codes_en_US.csv and
 alarm_codes_en_US.csv in the gnea/grbl repository).
 """
@@ -36,6 +44,8 @@ from doodlecam.link.grbl.protocol import (
     GcodeLine,
     GrblError,
     GrblStatus,
+    _is_offset,
+    _is_pen,
     error_text,
     pen_up_line,
     prepare,
@@ -55,8 +65,14 @@ class Streamer:
 
     def __init__(self, link: GrblLink, lines: list[GcodeLine], *, name: str = "G-code",
                  before_write: Callable[[int], None] | None = None,
-                 progress: Callable[[int, int, GrblStatus | None], None] | None = None):
+                 progress: Callable[[int, int, GrblStatus | None], None] | None = None,
+                 controls: Callable[[], str | None] | None = None):
         self.link, self.lines, self.name = link, lines, name
+        self.controls = controls or (lambda: None)
+        self.paused = False  # no new lines go out
+        self.lifted = False  # the pause lifted the pen: resume lowers it again
+        self.added: list[tuple[int, str]] = []  # (lines of the job sent before, text) of lines the sender added
+        self.held = False
         self.before_write = before_write or (lambda k: None)
         self.progress = progress or (lambda a, n, s: None)
         self.inflight: deque[tuple[int, int]] = deque()  # (index, bytes)
@@ -157,13 +173,68 @@ class Streamer:
         raise Paused(f"stopped at once (feed hold, reset) with lines up to {self.name}:{last} sent; check the drawing, "
                      "then send it again with --from-line N") from None
 
+    def _control(self, check: bool) -> None:
+        """Act on the user's control, if any (see the module docstring)."""
+        c = self.controls()
+        if c is None:
+            return
+        link = self.link
+        if c == "stop":
+            if self.held:  # already standing still: reset now (a reset in Hold:0 keeps the position)
+                self._stop_now()
+            raise KeyboardInterrupt
+        if c == "pause" and not self.paused and not check:
+            self.paused = True
+            link.log("pausing: GRBL finishes the lines it has, then the pen is lifted ('resume' goes on)")
+        elif c == "resume" and self.held:
+            link.realtime(b"~")
+            self.held = False
+        elif c == "resume" and self.paused:
+            if self.lifted:  # back to the state before the next line: position, pen down, dwell, feed
+                for ln in resume_prefix(self.lines, self.sent):
+                    self._extra(ln.text)
+                link.wait_idle()
+            self.paused = self.lifted = False
+            link.log("resumed")
+        elif c == "hold":
+            link.realtime(b"!")
+            self.held = True
+        elif c in ("feed+", "feed-", "feed="):
+            link.realtime({"feed+": b"\x91", "feed-": b"\x92", "feed=": b"\x90"}[c])
+
+    def _extra(self, text: str) -> None:
+        """A line the sender adds (not from the file), sent and answered alone."""
+        self.added.append((self.sent, text))
+        kind, code = self.link.send_wait(text)
+        if kind != "ok":
+            self._halt()
+            raise GrblError(f"GRBL refused '{text}' (added to pause/resume the job): error:{code} {error_text(code)}")
+
+    def _lift_when_drained(self) -> None:
+        """Paused and nothing in flight: once GRBL is idle, lift the pen if it is down."""
+        if self.lifted or self.sent >= len(self.lines):
+            return
+        self.link.wait_idle()
+        up = pen_up_line(self.lines)
+        last = next((ln.text for ln in reversed(self.lines[:self.sent]) if _is_pen(ln.text)), up)
+        if last != up:
+            self._extra(up)
+            self.link.wait_idle()
+        self.lifted = True
+        self.link.log(f"paused before {self.where(self.sent)} with the pen up; 'resume' goes on")
+
     def _loop(self, check: bool) -> None:
         link = self.link
         while self.inflight if self.stopping else self.acked < len(self.lines):
-            self._send_lines()
+            self._control(check)
+            if not self.paused:
+                self._send_lines()
             if not self.inflight:
                 if self.sent >= len(self.lines) or self.stopping:
                     break
+                if self.paused:
+                    self._lift_when_drained()
+                    link.next_event(0.05)  # status polled while paused
                 continue
             ev = link.next_event(0.1)
             if ev is None:
@@ -246,7 +317,7 @@ def end_positions(lines: list[GcodeLine]) -> list[tuple[float | None, float | No
     out, x, y = [], None, None
     for ln in lines:
         t = ln.text.upper()
-        if not (t.startswith("G4") or t.startswith("$")):
+        if not (t.startswith("G4") or t.startswith("$") or _is_offset(t)):
             for letter, val in _AXIS.findall(t):
                 if letter == "X":
                     x = float(val)
@@ -286,7 +357,7 @@ def settle_doubt(lines: list[GcodeLine], k: int, status: GrblStatus | None, name
 
 def send_gcode(port: str, path: Path, *, baud: int = 115200, check: bool = False, restart: bool = False,
                from_line: int | None = None, timeout: float = 5.0, connect_timeout: float = 3.0,
-               state_file: Path | None = None, progress=None, log=None) -> dict:
+               state_file: Path | None = None, progress=None, log=None, controls=None) -> dict:
     """Stream a G-code file (resuming a paused run unless ``restart``); return a summary dict."""
     path = Path(path)
     try:
@@ -340,7 +411,8 @@ def send_gcode(port: str, path: Path, *, baud: int = 115200, check: bool = False
             if kind != "ok":
                 raise GrblError(f"GRBL on {port} refused check mode ($C): error:{code} {error_text(code)}")
         # Written before each line goes out: lines [0, k) reached GRBL, line k may have (see settle_doubt).
-        s = Streamer(link, stream, name=str(path), before_write=lambda k: record(k, True), progress=prog)
+        s = Streamer(link, stream, name=str(path), before_write=lambda k: record(k, True), progress=prog,
+                     controls=controls)
         try:
             result = s.run(check=check)
         except Paused:

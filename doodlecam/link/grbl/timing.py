@@ -19,9 +19,13 @@ the firmware will take, not only the time doodlecam planned:
   that keeps the buffer full (as ``doodlecam send`` does) sees exactly this
   window: block i may leave at most at the speed from which blocks
   i+1..i+14 can still brake to rest;
-* M-codes (spindle/servo changes, outside laser mode) and G4 dwells
-  synchronise: the planner empties and the machine stops; a dwell adds its
-  time (GRBL's G4 P is in seconds).
+* M-codes (spindle/servo changes, outside laser mode), G10 (an EEPROM
+  write) and G4 dwells synchronise: the planner empties and the machine
+  stops; a dwell adds its time (GRBL's G4 P is in seconds);
+* each time motion stops (the stepper segment buffer runs empty, i.e. at
+  every synchronisation after a move and at the program end) ``st_go_idle``
+  waits the ``$1`` stepper idle delay (25 ms by default) before GRBL goes on;
+  ``$1=255`` keeps the motors on and skips it.
 
 Each block then runs a trapezoid (or triangle) between its entry and exit
 speeds. Stepper segment quantisation (~ms) is ignored. Units: mm, s, mm/s.
@@ -49,13 +53,46 @@ class GrblSettings:
     acceleration: tuple[float, float, float] = (500.0, 500.0, 100.0)  # $120..$122 (mm/s²)
     junction_deviation: float = 0.01  # $11
     blocks: int = 16  # BLOCK_BUFFER_SIZE; the ring holds blocks - 1
+    idle_delay_ms: int = 25  # $1; 255 keeps the motors enabled (no delay)
+    arc_tolerance: float = 0.002  # $12 (mm): how finely GRBL cuts G2/G3 into line blocks
+    steps_per_mm: tuple[float, float, float] = (250.0, 250.0, 250.0)  # $100..$102
 
     @classmethod
-    def from_machine(cls, machine, junction_deviation: float = 0.01) -> "GrblSettings":
+    def from_machine(cls, machine, junction_deviation: float = 0.01, idle_delay_ms: int = 25) -> "GrblSettings":
         """Settings matching a doodlecam machine profile (Z like X: a pen lift is short)."""
         x, y = machine.axes
         return cls((x.max_velocity, y.max_velocity, x.max_velocity),
-                   (x.max_acceleration, y.max_acceleration, x.max_acceleration), junction_deviation)
+                   (x.max_acceleration, y.max_acceleration, x.max_acceleration), junction_deviation,
+                   idle_delay_ms=int(idle_delay_ms), steps_per_mm=(x.steps_per_mm, y.steps_per_mm, x.steps_per_mm))
+
+    @property
+    def idle_delay(self) -> float:
+        """Seconds GRBL waits each time motion stops ($1)."""
+        return 0.0 if self.idle_delay_ms >= 255 else self.idle_delay_ms / 1000.0
+
+    def dollars(self) -> dict[str, float]:
+        """These settings as GRBL ``$`` settings (units as GRBL takes them: mm/min for $110..$112)."""
+        out: dict[str, float] = {}
+        for k, v in enumerate(self.steps_per_mm):
+            out[f"${100 + k}"] = round(v, 3)
+        for k, v in enumerate(self.max_rate):
+            out[f"${110 + k}"] = round(60.0 * v, 3)
+        for k, v in enumerate(self.acceleration):
+            out[f"${120 + k}"] = round(v, 3)
+        out["$11"] = self.junction_deviation
+        out["$1"] = self.idle_delay_ms
+        return out
+
+
+def grbl_settings_for(machine, junction_deviation: float = 0.01, idle_delay_ms: int = 25) -> dict[str, float]:
+    """The ``$`` settings a GRBL 1.1 controller needs for a doodlecam machine profile.
+
+    Keys ``$1``, ``$11``, ``$100..$102`` (steps/mm), ``$110..$112`` (mm/min),
+    ``$120..$122`` (mm/s², as GRBL shows them), ``$130/$131`` (travel, mm).
+    """
+    out = GrblSettings.from_machine(machine, junction_deviation, idle_delay_ms).dollars()
+    out["$130"], out["$131"] = float(machine.width), float(machine.height)
+    return dict(sorted(out.items(), key=lambda kv: int(kv[0][1:])))
 
 
 @dataclass
@@ -64,12 +101,14 @@ class Estimate:
 
     motion: float = 0.0
     dwell: float = 0.0
+    idle: float = 0.0  # $1 stepper idle delays
+    stops: int = 0  # times motion stopped
     blocks: int = 0
     block_times: np.ndarray = field(default_factory=lambda: np.zeros(0))
 
     @property
     def total(self) -> float:
-        return self.motion + self.dwell
+        return self.motion + self.dwell + self.idle
 
 
 def _axis_limit(values: np.ndarray, unit: np.ndarray) -> np.ndarray:
@@ -157,13 +196,45 @@ def _segment_time(points: np.ndarray, feeds: np.ndarray, s: GrblSettings, rest: 
     return out
 
 
+ARC_ANGULAR_TRAVEL_EPSILON = 5e-7
+
+
+def arc_points(start, target, center, clockwise: bool, arc_tolerance: float = 0.002) -> np.ndarray:
+    """The line blocks GRBL 1.1 cuts an XY arc into (motion_control.c ``mc_arc``): their end points, target last.
+
+    ``segments = floor(|θ| r / 2 / sqrt(tol (2r - tol)))`` equal angles, then
+    a last line to the exact target; a full circle when start and target meet.
+    """
+    start, target, center = (np.asarray(v, float) for v in (start, target, center))
+    r0, r1 = start[:2] - center[:2]
+    t0, t1 = target[:2] - center[:2]
+    radius = float(np.hypot(r0, r1))
+    theta = np.arctan2(r0 * t1 - r1 * t0, r0 * t0 + r1 * t1)
+    if clockwise:
+        if theta >= -ARC_ANGULAR_TRAVEL_EPSILON:
+            theta -= 2 * np.pi
+    elif theta <= ARC_ANGULAR_TRAVEL_EPSILON:
+        theta += 2 * np.pi
+    seg = int(np.floor(abs(0.5 * theta * radius) / np.sqrt(arc_tolerance * (2 * radius - arc_tolerance)))) \
+        if radius > arc_tolerance else 0
+    k = np.arange(1, seg)
+    ang = np.arctan2(r1, r0) + theta * k / max(seg, 1)
+    pts = np.zeros((len(k), len(start)))
+    pts[:, 0], pts[:, 1] = center[0] + radius * np.cos(ang), center[1] + radius * np.sin(ang)
+    if len(start) > 2:
+        pts[:, 2:] = start[2:] + (target[2:] - start[2:]) * (k / max(seg, 1))[:, None]
+    return np.vstack([pts, target[None, :]])
+
+
 def estimate_program(program, settings: GrblSettings = GrblSettings(), start=(0.0, 0.0, 0.0)) -> Estimate:
     """Estimate a program given as a list of moves.
 
     Items: ``("G0", x, y[, z], None)`` rapids, ``("G1", x, y[, z], F)`` with F in
     mm/min (None keeps the modal feed), ``("G4", seconds)`` dwells and
-    ``("M", text)`` commands (both synchronise: the machine stops). Coordinates
-    are absolute mm; x, y or z None keeps that axis.
+    ``("M", text)`` commands (both synchronise: the machine stops), and arcs
+    ``("G2"|"G3", x, y, z, i, j, F)`` (clockwise / counter-clockwise, centre at
+    the start plus (i, j)), cut into lines as GRBL does (``arc_points``).
+    Coordinates are absolute mm; x, y or z None keeps that axis.
     """
     pos = np.zeros(3)
     pos[:len(start)] = np.asarray(start, float)
@@ -193,6 +264,24 @@ def estimate_program(program, settings: GrblSettings = GrblSettings(), start=(0.
             feeds.append(v)
             rest.append(sync)
             sync = False
+        elif kind in ("G2", "G3"):
+            x, y, z, i, j, f = item[1:]
+            if f is not None:
+                feed = f
+            if feed is None:
+                raise InputError("G2/G3 without a feed rate: GRBL refuses it (error:22); add F")
+            here = pts[-1]
+            target = here.copy()
+            for k, c in enumerate((x, y, z)):
+                if c is not None:
+                    target[k] = c
+            centre = here.copy()
+            centre[:2] += (i or 0.0, j or 0.0)
+            for q in arc_points(here, target, centre, kind == "G2", settings.arc_tolerance):
+                pts.append(q)
+                feeds.append(feed / 60.0)
+                rest.append(sync)
+                sync = False
         elif kind == "G4":
             sync = True
             est.dwell += float(item[1])
@@ -201,6 +290,10 @@ def estimate_program(program, settings: GrblSettings = GrblSettings(), start=(0.
         else:
             raise ValueError(f"unknown program item {item!r}")
     bt = _segment_time(np.array(pts), np.array(feeds), settings, np.array(rest, bool)) if feeds else np.zeros(0)
+    if len(bt):  # every run with motion ends in a stop: st_go_idle waits $1
+        run = np.cumsum(rest)
+        est.stops = len(np.unique(run[bt > 0]))
+        est.idle = est.stops * settings.idle_delay
     bt = bt[bt > 0]  # the blocks GRBL keeps (zero-length ones take no time)
     est.block_times, est.blocks, est.motion = bt, len(bt), float(bt.sum())
     return est
@@ -219,19 +312,25 @@ def parse_gcode(text: str) -> list[tuple]:
             continue
         words = _WORD.findall(line)
         g = [float(v) for k, v in words if k == "G"]
-        vals = {k: float(v) for k, v in words if k in "XYZFP"}
-        if any(k == "M" for k, _ in words):
+        vals = {k: float(v) for k, v in words if k in "XYZFPIJ"}
+        if any(k == "M" for k, _ in words) or 10.0 in g:  # G10 writes EEPROM: GRBL synchronises first
             program.append(("M", line))
+        if 10.0 in g or 92.0 in g:
+            continue  # offsets move nothing
         if 4.0 in g:
             program.append(("G4", vals.get("P", 0.0)))
             continue
-        for m in (0.0, 1.0):
+        for m in (0.0, 1.0, 2.0, 3.0):
             if m in g:
                 motion = f"G{int(m)}"
         if any(k in vals for k in "XYZ"):
             if motion is None:
                 raise InputError(f"line {no}: a move before any G0/G1; cannot estimate")
-            program.append((motion, vals.get("X"), vals.get("Y"), vals.get("Z"), vals.get("F")))
+            if motion in ("G2", "G3"):
+                program.append((motion, vals.get("X"), vals.get("Y"), vals.get("Z"), vals.get("I"), vals.get("J"),
+                                vals.get("F")))
+            else:
+                program.append((motion, vals.get("X"), vals.get("Y"), vals.get("Z"), vals.get("F")))
         elif "F" in vals and motion == "G1":
             program.append(("G1", None, None, None, vals["F"]))  # a feed-only line sets the modal feed
     return program

@@ -1,0 +1,125 @@
+"""GRBL job time: doodlecam's G-code against constant-feed G-code of the same strokes (vpype-gcode).
+
+For each sample picture (doodlebot profile: 80 steps/mm, 150 mm/s, 2000 mm/s²,
+GRBL $11 = 0.010, $1 = 25 ms) three programs with the same pen commands,
+dwells, stroke order and chord tolerance (0.05 mm):
+
+* ``cap``  — doodlecam's default G-code (``feeds = cap``: longest chords, F = pen cap);
+* ``plan`` — doodlecam's ``feeds = plan`` (the PLC plan's feeds, the old default);
+* ``vpype`` — the ``plan`` polylines (the spline within the chord tolerance) written by
+  vpype-gcode at F9000, the machine's maximum feed.
+
+All are timed with doodlecam's model of GRBL 1.1's planner
+(``doodlecam.link.grbl.timing``). vpype and vpype-gcode live only in a separate
+environment, never in doodlecam's::
+
+    python3 -m venv /tmp/vpype-env && /tmp/vpype-env/bin/pip install vpype vpype-gcode
+    .venv/bin/python benchmarks/bench_grbl_time.py --vpype /tmp/vpype-env/bin/vpype
+
+Prints a markdown table; exits non-zero if ``cap`` is not at most 0.9x ``vpype`` everywhere.
+"""
+
+from __future__ import annotations
+
+import argparse
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parent.parent
+SAMPLES = ("camera", "chelsea", "coins", "horse", "text")
+
+PROFILE = """
+[gwrite.doodle]
+unit = "mm"
+document_start = "G21 G90 G94\\nG17\\nM3 S0\\nG4 P0.15\\n"
+segment_first = "G0 X{x:.3f} Y{y:.3f}\\nM3 S1000\\nG4 P0.15\\n"
+segment = "G1 X{x:.3f} Y{y:.3f} F9000\\n"
+line_end = "M3 S0\\nG4 P0.15\\n"
+document_end = "G0 X0 Y0\\nM2\\n"
+"""
+
+
+def polylines(gcode: str) -> list[np.ndarray]:
+    """The pen-down polylines of a G-code text (start point included)."""
+    out, pos, cur = [], None, None
+    for line in gcode.splitlines():
+        w = line.split()
+        if not w or w[0].startswith(";"):
+            continue
+        if w[0] in ("G0", "G1") and len(w) >= 3:
+            pos = (float(w[1][1:]), float(w[2][1:]))
+            if cur is not None and w[0] == "G1":
+                cur.append(pos)
+        elif line == "M3 S1000":
+            cur = [pos]
+        elif line == "M3 S0" and cur is not None:
+            out.append(np.array(cur))
+            cur = None
+    return out
+
+
+def svg(lines: list[np.ndarray], w: float, h: float) -> str:
+    """Polylines in mm, y not flipped (so vpype writes the same coordinates back)."""
+    paths = "".join('<polyline fill="none" stroke="black" points="' + " ".join(f"{x:.3f},{y:.3f}" for x, y in p)
+                    + '"/>\n' for p in lines)
+    return (f'<svg xmlns="http://www.w3.org/2000/svg" width="{w}mm" height="{h}mm" viewBox="0 0 {w} {h}">\n'
+            f"{paths}</svg>\n")
+
+
+def main() -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--vpype", required=True, help="the vpype executable of the benchmark environment")
+    ap.add_argument("--samples", nargs="*", default=SAMPLES)
+    args = ap.parse_args()
+
+    from doodlecam.link.grbl.timing import GrblSettings, estimate_gcode
+    from doodlecam.machine import load_machine
+    from doodlecam.pipeline import Settings, plan_job, trace
+    from doodlecam.postprocessors.gcode import GcodePost
+    from doodlecam.trace.layout import fit_to_work_area
+
+    machine = load_machine("doodlebot")
+    grbl = GrblSettings.from_machine(machine)
+    rows, worst = [], 0.0
+    with tempfile.TemporaryDirectory() as tmp:
+        cfg = Path(tmp) / "vpype.toml"
+        cfg.write_text(PROFILE)
+        for name in args.samples:
+            settings = Settings(machine=machine, posts=("gcode",))
+            drawing = fit_to_work_area(trace(ROOT / "samples" / "images" / f"{name}.png", settings), machine,
+                                       settings.layout)
+            job = plan_job(drawing, machine)
+            text, cpu = {}, {}
+            for f in ("cap", "plan"):
+                t0 = time.process_time()
+                text[f] = GcodePost().write(job, GcodePost.resolve_options({"feeds": f})).decode()
+                cpu[f] = time.process_time() - t0
+            lines = polylines(text["plan"])
+            src, out = Path(tmp) / f"{name}.svg", Path(tmp) / f"{name}.vpype.gcode"
+            src.write_text(svg(lines, machine.width, machine.height))
+            subprocess.run([args.vpype, "-c", str(cfg), "read", str(src), "gwrite", "-p", "doodle", str(out)],
+                           check=True, capture_output=True)
+            text["vpype"] = out.read_text()
+            back = polylines(text["vpype"])  # vpype must have kept the strokes as given
+            assert len(back) == len(lines) and all(np.allclose(a, b, atol=2e-3) for a, b in zip(back, lines))
+            t = {k: estimate_gcode(v, grbl, start=tuple(machine.home)).total for k, v in text.items()}
+            n = {k: sum(1 for x in v.splitlines() if x.startswith("G1")) for k, v in text.items()}
+            ratio = t["cap"] / t["vpype"]
+            worst = max(worst, ratio)
+            rows.append(f"| {name} | {len(job.strokes)} | {t['plan']:.1f} ({n['plan']}) | {t['vpype']:.1f} ({n['vpype']}) "
+                        f"| {t['cap']:.1f} ({n['cap']}) | {ratio:.3f} | {cpu['cap']:.2f} / {cpu['plan']:.2f} |")
+    print("GRBL 1.1 job time by doodlecam's planner model, s (G1 lines); doodlebot, $11=0.010, $1=25 ms, "
+          "chord tolerance 0.05 mm\n")
+    print("| picture | strokes | feeds=plan | vpype-gcode F9000 | feeds=cap (default) | cap / vpype | post CPU s cap / plan |")
+    print("|---|---|---|---|---|---|---|")
+    print("\n".join(rows))
+    return 0 if worst <= 0.9 else 1
+
+
+if __name__ == "__main__":
+    sys.exit(main())

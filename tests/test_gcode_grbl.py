@@ -1,0 +1,116 @@
+"""The G-code post's output parsed back, for random strokes (tiny ones too) in both feed modes:
+every chord within the tolerance of the spline, no F above the pen-speed cap, no segment shorter
+than one motor step (GRBL drops those; a feed on one was the absurd F50226853.7)."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
+from test_gcode_dialects import _dist_to_polyline, strict_parse, write
+from test_grbl import emu_factory  # noqa: F401  (fixture)
+from test_posts import MACHINE, samples_for, trapezoid_profile
+
+from doodlecam.machine import parse_machine
+from doodlecam.model import Job, Spline, Stroke, Travel
+
+M = parse_machine(MACHINE, "test.toml")
+
+
+def one_stroke_job(ctrl: np.ndarray) -> Job:
+    s = Spline(3, ctrl)
+    p = trapezoid_profile(s)
+    travels = (Travel(start=np.zeros(2), end=s.start, duration=1.0), Travel(start=s.end, end=np.zeros(2), duration=1.0))
+    return Job(machine=M, strokes=(Stroke(spline=s, profile=p),), travels=travels,
+               samples=(samples_for(s, p, M.delta_time),), source="random")
+
+
+@settings(max_examples=25, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@given(size=st.sampled_from([0.004, 0.02, 0.3, 5.0, 120.0]), n=st.integers(4, 9), seed=st.integers(0, 10_000),
+       tol=st.sampled_from([0.01, 0.05, 0.2]), feeds=st.sampled_from(["cap", "plan"]))
+def test_output_parsed_back_keeps_tolerance_cap_and_steps(size, n, seed, tol, feeds):
+    rng = np.random.default_rng(seed)
+    ctrl = np.array([200.0, 150.0]) + rng.uniform(-size, size, (n, 2))
+    job = one_stroke_job(ctrl)
+    text = write(job, feeds=feeds, chord_tolerance=tol)
+    (pts, fs), = strict_parse(text, "grbl", "M3 S0", "M3 S1000", "G4 P0.15")
+    spline = job.strokes[0].spline
+    if not pts:  # a stroke within one motor step of its start: pen down and up only, a dot
+        assert (np.round(spline.end * 80.0) == np.round(np.round(spline.start, 3) * 80.0)).all()
+        return
+    poly = np.vstack([np.round(spline.start, 3), pts])
+    dense = spline(np.linspace(0.0, 1.0, 5_001))
+    assert _dist_to_polyline(dense, poly).max() <= tol + 1e-6  # the curve never strays from the chords
+    assert _dist_to_polyline(poly, dense).max() <= 2e-3  # the vertices lie on the curve (3 decimals)
+    assert np.abs(np.diff(np.round(poly * 80.0), axis=0)).max(1).min(initial=1) >= 1  # a step or more each
+    assert max(fs, default=0.0) <= 9000.0 and min(fs, default=1.0) > 0  # F never above the pen cap
+    assert np.allclose(poly[-1], spline.end, atol=6e-4)  # ends where the stroke ends
+
+
+def test_a_stroke_within_one_step_writes_no_move():
+    job = one_stroke_job(np.array([200.0, 150.0]) + np.random.default_rng(1).uniform(-0.002, 0.002, (5, 2)))
+    for feeds in ("cap", "plan"):
+        text = write(job, feeds=feeds)
+        assert not [x for x in text.splitlines() if x.startswith("G1 ")]  # GRBL would drop it: no F for it
+        assert "M3 S1000" in text.splitlines()  # the pen still goes down (a dot), as planned
+
+
+def test_grbl_cuts_arcs_as_mc_arc_does():
+    from doodlecam.link.grbl.timing import GrblSettings, arc_points, estimate_gcode
+
+    # quarter circle r = 10: floor(0.5·(π/2)·10 / sqrt(0.002·(20 - 0.002))) = 39 lines, the last to the target
+    p = arc_points((10.0, 0.0), (0.0, 10.0), (0.0, 0.0), clockwise=False)
+    assert len(p) == 39 and np.allclose(p[-1], (0.0, 10.0))
+    assert np.allclose(np.hypot(p[:, 0], p[:, 1]), 10.0)
+    cw = arc_points((10.0, 0.0), (0.0, 10.0), (0.0, 0.0), clockwise=True)  # the long way round: 3/4 circle
+    assert len(cw) == 117 and np.hypot(*(cw - (0.0, -10.0)).T).min() < 0.2 and cw[:, 0].min() < -9.9
+    # a full circle when start and target meet; the estimate walks the same lines
+    assert len(arc_points((10.0, 0.0), (10.0, 0.0), (0.0, 0.0), clockwise=True)) == 157
+    s = GrblSettings((1e3,) * 3, (1000.0,) * 3, 0.01, idle_delay_ms=255)
+    lines = "\n".join(f"G1 X{x:.6f} Y{y:.6f}" for x, y in p)
+    assert estimate_gcode("G0 X10 Y0\nG3 X0 Y10 I-10 J0 F600\n", s).total == pytest.approx(
+        estimate_gcode(f"G0 X10 Y0\nG1 F600\n{lines}\n", s).total, rel=1e-6)
+
+
+def test_arcs_option_writes_arcs_within_tolerance_that_grbl_accepts(emu_factory, tmp_path):
+    from test_grbl import bounded
+
+    from doodlecam.link.grbl.streamer import send_gcode
+    from doodlecam.link.grbl.timing import arc_points
+
+    ang = np.linspace(0.0, 1.5 * np.pi, 40)
+    job = one_stroke_job(np.c_[200.0 + 20.0 * np.cos(ang), 150.0 + 20.0 * np.sin(ang)])  # a near-circle, r ≈ 20
+    spline = job.strokes[0].spline
+    # At 115200 baud chords a quarter of the tolerance apart run as fast as arcs (GRBL cuts those into
+    # 0.002 mm chords anyway): no arc pays. At 9600 baud only the coarsest chords can be fed, and they
+    # turn 8° at each junction; one arc line then runs faster.
+    assert "G3 " not in write(job, arcs=True) and "G3 " not in write(job)
+    text = write(job, arcs=True, baud=9600)
+    assert "G3 " in text and "G3 " not in write(job, baud=9600)  # only when asked
+    # the path GRBL executes: arcs cut as mc_arc cuts them, lines as they are
+    pos, path = None, []
+    for line in text.splitlines():
+        g = line.split()[0]
+        w = dict((x[0], float(x[1:])) for x in line.split()[1:]) if g in ("G0", "G1", "G2", "G3") else {}
+        if g == "G0":
+            pos = np.array([w["X"], w["Y"]])
+            path = [pos]
+        elif g in ("G2", "G3"):
+            path.extend(arc_points(pos, (w["X"], w["Y"]), pos + (w["I"], w["J"]), g == "G2"))
+            pos = np.array([w["X"], w["Y"]])
+        elif g == "G1":
+            pos = np.array([w["X"], w["Y"]])
+            path.append(pos)
+        if line == "M3 S0" and len(path) > 1:
+            break
+    path = np.array(path)
+    dense = spline(np.linspace(0.0, 1.0, 4001))
+    assert _dist_to_polyline(dense, path).max() <= 0.05 + 1e-6
+    assert _dist_to_polyline(path, dense).max() <= 0.05 + 1e-6
+    emu = emu_factory(speed=100.0)
+    job_file = tmp_path / "arcs.gcode"
+    job_file.write_text(text)
+    r = bounded(lambda: send_gcode(emu.port, job_file, state_file=None))
+    assert r["lines"] == len([x for x in text.splitlines() if not x.startswith(";")])
+    assert emu.pos[:2] == [0.0, 0.0] and any(x.startswith("G3") for x in emu.received)
