@@ -45,9 +45,14 @@ class Drawing:
     source: str = ""
     extent: tuple[float, float] | None = None  # source canvas (width, height) in units
     meta: dict[str, Any] = field(default_factory=dict)
+    # the layer (pen) of each polyline, e.g. an Inkscape or DXF layer; empty: all on one layer
+    layers: tuple[str, ...] = ()
 
     def __post_init__(self):
         object.__setattr__(self, "polylines", tuple(_frozen(p, (2,)) for p in self.polylines))
+        object.__setattr__(self, "layers", tuple(str(n) for n in self.layers))
+        if self.layers and len(self.layers) != len(self.polylines):
+            raise ValueError(f"Drawing: {len(self.layers)} layer names for {len(self.polylines)} polylines")
 
     @property
     def bounds(self) -> tuple[float, float, float, float]:

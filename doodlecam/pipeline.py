@@ -237,6 +237,7 @@ class Result:
     job: Job
     outputs: list[Path]
     timings: dict[str, float]
+    warnings: tuple[str, ...] = ()  # what the tracer could not draw, ...: one line each
 
     def summary(self) -> dict[str, Any]:
         j = self.job
@@ -264,6 +265,7 @@ class Result:
             "travel_time_by_law_s": {k: round(v, 3) for k, v in j.meta.get("travel_time_by_law", {}).items()},
             "outputs": [str(p) for p in self.outputs],
             "timings_s": {k: round(v, 3) for k, v in self.timings.items()},
+            "warnings": list(self.warnings),
         }
 
 
@@ -271,6 +273,7 @@ def convert(path: str | Path, outdir: str | Path, settings: Settings) -> Result:
     from doodlecam.trace.layout import fit_to_work_area
 
     path = Path(path)
+    check_outputs_spare_input(path, Path(outdir), settings)
     timings = {}
     t0 = time.perf_counter()
     drawing = trace(path, settings)
@@ -287,4 +290,13 @@ def convert(path: str | Path, outdir: str | Path, settings: Settings) -> Result:
     outputs = run_posts(job, settings)
     timings["post"] = time.perf_counter() - t0
     written = write_outputs(Path(outdir), path.stem, outputs)
-    return Result(job=job, outputs=written, timings=timings)
+    return Result(job=job, outputs=written, timings=timings, warnings=tuple(drawing.meta.get("warnings", ())))
+
+
+def check_outputs_spare_input(path: Path, outdir: Path, settings: Settings) -> None:
+    """Before any work: no output may be written over the input (``x.svg -o .`` with the svg post)."""
+    for name in settings.posts:
+        ext = registry.get("postprocessor", name, settings.plugin_dirs).extension
+        if (outdir / f"{path.stem}{ext}").resolve() == path.resolve():
+            raise InputError(f"{path}: the {name} post would replace the input with {path.name}; "
+                             "choose another output folder with -o")

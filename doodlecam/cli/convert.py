@@ -53,4 +53,6 @@ def convert(input, outdir, as_json, **options):
     if not enforced and s["max_between_samples_mm"] > s["max_fit_error_mm"]:
         click.echo("                     (the PLC's linear ramps; set [sampling] path_tolerance in the machine profile "
                    "to keep within it, docs/sampling.md)")
+    for w in s["warnings"]:
+        click.echo(f"  warning            {w}")
     click.echo("  wrote              " + ", ".join(s["outputs"]))

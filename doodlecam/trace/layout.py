@@ -104,5 +104,6 @@ def fit_to_work_area(drawing: Drawing, machine, options: dict[str, Any] | None =
     meta = dict(drawing.meta, scale_mm_per_unit=scale, rotation_deg=90 * turns,
                 size_mm=(cw * scale, ch * scale), dropped_short=len(drawing.polylines) - len(out))
     meta.pop("canvas", None)
+    layers = tuple(n for n, k in zip(drawing.layers, keep) if k)
     return Drawing(tuple(out), units="mm", y_down=False, source=drawing.source,
-                   extent=(machine.width, machine.height), meta=meta)
+                   extent=(machine.width, machine.height), meta=meta, layers=layers)

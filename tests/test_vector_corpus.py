@@ -1,0 +1,257 @@
+"""SVG and DXF files as design tools write them, against their exact geometry.
+
+Each file is written here with a feature design tools use (ellipses, <use> of
+<defs>, clip paths, hidden layers, arcs, entities, blocks, units, layers); the
+drawn pen-down length must be within 0.1 % of the exact length, and drawn points
+within the tracer's tolerance of the exact curve.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+from scipy.special import ellipe
+
+from doodlecam.errors import InputError
+from doodlecam.model import polyline_length
+from doodlecam.plugins.vector import VectorTracer
+
+VEC = VectorTracer()
+TOL = 0.02  # the tracer's default: mm between a curve and its polyline
+HEAD = ('<svg xmlns="http://www.w3.org/2000/svg" xmlns:xlink="http://www.w3.org/1999/xlink" '
+        'xmlns:inkscape="http://www.inkscape.org/namespaces/inkscape" width="200mm" height="100mm" viewBox="0 0 200 100">')
+
+
+def ellipse_perimeter(a: float, b: float) -> float:
+    a, b = max(a, b), min(a, b)
+    return 4 * a * ellipe(1 - (b / a) ** 2)
+
+
+def svg(tmp_path, body: str, name="t.svg", head=HEAD):
+    path = tmp_path / name
+    path.write_text(head + body + "</svg>")
+    return VEC.trace(path, {})
+
+
+def total(d) -> float:
+    return sum(polyline_length(p) for p in d.polylines)
+
+
+def assert_length(d, exact: float):
+    assert total(d) == pytest.approx(exact, rel=1e-3), (total(d), exact)
+
+
+def on_circle(p, centre, r):
+    return np.abs(np.hypot(p[:, 0] - centre[0], p[:, 1] - centre[1]) - r).max()
+
+
+def test_ellipse_rotated(tmp_path):
+    d = svg(tmp_path, '<ellipse cx="100" cy="50" rx="30" ry="10" transform="rotate(30 100 50)"/>')
+    assert len(d.polylines) == 1
+    assert_length(d, ellipse_perimeter(30, 10))
+    p = d.polylines[0]
+    c, s = math.cos(math.radians(-30)), math.sin(math.radians(-30))
+    x, y = p[:, 0] - 100, p[:, 1] - 50  # back into the ellipse's own frame
+    u, v = c * x - s * y, s * x + c * y
+    assert np.abs(np.hypot(u / 30, v / 10) - 1).max() * 10 < TOL  # every point on the ellipse
+
+
+def test_use_copies_defs_offsets_and_transforms(tmp_path):
+    d = svg(tmp_path, '<defs><circle id="dot" cx="0" cy="0" r="5"/></defs>'
+                      '<use xlink:href="#dot" x="20" y="30"/>'
+                      '<use href="#dot" transform="translate(60 40) scale(2)"/>')
+    assert len(d.polylines) == 2  # the <defs> original is never drawn
+    centres = sorted(tuple(np.round((p.min(0) + p.max(0)) / 2, 3)) for p in d.polylines)
+    assert centres == [(20.0, 30.0), (60.0, 40.0)]
+    assert_length(d, 2 * math.pi * 5 + 2 * math.pi * 10)
+
+
+def test_clip_path_clips_and_is_not_ink(tmp_path):
+    d = svg(tmp_path, '<defs><clipPath id="c"><rect x="0" y="0" width="10" height="10"/></clipPath></defs>'
+                      '<g transform="translate(50 0)"><line x1="-20" y1="5" x2="30" y2="5" clip-path="url(#c)"/></g>'
+                      '<g clip-path="url(#c)" transform="translate(100 0)"><circle cx="0" cy="0" r="5"/></g>')
+    assert_length(d, 10 + 2 * math.pi * 5 / 4)  # 10 mm of the line, the circle's quarter in the clip
+    pts = np.concatenate(d.polylines)
+    line = pts[(np.abs(pts[:, 1] - 5) < 1e-9) & (pts[:, 0] < 90)]
+    assert line[:, 0].min() == pytest.approx(50) and line[:, 0].max() == pytest.approx(60)
+
+
+def test_hidden_elements_and_layers_are_not_drawn(tmp_path):
+    d = svg(tmp_path, '<g inkscape:groupmode="layer" inkscape:label="shown"><line x1="0" y1="0" x2="10" y2="0"/></g>'
+                      '<g inkscape:groupmode="layer" inkscape:label="off" style="display:none"><line x1="0" y1="9" x2="90" y2="9"/></g>'
+                      '<line x1="0" y1="20" x2="50" y2="20" display="none"/>'
+                      '<g visibility="hidden"><line x1="0" y1="30" x2="50" y2="30"/></g>'
+                      '<line x1="0" y1="40" x2="50" y2="40" style="visibility:hidden"/>')
+    assert_length(d, 10)
+    assert d.layers == ("shown",)
+
+
+def test_elliptical_arcs_land_on_the_curve(tmp_path):
+    # a circle of radius 20 about (60, 50) as two arcs, and a quarter ellipse
+    d = svg(tmp_path, '<path d="M 40 50 A 20 20 0 0 1 80 50 A 20 20 0 0 1 40 50 Z"/>'
+                      '<path d="M 150 50 a 30 15 0 0 0 30 -15"/>')
+    circle = max(d.polylines, key=len)
+    assert on_circle(circle, (60, 50), 20) < TOL
+    assert_length(d, 2 * math.pi * 20 + ellipse_perimeter(30, 15) / 4)
+
+
+def test_internal_entities(tmp_path):
+    head = '<?xml version="1.0"?><!DOCTYPE svg [<!ENTITY r "12">]>' + HEAD
+    d = svg(tmp_path, '<circle cx="50" cy="50" r="&r;"/>', head=head)
+    assert_length(d, 2 * math.pi * 12)
+
+
+def test_external_entities_are_never_read(tmp_path):
+    secret = tmp_path / "secret.txt"
+    secret.write_text("M 0 0 L 100 100")
+    head = f'<?xml version="1.0"?><!DOCTYPE svg [<!ENTITY x SYSTEM "file://{secret}">]>' + HEAD
+    path = tmp_path / "xxe.svg"
+    path.write_text(head + '<path d="&x;"/><line x1="0" y1="0" x2="10" y2="0"/></svg>')
+    try:
+        d = VEC.trace(path, {})
+    except InputError as e:
+        assert "\n" not in str(e)
+    else:
+        assert total(d) == pytest.approx(10)  # the file's contents never became a path
+
+
+def test_design_tool_file_total_ink(tmp_path):
+    """Everything at once, as an exported drawing looks: the drawn length is the exact one."""
+    body = ('<defs><clipPath id="c"><rect x="0" y="0" width="100" height="100"/></clipPath>'
+            '<path id="leaf" d="M 0 0 C 10 -10 20 -10 30 0 C 20 10 10 10 0 0 Z"/></defs>'
+            '<g inkscape:groupmode="layer" inkscape:label="Black" clip-path="url(#c)">'
+            '<rect x="5" y="5" width="90" height="90" rx="10"/>'
+            '<line x1="-50" y1="50" x2="150" y2="50" stroke="black"/></g>'
+            '<g inkscape:groupmode="layer" inkscape:label="Red">'
+            '<ellipse cx="150" cy="50" rx="40" ry="20" stroke="red"/>'
+            '<use xlink:href="#leaf" x="135" y="50"/></g>'
+            '<g inkscape:groupmode="layer" inkscape:label="Draft" style="display:none"><circle cx="50" cy="50" r="45"/></g>'
+            '<text x="10" y="10">not drawn</text>')
+    d = svg(tmp_path, body)
+    leaf = VEC.trace(_leaf_only(tmp_path), {})
+    rounded_rect = 2 * (70 + 70) + 2 * math.pi * 10
+    exact = rounded_rect + 100 + ellipse_perimeter(40, 20) + total(leaf)
+    assert_length(d, exact)
+    assert set(d.layers) == {"Black", "Red"}
+    assert d.meta["layer_colours"]["Red"] == "#ff0000"
+    assert d.meta["warnings"] == ["not drawn: 1 text (convert it to paths)"]
+
+
+def _leaf_only(tmp_path):
+    path = tmp_path / "leaf.svg"
+    path.write_text(HEAD + '<path d="M 0 0 C 10 -10 20 -10 30 0 C 20 10 10 10 0 0 Z"/></svg>')
+    return path
+
+
+def test_bezier_length_against_fine_sampling(tmp_path):
+    d = svg(tmp_path, '<path d="M 10 80 C 40 10, 65 10, 95 80 S 150 150, 180 80"/>')
+
+    def cubic(p0, p1, p2, p3, t):
+        t = t[:, None]
+        return (1 - t) ** 3 * p0 + 3 * (1 - t) ** 2 * t * p1 + 3 * (1 - t) * t ** 2 * p2 + t ** 3 * p3
+
+    t = np.linspace(0, 1, 200_001)
+    a = cubic(*map(np.array, [(10, 80), (40, 10), (65, 10), (95, 80)]), t)
+    b = cubic(*map(np.array, [(95, 80), (125, 150), (150, 150), (180, 80)]), t)
+    exact = polyline_length(a) + polyline_length(b)
+    assert_length(d, exact)
+    ref = np.vstack([a, b])
+    for p in d.polylines[0][:: max(1, len(d.polylines[0]) // 50)]:
+        assert np.hypot(*(ref - p).T).min() < TOL
+
+
+@pytest.mark.parametrize("by, expected", [("layer", {"A", "B"}), ("colour", {"#ff0000", "#0000ff"}),
+                                          ("none", {"0"}), ("auto", {"A", "B"})])
+def test_layers_by(tmp_path, by, expected):
+    path = tmp_path / "l.svg"
+    path.write_text(HEAD + '<g inkscape:groupmode="layer" inkscape:label="A"><line x1="0" y1="0" x2="10" y2="0" stroke="red"/></g>'
+                    '<g inkscape:groupmode="layer" inkscape:label="B"><line x1="0" y1="5" x2="10" y2="5" stroke="blue"/>'
+                    '<line x1="0" y1="9" x2="10" y2="9" stroke="blue"/></g></svg>')
+    d = VEC.trace(path, {"layers": by})
+    assert set(d.layers) == expected and len(d.layers) == len(d.polylines)
+
+
+# --- DXF --------------------------------------------------------------------------------
+
+
+def dxf(tmp_path, build, units=4, name="t.dxf"):
+    import ezdxf
+
+    doc = ezdxf.new("R2010")
+    doc.header["$INSUNITS"] = units
+    build(doc, doc.modelspace())
+    path = tmp_path / name
+    doc.saveas(path)
+    return VEC.trace(path, {})
+
+
+def test_dxf_ellipses_full_and_partial(tmp_path):
+    def build(doc, msp):
+        msp.add_ellipse((50, 50), major_axis=(30, 0), ratio=0.5)  # full: a = 30, b = 15
+        msp.add_ellipse((150, 50), major_axis=(0, 20), ratio=0.5, start_param=0, end_param=math.pi / 2)
+    d = dxf(tmp_path, build)
+    assert_length(d, ellipse_perimeter(30, 15) + ellipse_perimeter(20, 10) / 4)
+
+
+def test_dxf_spline_against_its_exact_curve(tmp_path):
+    from scipy.interpolate import BSpline
+
+    ctrl = np.array([(0, 0), (20, 40), (50, -10), (80, 30), (100, 0)], float)
+    knots = np.r_[[0] * 4, 0.5, [1] * 4]
+
+    def build(doc, msp):
+        msp.add_open_spline(ctrl, degree=3, knots=knots)
+    d = dxf(tmp_path, build)
+    curve = BSpline(knots, ctrl, 3)(np.linspace(0, 1, 200_001))
+    assert_length(d, polyline_length(curve))
+    for p in d.polylines[0]:
+        assert np.hypot(*(curve - p).T).min() < TOL
+
+
+def test_dxf_blocks_bulges_layers_and_inches(tmp_path):
+    def build(doc, msp):
+        doc.layers.add("CUT")
+        blk = doc.blocks.new("HOLE")
+        blk.add_circle((0, 0), 0.25)
+        msp.add_blockref("HOLE", (1, 1), dxfattribs={"xscale": 2, "yscale": 2, "layer": "CUT"})
+        msp.add_blockref("HOLE", (3, 1), dxfattribs={"layer": "CUT"})
+        # a 1 x 0.5 slot: straight sides and two half-circle ends (bulge 1)
+        msp.add_lwpolyline([(5, 1, 0), (6, 1, 1), (6, 1.5, 0), (5, 1.5, 1)], format="xyb", close=True)
+        msp.add_text("PART 7", height=0.2)
+        msp.add_mtext("note")
+    d = dxf(tmp_path, build, units=1)  # inches
+    inch = 25.4
+    exact = (2 * math.pi * 0.5 + 2 * math.pi * 0.25 + 2 * 1 + math.pi * 0.5) * inch
+    assert_length(d, exact)
+    big = [p for p in d.polylines if on_circle(p, (inch, inch), 0.5 * inch) < TOL]
+    assert len(big) == 1  # the scaled block copy, in place
+    assert sorted(set(d.layers)) == ["0", "CUT"]
+    assert d.meta["units"] == "inches"
+    assert d.meta["warnings"] == ["not drawn: 1 MTEXT, 1 TEXT"]
+
+
+def test_cli_prints_what_is_not_drawn(tmp_path):
+    from click.testing import CliRunner
+
+    from doodlecam.cli import cli
+
+    path = tmp_path / "t.svg"
+    path.write_text(HEAD + '<circle cx="50" cy="50" r="20"/><text x="1" y="1">hi</text></svg>')
+    res = CliRunner().invoke(cli, ["convert", str(path), "-o", str(tmp_path / "out"), "--post", "svg", "--scale", "1"])
+    assert res.exit_code == 0, res.output
+    assert "not drawn: 1 text (convert it to paths)" in res.output
+
+
+def test_an_output_never_replaces_the_input(tmp_path, capsys):
+    from doodlecam.cli import main
+
+    path = tmp_path / "x.svg"
+    path.write_text(HEAD + '<circle cx="50" cy="50" r="20"/></svg>')
+    before = path.read_bytes()
+    assert main(["convert", str(path), "-o", str(tmp_path), "--post", "svg", "--scale", "1"]) == 2
+    err = capsys.readouterr().err
+    assert "would replace the input" in err and "-o" in err and err.count("\n") == 1
+    assert path.read_bytes() == before
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["x.svg"]
