@@ -14,7 +14,7 @@ from pathlib import Path
 from typing import Any
 
 from doodlecam.errors import MachineError
-from doodlecam.options import TRAVEL_ALIASES, TRAVEL_LAWS, layout_options, order_options, travel_law_name
+from doodlecam.options import LAYOUT_DEFAULTS, TRAVEL_ALIASES, TRAVEL_LAWS, layout_options, order_options, travel_law_name
 
 try:  # Python 3.11+
     import tomllib
@@ -93,7 +93,7 @@ _SCHEMA: dict[str, dict[str, tuple[type, bool]]] = {
     "sampling": {"delta_time": (float, False), "path_tolerance": (float, False)},
     "fit": {"degree": (int, False), "tolerance": (float, False)},
     # layout and order: see doodlecam/trace/layout.py and docs/tracing.md (values are checked there)
-    "layout": {k: (object, False) for k in ("margin", "rotate", "width", "height", "scale", "fit", "min_length")},
+    "layout": {k: (object, False) for k in LAYOUT_DEFAULTS},
     "order": {k: (object, False) for k in ("reverse", "merge", "budget")},
 }
 _FREE_TABLES = ("kinematics", "trace", "post", "transport")  # plugin-defined contents

@@ -38,10 +38,14 @@ def job_options(f):
                      help="Keep the pen within MM of the curve between velocity samples too (0 = off: faster "
                      "drawing, the pen may stray ~0.7 mm). Default: the profile's [sampling] path_tolerance, "
                      "else its fit tolerance."),
-        click.option("--width", type=float, metavar="MM", help="Target drawing width in mm (aspect kept). Default: fill the work area."),
-        click.option("--height", type=float, metavar="MM", help="Target drawing height in mm (aspect kept)."),
+        click.option("--width", metavar="LENGTH", help="Target drawing width (aspect kept): mm, or with a unit "
+                     "(20cm, 8in, 600px). Default: fill the work area (or the page)."),
+        click.option("--height", metavar="LENGTH", help="Target drawing height (aspect kept), as --width."),
+        click.option("--page", metavar="SIZE", help="Paper: a4, a3, letter, ... or WxH with units (210x297mm, 5x4in), "
+                     "centred on the work area; the drawing fits inside it, within the margin."),
+        click.option("--landscape/--portrait", "landscape", default=None, help="Turn the page (default: as named)."),
         click.option("--scale", type=float, metavar="MM", help="Fixed scale: mm per source unit (px, or mm: 1 = an SVG/DXF at true size)."),
-        click.option("--margin", type=float, metavar="MM", help="Margin inside the work area (default: the profile's)."),
+        click.option("--margin", metavar="LENGTH", help="Margin inside the work area or page, mm or with a unit (default: the profile's)."),
         click.option("--rotate", type=click.Choice(["0", "90", "180", "270", "auto"]),
                      help="Quarter turns counter-clockwise; auto turns the drawing when it then fits larger."),
         click.option("--fit", type=click.Choice(["canvas", "ink"]),
@@ -55,8 +59,8 @@ def job_options(f):
     return f
 
 
-def job_kwargs(machine, tracer, tracer_opt, posts, post_opt, solver, smoothing, path_tolerance, width, height, scale,
-               margin, rotate, fit, keep_direction, plugin_dirs) -> dict:
+def job_kwargs(machine, tracer, tracer_opt, posts, post_opt, solver, smoothing, path_tolerance, width, height, page,
+               landscape, scale, margin, rotate, fit, keep_direction, plugin_dirs) -> dict:
     """The shared options, parsed: keyword arguments for pipeline.Settings
     (with ``machine`` still the profile's name or path)."""
     post_opts: dict[str, dict[str, str]] = {}
@@ -76,7 +80,9 @@ def job_kwargs(machine, tracer, tracer_opt, posts, post_opt, solver, smoothing, 
         machine=machine, tracer=tracer, tracer_options=_pairs(tracer_opt, "--tracer-opt"), posts=posts,
         post_options=post_opts, solver=solver, smoothing=smoothing, path_tolerance=path_tolerance,
         plugin_dirs=tuple(plugin_dirs),
-        layout={k: v for k, v in dict(width=width, height=height, scale=scale, margin=margin, rotate=rotate, fit=fit).items()
+        layout={k: v for k, v in dict(width=width, height=height, scale=scale, margin=margin, rotate=rotate, fit=fit, page=page,
+                                      orientation=None if landscape is None else ("landscape" if landscape else "portrait")
+                                      ).items()
                 if v is not None},
         order={"reverse": False} if keep_direction else {},
     )
