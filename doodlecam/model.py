@@ -187,6 +187,7 @@ class Stroke:
     profile: Profile | None = None
     source_index: int = -1  # index of the polyline it was fitted to
     fit_error: float = 0.0  # largest deviation from that polyline, mm
+    layer: str = ""  # the drawing's layer (pen) it belongs to
 
     @property
     def duration(self) -> float:
@@ -254,6 +255,17 @@ class Job:
     @property
     def pen_down_length(self) -> float:
         return sum(s.spline.length for s in self.strokes)
+
+    @property
+    def layers(self) -> tuple[str, ...]:
+        """The layers in the order they are plotted (one pen each)."""
+        return tuple(dict.fromkeys(s.layer for s in self.strokes))
+
+    @property
+    def pen_changes(self) -> tuple[int, ...]:
+        """Indices i of the strokes before which the pen is changed: the first stroke of
+        each layer after the first (the job pauses there, pen up, for the operator)."""
+        return tuple(i for i in range(1, len(self.strokes)) if self.strokes[i].layer != self.strokes[i - 1].layer)
 
     @property
     def travel_length(self) -> float:

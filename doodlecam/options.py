@@ -28,6 +28,7 @@ class ConvertOptions:
     plugin_dirs: tuple[str, ...] = ()
     layout: dict[str, Any] = field(default_factory=dict)  # overrides the profile's [layout] (doodlecam.trace.layout)
     order: dict[str, Any] = field(default_factory=dict)  # overrides the profile's [order]
+    layer: str | None = None  # convert only this layer of the drawing
 
 
 # ---------------------------------------------------------------- layout, order and travel

@@ -255,3 +255,68 @@ def test_an_output_never_replaces_the_input(tmp_path, capsys):
     assert "would replace the input" in err and "-o" in err and err.count("\n") == 1
     assert path.read_bytes() == before
     assert sorted(p.name for p in tmp_path.iterdir()) == ["x.svg"]
+
+
+# --- layers through the job -------------------------------------------------------------
+
+THREE = (HEAD + '<g inkscape:groupmode="layer" inkscape:label="Black">'
+         '<line x1="10" y1="10" x2="90" y2="10" stroke="black"/><circle cx="50" cy="50" r="20" stroke="black"/></g>'
+         '<g inkscape:groupmode="layer" inkscape:label="Red"><rect x="100" y="10" width="40" height="30" stroke="red"/>'
+         '<line x1="10" y1="90" x2="190" y2="90" stroke="red"/></g>'
+         '<g inkscape:groupmode="layer" inkscape:label="Blue"><circle cx="150" cy="60" r="15" stroke="blue"/></g></svg>')
+
+
+def test_a_multi_layer_file_plots_layer_after_layer(tmp_path, capsys):
+    import xml.etree.ElementTree as ET
+
+    from doodlecam.cli import main
+
+    path = tmp_path / "three.svg"
+    path.write_text(THREE)
+    out = tmp_path / "out"
+    assert main(["convert", str(path), "-o", str(out), "--post", "svg", "--post", "json", "--scale", "1"]) == 0
+    text = capsys.readouterr().out
+    assert "layers             3: Black, Red, Blue (2 pen changes" in text
+    import json
+
+    plan = json.loads((out / "three.json").read_text())
+    # the strokes of each layer together, layers in the file's order
+    svg = ET.parse(out / "three.svg").getroot()
+    ns = {"s": "http://www.w3.org/2000/svg", "i": "http://www.inkscape.org/namespaces/inkscape"}
+    groups = [g for g in svg.findall("s:g", ns) if g.get("id", "").startswith("pen-down")]
+    labels = [g.get("{http://www.inkscape.org/namespaces/inkscape}label") for g in groups]
+    assert labels == ["pen down: Black", "pen down: Red", "pen down: Blue"]
+    assert [g.get("stroke") for g in groups] == ["#000000", "#ff0000", "#0000ff"]
+    assert [len(g.findall("s:path", ns)) for g in groups] == [2, 2, 1]
+    assert len(plan["strokes"]) == 5
+
+
+def test_one_layer_only_stays_in_place(tmp_path, machine):
+    from doodlecam.pipeline import Settings, convert
+
+    path = tmp_path / "three.svg"
+    path.write_text(THREE)
+    full = convert(path, tmp_path / "a", Settings(machine=machine, posts=("json",), layout={"scale": 1})).job
+    red = convert(path, tmp_path / "b", Settings(machine=machine, posts=("json",), layout={"scale": 1}, layer="Red")).job
+    assert red.layers == ("Red",) and not red.pen_changes
+    starts = {tuple(np.round(s.spline.start, 6)) for s in full.strokes if s.layer == "Red"}
+    ends = {tuple(np.round(s.spline.end, 6)) for s in full.strokes if s.layer == "Red"}
+    assert {tuple(np.round(s.spline.start, 6)) for s in red.strokes} <= starts | ends
+    with pytest.raises(InputError, match="no layer 'Green'.*'Black', 'Red', 'Blue'"):
+        convert(path, tmp_path / "c", Settings(machine=machine, posts=("json",), layout={"scale": 1}, layer="Green"))
+    assert not (tmp_path / "c").exists()
+
+
+def test_a_multi_layer_file_takes_no_longer_than_its_layers(tmp_path, machine):
+    """Planning cost: the same strokes in three layers cost about what they cost in one
+    (ordering per layer, the rest unchanged); pen changes are pauses, not motion."""
+    from doodlecam.pipeline import Settings, convert
+
+    path = tmp_path / "three.svg"
+    path.write_text(THREE)
+    layered = convert(path, tmp_path / "a", Settings(machine=machine, posts=("json",), layout={"scale": 1})).job
+    one = convert(path, tmp_path / "b", Settings(machine=machine, posts=("json",), layout={"scale": 1},
+                                                 tracer_options={"layers": "none"})).job
+    assert len(layered.strokes) == len(one.strokes) and len(layered.pen_changes) == 2 and not one.pen_changes
+    assert layered.pen_down_length == pytest.approx(one.pen_down_length, rel=1e-9)
+    assert layered.draw_time == pytest.approx(one.draw_time, rel=0.02)

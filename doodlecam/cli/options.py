@@ -50,6 +50,8 @@ def job_options(f):
                      help="Quarter turns counter-clockwise; auto turns the drawing when it then fits larger."),
         click.option("--fit", type=click.Choice(["canvas", "ink"]),
                      help="Fit the whole picture frame (canvas) or only what is drawn (ink)."),
+        click.option("--layer", metavar="NAME", help="Convert only this layer (an SVG/DXF layer or colour), "
+                     "placed where it is in the whole drawing."),
         click.option("--keep-direction", is_flag=True, default=None,
                      help="Never draw a stroke backwards (for pens that draw differently each way)."),
         PLUGIN_DIR,
@@ -60,7 +62,7 @@ def job_options(f):
 
 
 def job_kwargs(machine, tracer, tracer_opt, posts, post_opt, solver, smoothing, path_tolerance, width, height, page,
-               landscape, scale, margin, rotate, fit, keep_direction, plugin_dirs) -> dict:
+               landscape, scale, margin, rotate, fit, layer, keep_direction, plugin_dirs) -> dict:
     """The shared options, parsed: keyword arguments for pipeline.Settings
     (with ``machine`` still the profile's name or path)."""
     post_opts: dict[str, dict[str, str]] = {}
@@ -85,4 +87,5 @@ def job_kwargs(machine, tracer, tracer_opt, posts, post_opt, solver, smoothing, 
                                       ).items()
                 if v is not None},
         order={"reverse": False} if keep_direction else {},
+        layer=layer,
     )
