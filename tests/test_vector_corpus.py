@@ -12,7 +12,6 @@ import math
 
 import numpy as np
 import pytest
-from scipy.special import ellipe
 
 from doodlecam.errors import InputError
 from doodlecam.model import polyline_length
@@ -20,13 +19,7 @@ from doodlecam.plugins.vector import VectorTracer
 
 VEC = VectorTracer()
 TOL = 0.02  # the tracer's default: mm between a curve and its polyline
-HEAD = ('<svg xmlns="http://www.w3.org/2000/svg" xmlns:xlink="http://www.w3.org/1999/xlink" '
-        'xmlns:inkscape="http://www.inkscape.org/namespaces/inkscape" width="200mm" height="100mm" viewBox="0 0 200 100">')
-
-
-def ellipse_perimeter(a: float, b: float) -> float:
-    a, b = max(a, b), min(a, b)
-    return 4 * a * ellipe(1 - (b / a) ** 2)
+from svg_corpus import CORPUS, HEAD, ellipse_perimeter, write_corpus  # noqa: E402  (tests/ is on sys.path)
 
 
 def svg(tmp_path, body: str, name="t.svg", head=HEAD):
@@ -117,32 +110,19 @@ def test_external_entities_are_never_read(tmp_path):
         assert total(d) == pytest.approx(10)  # the file's contents never became a path
 
 
-def test_design_tool_file_total_ink(tmp_path):
-    """Everything at once, as an exported drawing looks: the drawn length is the exact one."""
-    body = ('<defs><clipPath id="c"><rect x="0" y="0" width="100" height="100"/></clipPath>'
-            '<path id="leaf" d="M 0 0 C 10 -10 20 -10 30 0 C 20 10 10 10 0 0 Z"/></defs>'
-            '<g inkscape:groupmode="layer" inkscape:label="Black" clip-path="url(#c)">'
-            '<rect x="5" y="5" width="90" height="90" rx="10"/>'
-            '<line x1="-50" y1="50" x2="150" y2="50" stroke="black"/></g>'
-            '<g inkscape:groupmode="layer" inkscape:label="Red">'
-            '<ellipse cx="150" cy="50" rx="40" ry="20" stroke="red"/>'
-            '<use xlink:href="#leaf" x="135" y="50"/></g>'
-            '<g inkscape:groupmode="layer" inkscape:label="Draft" style="display:none"><circle cx="50" cy="50" r="45"/></g>'
-            '<text x="10" y="10">not drawn</text>')
-    d = svg(tmp_path, body)
-    leaf = VEC.trace(_leaf_only(tmp_path), {})
-    rounded_rect = 2 * (70 + 70) + 2 * math.pi * 10
-    exact = rounded_rect + 100 + ellipse_perimeter(40, 20) + total(leaf)
-    assert_length(d, exact)
+@pytest.mark.parametrize("name", sorted(CORPUS))
+def test_corpus_pen_down_length_is_exact(tmp_path, name):
+    """Every file of the feature corpus (benchmarks/bench_vector.py measures vpype on the same)."""
+    files = write_corpus(tmp_path)
+    path = tmp_path / f"{name}.svg"
+    assert_length(VEC.trace(path, {}), files[path])
+
+
+def test_design_tool_file_layers_and_warnings(tmp_path):
+    d = VEC.trace(tmp_path / "design-tool.svg", {}) if write_corpus(tmp_path) else None
     assert set(d.layers) == {"Black", "Red"}
     assert d.meta["layer_colours"]["Red"] == "#ff0000"
     assert d.meta["warnings"] == ["not drawn: 1 text (convert it to paths)"]
-
-
-def _leaf_only(tmp_path):
-    path = tmp_path / "leaf.svg"
-    path.write_text(HEAD + '<path d="M 0 0 C 10 -10 20 -10 30 0 C 20 10 10 10 0 0 Z"/></svg>')
-    return path
 
 
 def test_bezier_length_against_fine_sampling(tmp_path):
