@@ -144,6 +144,12 @@ def check_settings(options: ConvertOptions, machine: Machine, inputs: Iterable[P
     order_options({**machine.order, **options.order})
     if outdir is not None:
         check_output_dir(outdir)
+        for path in inputs:  # `x.svg -o .` with the svg post would write over the input
+            for post in options.posts:
+                ext = registry.get("postprocessor", post, dirs).extension
+                if (Path(outdir) / f"{Path(path).stem}{ext}").resolve() == Path(path).resolve():
+                    raise InputError(f"{path}: the {post} post would replace the input with {Path(path).name}; "
+                                     "choose another output folder with -o")
     return tracers
 
 

@@ -13,7 +13,7 @@ from pathlib import Path
 from typing import Any
 
 from doodlecam.errors import MachineError, did_you_mean
-from doodlecam.options import TRAVEL_ALIASES, TRAVEL_LAWS, layout_options, order_options, travel_law_name
+from doodlecam.options import LAYOUT_DEFAULTS, ORDER_DEFAULTS, TRAVEL_ALIASES, TRAVEL_LAWS, layout_options, order_options, travel_law_name
 
 try:  # Python 3.11+
     import tomllib
@@ -92,8 +92,8 @@ _SCHEMA: dict[str, dict[str, tuple[type, bool]]] = {
     "sampling": {"delta_time": (float, False), "path_tolerance": (float, False)},
     "fit": {"degree": (int, False), "tolerance": (float, False)},
     # layout and order: see doodlecam/trace/layout.py and docs/tracing.md (values are checked there)
-    "layout": {k: (object, False) for k in ("margin", "rotate", "width", "height", "scale", "fit", "min_length")},
-    "order": {k: (object, False) for k in ("reverse", "merge", "budget", "moves")},
+    "layout": {k: (object, False) for k in LAYOUT_DEFAULTS},
+    "order": {k: (object, False) for k in ORDER_DEFAULTS},
 }
 _FREE_TABLES = ("kinematics", "trace", "post", "transport")  # plugin-defined contents
 _NON_NEGATIVE = {"work_area.margin", "pen.up_delay", "pen.down_delay", "sampling.path_tolerance"}

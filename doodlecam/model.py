@@ -45,9 +45,14 @@ class Drawing:
     source: str = ""
     extent: tuple[float, float] | None = None  # source canvas (width, height) in units
     meta: dict[str, Any] = field(default_factory=dict)
+    # the layer (pen) of each polyline, e.g. an Inkscape or DXF layer; empty: all on one layer
+    layers: tuple[str, ...] = ()
 
     def __post_init__(self):
         object.__setattr__(self, "polylines", tuple(_frozen(p, (2,)) for p in self.polylines))
+        object.__setattr__(self, "layers", tuple(str(n) for n in self.layers))
+        if self.layers and len(self.layers) != len(self.polylines):
+            raise ValueError(f"Drawing: {len(self.layers)} layer names for {len(self.polylines)} polylines")
 
     @property
     def bounds(self) -> tuple[float, float, float, float]:
@@ -182,6 +187,7 @@ class Stroke:
     profile: Profile | None = None
     source_index: int = -1  # index of the polyline it was fitted to
     fit_error: float = 0.0  # largest deviation from that polyline, mm
+    layer: str = ""  # the drawing's layer (pen) it belongs to
 
     @property
     def duration(self) -> float:
@@ -249,6 +255,17 @@ class Job:
     @property
     def pen_down_length(self) -> float:
         return sum(s.spline.length for s in self.strokes)
+
+    @property
+    def layers(self) -> tuple[str, ...]:
+        """The layers in the order they are plotted (one pen each)."""
+        return tuple(dict.fromkeys(s.layer for s in self.strokes))
+
+    @property
+    def pen_changes(self) -> tuple[int, ...]:
+        """Indices i of the strokes before which the pen is changed: the first stroke of
+        each layer after the first (the job pauses there, pen up, for the operator)."""
+        return tuple(i for i in range(1, len(self.strokes)) if self.strokes[i].layer != self.strokes[i - 1].layer)
 
     @property
     def travel_length(self) -> float:

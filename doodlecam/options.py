@@ -9,6 +9,7 @@ manifest).
 from __future__ import annotations
 
 import math
+import re
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -28,6 +29,7 @@ class ConvertOptions:
     layout: dict[str, Any] = field(default_factory=dict)  # overrides the profile's [layout] (doodlecam.trace.layout)
     order: dict[str, Any] = field(default_factory=dict)  # overrides the profile's [order]
     allow_deviation: bool = False  # write the job even when a measured figure is over its bound
+    layer: str | None = None  # convert only this layer of the drawing
 
 
 # ---------------------------------------------------------------- layout, order and travel
@@ -45,6 +47,8 @@ LAYOUT_DEFAULTS: dict[str, Any] = {
     "scale": None,  # mm per drawing unit (px or mm); excludes width/height
     "fit": "canvas",  # "canvas": the whole picture frame; "ink": only what is drawn
     "min_length": None,  # mm; shorter strokes are dropped; None = the pen width
+    "page": None,  # (width, height) mm of the paper, centred on the work area; the drawing fits inside it
+    "orientation": None,  # "landscape" / "portrait" turns the page; None: as named (ISO and US sizes: portrait)
 }
 ORDER_DEFAULTS: dict[str, Any] = {
     "reverse": True,  # strokes may be drawn backwards (false for pens that draw differently each way)
@@ -55,7 +59,58 @@ ORDER_DEFAULTS: dict[str, Any] = {
 }
 
 
-def _number(value, where: str, error, minimum: float = 0.0, strict: bool = True) -> float:
+_LENGTH = re.compile(r"\s*([-+]?(?:\d+\.?\d*|\.\d+)(?:[eE][-+]?\d+)?)\s*([a-zA-Z]*)\s*")
+
+
+def parse_length(value, where: str, error=InputError) -> float:
+    """A length in mm from a number (mm) or text with a unit: mm, cm, in, pt, pc, px (96 per inch), ...
+
+    Units are papersize's table with CSS's meaning of pt (1/72 in, TeX's "bp") and px (96 per
+    inch); no unit means mm."""
+    if isinstance(value, (int, float)) and not isinstance(value, bool):
+        return float(value)
+    m = _LENGTH.fullmatch(str(value))
+    if not m:
+        raise error(f"{where} must be a length such as 20, 20mm, 2cm or 1.5in, got {value!r}")
+    number, unit = float(m.group(1)), m.group(2).lower() or "mm"
+    if unit == "px":
+        number, unit = number * 0.75, "bp"
+    elif unit == "pt":
+        unit = "bp"  # papersize's pt is TeX's 1/72.27 in
+    import papersize
+
+    if unit not in papersize.UNITS or not unit:
+        raise error(f"{where}: unknown unit '{m.group(2)}' in {value!r}; use mm, cm, in, pt or px")
+    return float(papersize.convert_length(number, unit, "mm"))
+
+
+def parse_page(value, where: str, error=InputError) -> tuple[float, float]:
+    """(width, height) mm of a paper size: a name (a4, a3, letter, ...) or WxH with units
+    ("210x297mm", "5x4in", "20cmx10cm"; a unit on the second length only applies to both)."""
+    if isinstance(value, (tuple, list)) and len(value) == 2:
+        return parse_length(value[0], where, error), parse_length(value[1], where, error)
+    import papersize
+
+    text = str(value).strip().lower()
+    if text in papersize.SIZES:
+        text = papersize.SIZES[text]
+    parts = [t.strip() for t in re.split(r"\s*x\s*", text)]
+    if len(parts) != 2 or not all(parts):
+        names = ", ".join(n for n in ("a5", "a4", "a3", "a2", "letter", "legal", "tabloid"))
+        raise error(f"{where}: unknown page {value!r}; use a name ({names}, ...) or WxH with units, e.g. 210x297mm")
+    first, second = parts
+    unit = _LENGTH.fullmatch(second)
+    if unit and _LENGTH.fullmatch(first) and not _LENGTH.fullmatch(first).group(2):
+        first += unit.group(2)  # "5x4in": both in inches
+    w, h = parse_length(first, where, error), parse_length(second, where, error)
+    if not (w > 0 and h > 0 and math.isfinite(w) and math.isfinite(h)):
+        raise error(f"{where}: the page must have a positive size, got {value!r}")
+    return w, h
+
+
+def _number(value, where: str, error, minimum: float = 0.0, strict: bool = True, length: bool = False) -> float:
+    if length and isinstance(value, str) and _LENGTH.fullmatch(value) and _LENGTH.fullmatch(value).group(2):
+        value = parse_length(value, where, error)
     try:
         if isinstance(value, bool):
             raise ValueError
@@ -88,9 +143,16 @@ def layout_options(raw: dict[str, Any] | None, where: str = "layout", error: typ
                 raise error(f"{w} must be one of {', '.join(FITS)}, got {value!r}")
             out[key] = v
         elif key in ("margin", "min_length"):
-            out[key] = _number(value, w, error, strict=False)
+            out[key] = _number(value, w, error, strict=False, length=True)
+        elif key == "page":
+            out[key] = parse_page(value, w, error)
+        elif key == "orientation":
+            v = str(value).strip().lower()
+            if v not in ("landscape", "portrait"):
+                raise error(f"{w} must be landscape or portrait, got {value!r}")
+            out[key] = v
         else:
-            out[key] = _number(value, w, error)
+            out[key] = _number(value, w, error, length=key in ("width", "height"))
     if out["scale"] is not None and (out["width"] is not None or out["height"] is not None):
         raise error(f"{where}: give a scale or a target width/height, not both")
     return out

@@ -19,6 +19,7 @@ from doodlecam import checks, registry
 from doodlecam.atomic import replace_all
 from doodlecam.errors import (
     DoodleError,
+    InputError,
     OutputError,
     PlanError,
     PluginError,
@@ -104,15 +105,21 @@ def plan_job(drawing: Drawing, machine: Machine, solver: str = "reach", plugin_d
 
     t0 = time.perf_counter()
     oo = order_options({**machine.order, **(order or {})})
-    ordered = order_strokes(drawing.polylines, machine.home, allow_reverse=oo["reverse"],
-                            merge=oo["merge"], budget=oo["budget"], moves=oo["moves"])
+    # One layer after another (a pen each, in the drawing's order); strokes ordered within it.
+    names = drawing.layers or ("",) * len(drawing.polylines)
+    ordered = []  # (source index, polyline, layer)
+    for layer in dict.fromkeys(names):
+        mine = [i for i, n in enumerate(names) if n == layer]
+        o = order_strokes([drawing.polylines[i] for i in mine], machine.home, allow_reverse=oo["reverse"],
+                          merge=oo["merge"], budget=oo["budget"], moves=oo["moves"])
+        ordered += [(mine[k], p, layer) for k, p in zip(o.source, o.polylines)]
     timings["order"] = time.perf_counter() - t0
 
     t0 = time.perf_counter()
     strokes = []
-    for i, p in zip(ordered.source, ordered.polylines):
+    for i, p, layer in ordered:
         for spline, err in fit_pieces(p, machine.degree, machine.tolerance):
-            strokes.append(Stroke(spline=spline, source_index=i, fit_error=err))
+            strokes.append(Stroke(spline=spline, source_index=i, fit_error=err, layer=layer))
     timings["fit"] = time.perf_counter() - t0
 
     # Between sample instants the PLC's ramps stray from the curve where its turning
@@ -218,6 +225,7 @@ def plan_job(drawing: Drawing, machine: Machine, solver: str = "reach", plugin_d
         "strokes_slowed_for_ramps": sum(1 for c in scale if min(c) < 1.0),
         "worst_ramp_ratio": max(ramps, default=0.0) if nonlinear else None,
         "control_points": sum(len(s.spline.control) for s in planned),
+        "layer_colours": dict(drawing.meta.get("layer_colours", {})),
         "timings": timings,
     }
     return Job(machine=machine, strokes=tuple(planned), travels=travels, samples=samples,
@@ -279,7 +287,7 @@ def over_bounds(job: Job) -> list[str]:
 
 def warnings_for(job: Job, drawing_meta: dict[str, Any]) -> list[str]:
     """What the user should know about a finished job, one sentence each."""
-    out = []
+    out = list(drawing_meta.get("warnings", ()))  # the tracer's: what it could not draw
     if job.duration > LONG_JOB_S:
         out.append(f"the job takes {job.duration / 3600:.1f} hours ({job.duration / 60:.0f} min); check the tracer "
                    "options (a noisy picture traces to many strokes) or draw it smaller")
@@ -334,6 +342,8 @@ class Result:
             "travel_time_by_law_s": {k: round(v, 3) for k, v in j.meta.get("travel_time_by_law", {}).items()},
             "outputs": [str(p) for p in self.outputs],
             "timings_s": {k: round(v, 3) for k, v in self.timings.items()},
+            "layers": [n for n in j.layers if n] or [],
+            "pen_changes": len(j.pen_changes),
         }
 
 
@@ -348,7 +358,7 @@ def convert(path: str | Path, outdir: str | Path, settings: Settings) -> Result:
     t0 = time.perf_counter()
     drawing = trace(path, settings)
     timings["trace"] = time.perf_counter() - t0
-    drawing_mm = fit_to_work_area(drawing, settings.machine, settings.layout)
+    drawing_mm = select_layer(fit_to_work_area(drawing, settings.machine, settings.layout), settings.layer)
     machine = settings.machine
     if settings.path_tolerance is not None:
         machine = replace(machine, path_tolerance=float(settings.path_tolerance))
@@ -367,3 +377,17 @@ def convert(path: str | Path, outdir: str | Path, settings: Settings) -> Result:
     written = write_outputs(Path(outdir), path.stem, outputs)
     meta = dict(drawing_mm.meta, units_in=drawing.units, strokes_traced=len(drawing.polylines))
     return Result(job=job, outputs=written, timings=timings, drawing_meta=meta)
+
+
+def select_layer(drawing: Drawing, layer: str | None) -> Drawing:
+    """Only the strokes of one layer (placed where they are in the whole drawing, so
+    jobs made one layer at a time line up on the paper)."""
+    if layer is None:
+        return drawing
+    names = drawing.layers or ("",) * len(drawing.polylines)
+    if layer not in names:
+        known = ", ".join(repr(n) for n in dict.fromkeys(names) if n) or "none (the drawing has one layer)"
+        raise InputError(f"{drawing.source}: no layer {layer!r}; the layers are {known}")
+    keep = [i for i, n in enumerate(names) if n == layer]
+    return replace(drawing, polylines=tuple(drawing.polylines[i] for i in keep), layers=tuple(names[i] for i in keep))
+

@@ -47,6 +47,8 @@ class VectorTracer(Tracer):
     extensions = (".svg", ".dxf") + MESH_EXTENSIONS
     options = (
         Option("tolerance", float, 0.02, "largest distance in mm between a curve and the polyline drawn for it"),
+        Option("layers", str, "auto", "SVG/DXF: strokes' layers by 'layer' (Inkscape/DXF layers), 'colour' (SVG stroke "
+               "colour), 'group' (SVG top-level groups), 'none', or 'auto' (layers, else colours)"),
         Option("mesh", str, "section", "meshes: 'section' (cut by a plane) or 'silhouette' (outline seen along a direction)"),
         Option("plane", str, "z=50%", "section plane: AXIS=POS with AXIS x, y, z or a normal 'a,b,c' and POS in mm or % of the extent"),
         Option("direction", str, "z", "silhouette view direction: x, y, z or 'a,b,c' (seen looking down it)"),
@@ -55,6 +57,9 @@ class VectorTracer(Tracer):
     def trace(self, path: Path, options: dict[str, Any]) -> Drawing:
         """Polylines in mm, y up (SVG: y down, as the file has it)."""
         opt = self.resolve_options(options)
+        opt["layers"] = str(opt["layers"]).strip().lower()
+        if opt["layers"] not in ("auto", "layer", "colour", "color", "group", "none"):
+            raise PluginError(f"tracer 'vector': layers must be auto, layer, colour, group or none, got {opt['layers']!r}")
         if not opt["tolerance"] > 0:
             raise PluginError(f"tracer 'vector': tolerance must be > 0 mm, got {opt['tolerance']:g}")
         path = Path(path)
@@ -78,45 +83,6 @@ class VectorTracer(Tracer):
 
 # ---------------------------------------------------------------- 2-D drawings
 
-def _load_path(path: Path, what: str, data: bytes | None = None):
-    import io
-    import logging
-
-    import trimesh
-
-    logging.getLogger("trimesh").setLevel(logging.ERROR)  # we report what was skipped ourselves
-    try:
-        if data is None:
-            loaded = trimesh.load_path(str(path))
-        else:
-            loaded = trimesh.load_path(io.BytesIO(data), file_type=path.suffix.lower().lstrip("."))
-    except Exception as e:  # parsers raise anything: XML, struct, KeyError, ...
-        msg = " ".join(str(e).split())[:100] or type(e).__name__
-        raise InputError(f"{path}: not a readable {what} file ({msg}); re-export it") from None
-    return loaded
-
-
-def _entity_polylines(p, tol_units: float) -> list[np.ndarray]:
-    """Every entity of a trimesh Path2D as a polyline in file units."""
-    from doodlecam.plugins.edges import simplify
-
-    if p is None or not len(getattr(p, "entities", ())):
-        return []
-    scale = max(float(p.scale), 1e-9)
-    out = []
-    for e in p.entities:
-        if type(e).__name__ == "Text":  # trimesh keeps DXF text as a label, not as strokes
-            continue
-        try:
-            d = np.asarray(e.discrete(p.vertices, scale=scale), float)
-        except Exception:  # a degenerate arc or curve: skip it, the rest still draws
-            continue
-        if d.ndim == 2 and len(d) >= 2 and np.isfinite(d).all():
-            out.append(d[:, :2])
-    # Curves come in at trimesh's fixed resolution: keep only what the tolerance needs.
-    return simplify(out, tol_units / 2) if out else []
-
-
 def _join(polylines: list[np.ndarray], tol: float) -> list[np.ndarray]:
     """Pieces meeting end to end become one stroke; a stroke ending at its start is closed exactly."""
     from doodlecam.geometry.order import merge_ends
@@ -130,148 +96,299 @@ def _join(polylines: list[np.ndarray], tol: float) -> list[np.ndarray]:
     return out
 
 
-def _svg_units(path: Path) -> tuple[float, tuple[float, float, float, float] | None, bytes]:
-    """(mm per user unit, viewBox (x0, y0, x1, y1) in user units, the SVG with defaults filled in)."""
-    from lxml import etree
+def _curve_points(seg, tol: float) -> np.ndarray:
+    """Points along one curved segment (Bézier or elliptical arc) whose chords stay within
+    ``tol`` of it, end points included.
 
+    The chord over a parameter step dt sags by at most max|P''| dt² / 8; max|P''| is
+    estimated from 64 samples, and the midpoints of the chords are then checked against
+    the curve itself, doubling the count until every chord is within tolerance.
+    """
+    t = np.linspace(0.0, 1.0, 65)
+    p = np.asarray(seg.npoint(t), float)
+    d2 = float(np.abs(p[2:] - 2 * p[1:-1] + p[:-2]).max()) * 64**2
+    n = max(1, int(np.ceil(1.2 * np.sqrt(d2 / (8 * tol)))))
+    for _ in range(8):
+        n = min(n, 200_000)
+        t = np.linspace(0.0, 1.0, n + 1)
+        p = np.asarray(seg.npoint(t), float)
+        mid = np.asarray(seg.npoint((t[:-1] + t[1:]) / 2), float)
+        if n == 200_000 or np.hypot(*(mid - (p[:-1] + p[1:]) / 2).T).max() <= tol:
+            return p
+        n *= 2
+    return p
+
+
+def _path_polylines(path, tol: float) -> list[np.ndarray]:
+    """An svgelements Path (transform applied) as polylines, one per subpath, in its units."""
+    import svgelements as se
+
+    out: list[np.ndarray] = []
+    for sub in path.as_subpaths():
+        pts: list[np.ndarray] = []
+        for seg in sub:
+            if isinstance(seg, se.Move):
+                if pts and len(pts) > 1:
+                    out.append(np.vstack(pts))
+                pts = [np.array([[seg.end.x, seg.end.y]], float)]
+                continue
+            if seg.start is None or seg.end is None:
+                continue
+            if isinstance(seg, (se.Line, se.Close)):
+                q = np.array([[seg.start.x, seg.start.y], [seg.end.x, seg.end.y]], float)
+            else:
+                q = _curve_points(seg, tol)
+            if not pts:
+                pts = [q[:1]]
+            pts.append(q[1:])
+        if len(pts) > 1:
+            poly = np.vstack(pts)
+            keep = np.r_[True, np.any(np.diff(poly, axis=0) != 0, axis=1)]  # no zero-length steps
+            if keep.sum() >= 2:
+                out.append(poly[keep])
+    return [q for q in out if np.isfinite(q).all()]
+
+
+def _mm_per_px(svg) -> float:
+    """Millimetres per unit of svgelements' output (CSS px at 96 per inch).
+
+    svgelements converts mm and cm with 0.0393701 in/mm (1.3e-6 off); where the root's
+    width or height is in mm or cm, the exact factor is taken from that length instead."""
+    for key, size in (("width", svg.width), ("height", svg.height)):
+        m = re.fullmatch(r"\s*([-+]?(?:\d+\.?\d*|\.\d+)(?:[eE][-+]?\d+)?)\s*(mm|cm)\s*", str(svg.values.get(key, "")))
+        if m and size:
+            return float(m.group(1)) * _UNIT_MM[m.group(2)] / float(size)
+    return _UNIT_MM["px"]
+
+
+_NOT_DRAWN_SVG = {"text": "text (convert it to paths)", "image": "raster image", "linearGradient": "gradient",
+                  "radialGradient": "gradient", "pattern": "pattern fill", "mask": "mask"}
+
+
+def _svg_scan(path: Path) -> dict[str, int]:
+    """Read the file once with the standard library's XML parser (internal entities are
+    expanded, external ones never fetched): the root must be <svg>; counts elements that a
+    pen cannot draw, for the warning line."""
+    import xml.etree.ElementTree as ET
+
+    counts: dict[str, int] = {}
     try:
-        root = etree.parse(str(path), etree.XMLParser(resolve_entities=False, no_network=True, huge_tree=False)).getroot()
-    except Exception as e:
-        msg = " ".join(str(e).split())[:100] or type(e).__name__
+        for i, (_, el) in enumerate(ET.iterparse(str(path), events=("start",))):
+            tag = str(el.tag).rpartition("}")[2]
+            if i == 0 and tag != "svg":
+                raise InputError(f"{path}: the root element is <{tag}>, not <svg>; give an SVG file")
+            what = _NOT_DRAWN_SVG.get(tag)
+            if what:
+                counts[what] = counts.get(what, 0) + 1
+    except ET.ParseError as e:
+        msg = " ".join(str(e).split())[:100]
         raise InputError(f"{path}: not a readable SVG file ({msg}); re-export it") from None
-    if not str(root.tag).endswith("svg"):
-        raise InputError(f"{path}: the root element is <{etree.QName(root).localname}>, not <svg>; give an SVG file")
-
-    def length(text):
-        if text is None:
-            return None
-        m = re.fullmatch(r"\s*([-+]?(?:\d+\.?\d*|\.\d+)(?:[eE][-+]?\d+)?)\s*([a-zA-Z%]*)\s*", text)
-        if not m or m.group(2).lower() not in _UNIT_MM:
-            return None  # percentages and unknown units: fall back to the viewBox
-        return float(m.group(1)) * _UNIT_MM[m.group(2).lower()]
-
-    # SVG's defaults that trimesh's reader expects written out (a circle's cx, cy are 0, ...).
-    for el in root.iter():
-        tag = etree.QName(el).localname if isinstance(el.tag, str) else ""
-        for attr in {"circle": ("cx", "cy"), "ellipse": ("cx", "cy"), "rect": ("x", "y"),
-                     "line": ("x1", "y1", "x2", "y2")}.get(tag, ()):
-            if el.get(attr) is None:
-                el.set(attr, "0")
-        if tag == "rect" and (el.get("rx") or el.get("ry")):
-            _round_rect(el)
-    data = etree.tostring(root)
-    w_mm, h_mm = length(root.get("width")), length(root.get("height"))
-    box = None
-    vb = root.get("viewBox")
-    if vb:
-        try:
-            x0, y0, bw, bh = (float(v) for v in re.split(r"[\s,]+", vb.strip()))
-            if bw > 0 and bh > 0:
-                box = (x0, y0, x0 + bw, y0 + bh)
-        except ValueError:
-            box = None
-    if box is None:
-        per = _UNIT_MM["px"]
-        if w_mm and h_mm:
-            box = (0.0, 0.0, w_mm / per, h_mm / per)
-        return per, box, data
-    bw, bh = box[2] - box[0], box[3] - box[1]
-    if w_mm and h_mm:
-        return min(w_mm / bw, h_mm / bh), box, data  # preserveAspectRatio's default "meet"
-    if w_mm:
-        return w_mm / bw, box, data
-    if h_mm:
-        return h_mm / bh, box, data
-    return _UNIT_MM["px"], box, data
+    return counts
 
 
-def _round_rect(el) -> None:
-    """A rectangle with rounded corners as the equivalent path (trimesh draws square corners)."""
-    def num(name, default=0.0):
-        m = re.match(r"\s*([-+]?(?:\d+\.?\d*|\.\d+)(?:[eE][-+]?\d+)?)", el.get(name) or "")
-        return float(m.group(1)) if m else default
+def _colour(shape) -> str:
+    for c in (shape.stroke, shape.fill):
+        if c is not None and getattr(c, "value", None) is not None:
+            return c.hexrgb
+    return "#000000"
 
-    x, y, w, h = num("x"), num("y"), num("width"), num("height")
-    rx = num("rx", -1.0)
-    ry = num("ry", -1.0)
-    rx, ry = (ry if rx < 0 else rx), (rx if ry < 0 else ry)
-    rx, ry = min(max(rx, 0.0), w / 2), min(max(ry, 0.0), h / 2)
-    if w <= 0 or h <= 0:
-        return
-    el.tag = el.tag.replace("rect", "path")
-    for name in ("x", "y", "width", "height", "rx", "ry"):
-        el.attrib.pop(name, None)
-    arc = f"A {rx:g} {ry:g} 0 0 1"
-    el.set("d", f"M {x + rx:g} {y:g} H {x + w - rx:g} {arc} {x + w:g} {y + ry:g} V {y + h - ry:g} "
-                f"{arc} {x + w - rx:g} {y + h:g} H {x + rx:g} {arc} {x:g} {y + h - ry:g} V {y + ry:g} "
-                f"{arc} {x + rx:g} {y:g} Z")
+
+def _clip_region(node, tol: float):
+    """The region (shapely) that ``node``'s clip-path lets through, in final coordinates.
+
+    The clip path's shapes come reified in the coordinates where <clipPath> was defined;
+    clipPathUnits="userSpaceOnUse" puts them in the user space of the element that uses
+    them, so they are mapped from the one to the other."""
+    import svgelements as se
+    from shapely.affinity import affine_transform
+    from shapely.geometry import Polygon
+    from shapely.ops import unary_union
+
+    clip = getattr(node, "clip_path", None)
+    if clip is None:
+        return None
+    # svgelements' a * b applies a, then b: undo the clip's own placement, then the user's
+    m = ~se.Matrix(clip.values.get("transform", "")) * se.Matrix(node.values.get("transform", ""))
+    rings = []
+    for shape in clip:
+        if isinstance(shape, se.Shape):
+            path = se.Path(shape)
+            path.reify()
+            rings += [Polygon(q).buffer(0) for q in _path_polylines(path, tol) if len(q) >= 3]
+    region = unary_union(rings) if rings else Polygon()
+    # svgelements' Matrix(a, b, c, d, e, f) maps (x, y) to (a x + c y + e, b x + d y + f)
+    return affine_transform(region, [m.a, m.c, m.b, m.d, m.e, m.f])
+
+
+def _clipped(polys: list[np.ndarray], region) -> list[np.ndarray]:
+    from shapely.geometry import LineString
+
+    out = []
+    for q in polys:
+        inside = LineString(q).intersection(region)
+        for g in getattr(inside, "geoms", [inside]):
+            if g.geom_type == "LineString" and not g.is_empty and g.length > 0:
+                out.append(np.asarray(g.coords, float))
+    return out
+
+
+_INKSCAPE = "{http://www.inkscape.org/namespaces/inkscape}"
+
+
+def _svg_shapes(svg, tol: float):
+    """(polylines, layer name, colour) of every visible shape, clip paths applied."""
+    import svgelements as se
+
+    found = []  # (polylines, inkscape layer, top group, colour)
+
+    def walk(node, layer, group, regions):
+        for child in node:
+            if isinstance(child, se.ClipPath):
+                continue
+            region = _clip_region(child, tol)
+            here = regions + [region] if region is not None else regions
+            if isinstance(child, (se.Group, se.Use)):
+                lay = layer
+                if layer is None and child.values.get(_INKSCAPE + "groupmode") == "layer":
+                    lay = child.values.get(_INKSCAPE + "label") or child.values.get("id") or "layer"
+                walk(child, lay, group if group is not None else f"group {len(found) + 1}", here)
+            elif isinstance(child, se.Shape) and not isinstance(child, se.Text):
+                if child.values.get("visibility") in ("hidden", "collapse"):
+                    continue
+                path = se.Path(child)
+                path.reify()
+                polys = _path_polylines(path, tol)
+                for r in here:
+                    polys = _clipped(polys, r)
+                if polys:
+                    found.append((polys, layer, group, _colour(child)))
+
+    walk(svg, None, None, [])
+    return found
+
+
+def _layer_names(found, by: str) -> list[str]:
+    if by == "auto":
+        if any(layer is not None for _, layer, _, _ in found):
+            by = "layer"
+        elif len({c for *_, c in found}) > 1:
+            by = "colour"
+        else:
+            by = "none"
+    if by == "layer":
+        return [layer or "0" for _, layer, _, _ in found]
+    if by in ("colour", "color"):
+        return [c for *_, c in found]
+    if by == "group":
+        return [g or "0" for _, _, g, _ in found]
+    return ["0"] * len(found)
 
 
 def _svg(path: Path, opt) -> Drawing:
-    mm, box, data = _svg_units(path)
-    p = _load_path(path, "SVG", data)
-    polys = _entity_polylines(p, opt["tolerance"] / mm)
-    if not polys:
+    import svgelements as se
+
+    not_drawn = _svg_scan(path)
+    try:
+        svg = se.SVG.parse(str(path), reify=True, ppi=96.0)
+    except Exception as e:  # the parser raises anything on a malformed file
+        msg = " ".join(str(e).split())[:100] or type(e).__name__
+        raise InputError(f"{path}: not a readable SVG file ({msg}); re-export it") from None
+    mm = _mm_per_px(svg)
+    vb = se.Matrix(getattr(svg, "viewbox_transform", "") or "")
+    mm_per_unit = float(np.sqrt(abs(vb.a * vb.d - vb.b * vb.c))) * mm
+    found = _svg_shapes(svg, opt["tolerance"] / mm)
+    if not found:
         raise InputError(f"{path}: no shapes to draw (no paths, lines, rectangles, circles, ...; text must be "
                          "converted to paths first)")
-    polys = [q * mm for q in polys]
-    polys = _join(polys, 1e-6 * max(1.0, _span(polys)))
-    meta = {"tracer": "vector", "format": "svg", "mm_per_user_unit": mm, "polylines": len(polys)}
-    if box is not None:
-        meta["canvas"] = tuple(v * mm for v in box)
-    return Drawing(tuple(polys), units="mm", y_down=True, source=str(path), meta=meta)
-
-
-def _dxf_entity_types(path: Path) -> tuple[dict[str, int], int | None]:
-    """(entity types in the ENTITIES section counted, the $INSUNITS code) of an ASCII DXF."""
-    counts: dict[str, int] = {}
-    units = None
-    try:
-        lines = path.read_text(errors="replace").splitlines()
-    except OSError:
-        return counts, units
-    inside = False
-    pairs = list(zip(lines[0::2], lines[1::2]))
-    for k, (code, value) in enumerate(pairs):
-        code, value = code.strip(), value.strip()
-        if code == "9" and value == "$INSUNITS" and k + 1 < len(pairs):
-            try:
-                units = int(pairs[k + 1][1].strip())
-            except ValueError:
-                units = None
-        if code == "2" and value == "ENTITIES":
-            inside = True
-        elif inside and code == "0":
-            if value == "ENDSEC":
-                break
-            counts[value] = counts.get(value, 0) + 1
-    return counts, units
+    names = _layer_names(found, opt["layers"])
+    polys, layers, colours = [], [], {}
+    for name in dict.fromkeys(names):  # join pieces within a layer, in the file's order of layers
+        mine = [q * mm for (qs, *_), n in zip(found, names) if n == name for q in qs]
+        joined = _join(mine, 1e-6 * max(1.0, _span(mine)))
+        polys += joined
+        layers += [name] * len(joined)
+        colours[name] = next(c for (*_, c), n in zip(found, names) if n == name)
+    meta = {"tracer": "vector", "format": "svg", "mm_per_user_unit": mm_per_unit, "polylines": len(polys),
+            "layer_colours": colours, "not_drawn": not_drawn}
+    if svg.width and svg.height:
+        meta["canvas"] = (0.0, 0.0, float(svg.width) * mm, float(svg.height) * mm)
+    if not_drawn:
+        meta["warnings"] = ["not drawn: " + ", ".join(f"{n} {k}{'s' if n > 1 else ''}" for k, n in not_drawn.items())]
+    return Drawing(tuple(polys), units="mm", y_down=True, source=str(path), meta=meta, layers=tuple(layers))
 
 
 _DXF_UNITS = {1: "inches", 2: "feet", 3: "miles", 4: "millimeters", 5: "centimeters", 6: "meters", 7: "kilometers",
               8: "microinches", 9: "mils", 10: "yards", 13: "microns", 14: "decimeters"}
-_DXF_DRAWN = {"LINE", "ARC", "CIRCLE", "LWPOLYLINE", "POLYLINE", "VERTEX", "SEQEND", "SPLINE", "ELLIPSE", "BSPLINE"}
+_DXF_DRAWN = {"LINE", "ARC", "CIRCLE", "ELLIPSE", "LWPOLYLINE", "POLYLINE", "SPLINE"}
+_DXF_QUIET = {"ATTDEF", "SEQEND", "VERTEX"}  # parts of other entities, or block definitions' fields
+
+
+def _dxf_entities(entities, skipped: dict[str, int], layer: str | None = None, depth: int = 0):
+    """(entity, layer) for every entity, blocks (INSERT) expanded into their transformed
+    contents; a block's entities on layer "0" take the INSERT's layer (DXF's rule). An
+    entity that fails to expand is counted in ``skipped``, the rest still draws."""
+    for e in entities:
+        own = e.dxf.get("layer", "0")
+        here = layer if (own == "0" and layer is not None) else own
+        if e.dxftype() == "INSERT" and depth < 16:
+            try:
+                parts = list(e.virtual_entities())
+            except Exception:
+                skipped["INSERT"] = skipped.get("INSERT", 0) + 1
+                continue
+            yield from _dxf_entities(parts, skipped, here, depth + 1)
+        else:
+            yield e, here
 
 
 def _dxf(path: Path, opt) -> Drawing:
-    import trimesh
+    import logging
 
-    types, code = _dxf_entity_types(path)
-    skipped = {k: v for k, v in types.items() if k not in _DXF_DRAWN}
-    p = _load_path(path, "DXF")
-    # $INSUNITS only: trimesh also reads $LUNITS, which is a number format, not a unit.
-    unit = _DXF_UNITS.get(code or 0)
-    mm = trimesh.units.unit_conversion(unit, "millimeters") if unit else 1.0
-    polys = _entity_polylines(p, opt["tolerance"] / mm)
-    if not polys:
+    from ezdxf import recover, units
+    from ezdxf import path as dxfpath
+
+    logging.getLogger("ezdxf").setLevel(logging.ERROR)  # we report what was skipped ourselves
+    try:
+        doc, _auditor = recover.readfile(str(path))
+    except Exception as e:  # the loader raises anything on a malformed entity
+        msg = " ".join(str(e).split())[:100] or type(e).__name__
+        raise InputError(f"{path}: not a readable DXF file ({msg}); re-export it") from None
+    code = int(doc.header.get("$INSUNITS", 0) or 0)
+    unit = _DXF_UNITS.get(code)
+    mm = units.conversion_factor(code, units.MM) if code else 1.0
+    tol = opt["tolerance"] / mm
+    skipped: dict[str, int] = {}
+    by_layer: dict[str, list[np.ndarray]] = {}
+    for e, layer in _dxf_entities(doc.modelspace(), skipped):
+        kind = e.dxftype()
+        if kind not in _DXF_DRAWN:
+            if kind not in _DXF_QUIET:
+                skipped[kind] = skipped.get(kind, 0) + 1
+            continue
+        try:
+            pts = np.array([(v.x, v.y) for v in dxfpath.make_path(e).flattening(distance=tol)], float)
+        except Exception:  # a degenerate or 3-D-only entity (mesh polyline, ...): counted, the rest draws
+            skipped[kind] = skipped.get(kind, 0) + 1
+            continue
+        if len(pts) >= 2 and np.isfinite(pts).all():
+            by_layer.setdefault(layer, []).append(pts * mm)
+    if not by_layer:
         found = ", ".join(sorted(skipped)) or "nothing"
-        raise InputError(f"{path}: no lines, arcs, circles, polylines or splines to draw (found {found}); "
-                         "explode blocks and convert text to polylines in your CAD program")
-    polys = [q * mm for q in polys]
-    polys = _join(polys, 1e-6 * max(1.0, _span(polys)))
-    return Drawing(tuple(polys), units="mm", y_down=False, source=str(path),
-                   meta={"tracer": "vector", "format": "dxf", "units": unit or "millimeters (assumed)",
-                         "skipped_entities": skipped, "polylines": len(polys)})
+        raise InputError(f"{path}: no lines, arcs, circles, ellipses, polylines or splines to draw (found {found}); "
+                         "convert text to polylines in your CAD program")
+    span = _span([q for qs in by_layer.values() for q in qs])
+    polys, layers = [], []
+    for name, mine in by_layer.items():
+        joined = _join(mine, 1e-6 * max(1.0, span))
+        polys += joined
+        layers += [name] * len(joined)
+    if opt["layers"] == "none":
+        layers = ["0"] * len(polys)
+    meta = {"tracer": "vector", "format": "dxf", "units": unit or "millimeters (assumed)",
+            "skipped_entities": skipped, "polylines": len(polys)}
+    if skipped:
+        meta["warnings"] = ["not drawn: " + ", ".join(f"{n} {k}" for k, n in sorted(skipped.items()))]
+    return Drawing(tuple(polys), units="mm", y_down=False, source=str(path), meta=meta, layers=tuple(layers))
 
 
 def _span(polys: list[np.ndarray]) -> float:

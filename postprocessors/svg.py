@@ -56,6 +56,21 @@ class SvgPost(PostProcessor):
         xy = " ".join(f"{x:.3f} {y:.3f}" for x, y in np.round(ctrl * flip[0] + flip[1], 3).tolist())
         return f"M{head[0]:.3f} {head[1]:.3f}C{xy}"
 
+    def _pen_layers(self, job, strokes: list[str], width: float) -> list[str]:
+        """The pen-down strokes: one Inkscape layer per pen layer of the job, in its colour."""
+        names = job.layers or ("",)
+        colours = job.meta.get("layer_colours", {})
+        out = []
+        for k, name in enumerate(names):
+            ident = "pen-down" if len(names) == 1 else f"pen-down-{k + 1}"
+            label = "pen down" + (f": {name}" if name else "")
+            out += [f'<g id="{ident}" inkscape:groupmode="layer" inkscape:label={quoteattr(label)} fill="none" '
+                    f'stroke={quoteattr(colours.get(name, "#000"))} stroke-width="{width:g}" stroke-linecap="round" '
+                    'stroke-linejoin="round">',
+                    *(f'<path d="{d}"/>' for d, s in zip(strokes, job.strokes) if s.layer == name),
+                    "</g>"]
+        return out
+
     def write(self, job, options: dict[str, Any]) -> bytes:
         step = float(options["step"])
         if not step > 0 or options["pen_width"] < 0:
@@ -82,10 +97,7 @@ class SvgPost(PostProcessor):
             f'<rect id="work-area" x="0" y="0" width="{W:g}" height="{H:g}" fill="none" stroke="#888" stroke-width="0.3"/>',
             f'<rect id="margin" x="{m.margin:g}" y="{m.margin:g}" width="{W - 2 * m.margin:g}" height="{H - 2 * m.margin:g}" '
             'fill="none" stroke="#ccc" stroke-width="0.2" stroke-dasharray="2 2"/>',
-            f'<g id="pen-down" inkscape:groupmode="layer" inkscape:label="pen down" fill="none" stroke="#000" '
-            f'stroke-width="{width:g}" stroke-linecap="round" stroke-linejoin="round">',
-            *(f'<path d="{d}"/>' for d in strokes),
-            "</g>",
+            *self._pen_layers(job, strokes, width),
             f'<g id="pen-up" inkscape:groupmode="layer" inkscape:label="pen up" fill="none" stroke={quoteattr(options["travel_color"])} '
             f'stroke-width="{thin:g}" stroke-dasharray="{3 * thin:g} {2 * thin:g}">',
             *(f'<path d="{d}"/>' for d in travels),

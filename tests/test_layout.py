@@ -131,3 +131,61 @@ def test_profile_tables():
     assert hi - lo == pytest.approx([150, 75])  # the profile's width
     lo, hi = bounds(fit_to_work_area(d, m, {"width": 100}))
     assert hi - lo == pytest.approx([100, 50])  # the CLI wins
+
+
+# --- units and paper ----------------------------------------------------------------------
+
+def test_lengths_take_units():
+    from doodlecam.options import parse_length
+
+    assert parse_length("20cm", "w") == pytest.approx(200)
+    assert parse_length("2in", "w") == pytest.approx(50.8)
+    assert parse_length("96px", "w") == pytest.approx(25.4)
+    assert parse_length("72pt", "w") == pytest.approx(25.4)
+    assert parse_length("12", "w") == 12 and parse_length(7.5, "w") == 7.5
+    for bad in ("20 furlongs", "abc", "1e", "cm"):
+        with pytest.raises(InputError, match="w"):
+            parse_length(bad, "w")
+    opt = layout_options({"width": "20cm", "margin": "0.5in", "height": "300px"})
+    assert (opt["width"], opt["margin"], opt["height"]) == pytest.approx((200, 12.7, 79.375))
+
+
+def test_pages_by_name_and_size():
+    from doodlecam.options import parse_page
+
+    assert parse_page("a4", "p") == pytest.approx((210, 297))
+    assert parse_page("A3", "p") == pytest.approx((297, 420))
+    assert parse_page("letter", "p") == pytest.approx((215.9, 279.4))
+    assert parse_page("5x4in", "p") == pytest.approx((127, 101.6))
+    assert parse_page("20cmx10cm", "p") == pytest.approx((200, 100))
+    assert parse_page("210 x 297mm", "p") == pytest.approx((210, 297))
+    for bad in ("b99", "10x", "x10", "0x10mm"):
+        with pytest.raises(InputError, match="p"):
+            parse_page(bad, "p")
+
+
+def test_a_page_is_centred_and_checked_against_the_work_area(machine):
+    # a 100 x 100 px square picture on an A5 page (148 x 210) on the 300 x 200 work area: landscape
+    d = Drawing((np.array([[0.0, 0.0], [99.0, 0.0], [99.0, 99.0], [0.0, 99.0], [0.0, 0.0]]),), units="px",
+                y_down=True, extent=(100, 100))
+    out = fit_to_work_area(d, machine, {"page": "a5", "orientation": "landscape", "margin": 10})
+    pts = np.concatenate(out.polylines)
+    x0, y0, x1, y1 = *pts.min(0), *pts.max(0)
+    assert (x0 + x1) / 2 == pytest.approx(machine.width / 2, abs=0.5)
+    assert (y0 + y1) / 2 == pytest.approx(machine.height / 2, abs=0.5)
+    assert y1 - y0 == pytest.approx((148 - 20) * 99 / 100, rel=1e-3)  # the page's short side, less the margins
+    with pytest.raises(InputError, match="page does not fit.*other orientation"):
+        fit_to_work_area(d, machine, {"page": "a5", "orientation": "portrait"})
+    with pytest.raises(InputError, match="page does not fit"):
+        fit_to_work_area(d, machine, {"page": "a3"})
+
+
+def test_cli_page_and_units(tmp_path):
+    from doodlecam.cli import main
+
+    svg = tmp_path / "sq.svg"
+    svg.write_text('<svg xmlns="http://www.w3.org/2000/svg" width="10mm" height="10mm"><rect width="10" height="10"/></svg>')
+    assert main(["convert", str(svg), "-o", str(tmp_path / "o"), "--post", "json", "--width", "5cm", "--fit", "ink"]) == 0
+    assert main(["convert", str(svg), "-o", str(tmp_path / "o2"), "--post", "json", "--page", "a5", "--landscape"]) == 0
+    assert main(["convert", str(svg), "-o", str(tmp_path / "o3"), "--post", "json", "--page", "a2"]) == 2
+    assert not (tmp_path / "o3").exists()

@@ -126,7 +126,13 @@ def test_dxf_units_and_unsupported_entities(tmp_path):
     assert inch.bounds == pytest.approx((0, 0, 50.8, 0)) and inch.meta["skipped_entities"] == {"TEXT": 1}
     bare = VEC.trace(_dxf(tmp_path, None, line), {})
     assert bare.bounds == pytest.approx((0, 0, 2, 0)) and "assumed" in bare.meta["units"]
-    path = _dxf(tmp_path, 4, text + "0\nHATCH\n8\n0\n")
+    import ezdxf
+
+    doc = ezdxf.new("R2010")
+    doc.modelspace().add_text("HELLO", height=1)
+    doc.modelspace().add_hatch().paths.add_polyline_path([(0, 0), (1, 0), (1, 1)])
+    path = tmp_path / "words.dxf"
+    doc.saveas(path)
     with pytest.raises(InputError, match="HATCH, TEXT") as err:
         VEC.trace(path, {})
     one_line(err, path)

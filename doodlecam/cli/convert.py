@@ -62,6 +62,10 @@ def convert(input, outdir, as_json, **options):
     if not enforced and s["max_between_samples_mm"] > s["max_fit_error_mm"]:
         click.echo("                     (the PLC's linear ramps; set [sampling] path_tolerance in the machine profile "
                    "to keep within it, docs/sampling.md)")
+    if s["layers"]:
+        click.echo(f"  layers             {len(s['layers'])}: {', '.join(s['layers'])}"
+                   + (f" ({s['pen_changes']} pen change{'s' if s['pen_changes'] != 1 else ''}: the job pauses, pen up)"
+                      if s["pen_changes"] else ""))
     click.echo("  wrote              " + ", ".join(s["outputs"]))
     for w in s["warnings"]:
         click.echo(f"  warning: {w}", err=True)

@@ -33,14 +33,20 @@ def post_options(post_opt: tuple[str, ...]) -> dict[str, dict[str, str]]:
 
 
 LAYOUT_OPTIONS = [
-    click.option("--width", type=float, metavar="MM", help="Target drawing width in mm (aspect kept). Default: fill the work area."),
-    click.option("--height", type=float, metavar="MM", help="Target drawing height in mm (aspect kept)."),
+    click.option("--width", metavar="LENGTH", help="Target drawing width (aspect kept): mm, or with a unit "
+                 "(20cm, 8in, 600px). Default: fill the work area (or the page)."),
+    click.option("--height", metavar="LENGTH", help="Target drawing height (aspect kept), as --width."),
+    click.option("--page", metavar="SIZE", help="Paper: a4, a3, letter, ... or WxH with units (210x297mm, 5x4in), "
+                 "centred on the work area; the drawing fits inside it, within the margin."),
+    click.option("--landscape/--portrait", "landscape", default=None, help="Turn the page (default: as named)."),
     click.option("--scale", type=float, metavar="MM", help="Fixed scale: mm per source unit (px, or mm: 1 = an SVG/DXF at true size)."),
-    click.option("--margin", type=float, metavar="MM", help="Margin inside the work area (default: the profile's)."),
+    click.option("--margin", metavar="LENGTH", help="Margin inside the work area or page, mm or with a unit (default: the profile's)."),
     click.option("--rotate", type=click.Choice(["0", "90", "180", "270", "auto"]),
                  help="Quarter turns counter-clockwise; auto turns the drawing when it then fits larger."),
     click.option("--fit", type=click.Choice(["canvas", "ink"]),
                  help="Fit the whole picture frame (canvas) or only what is drawn (ink)."),
+    click.option("--layer", metavar="NAME", help="Convert only this layer (an SVG/DXF layer or colour), "
+                 "placed where it is in the whole drawing."),
     click.option("--keep-direction", is_flag=True, default=None,
                  help="Never draw a stroke backwards (for pens that draw differently each way)."),
 ]
@@ -53,11 +59,12 @@ def layout_options(f):
     return f
 
 
-def layout_kwargs(width, height, scale, margin, rotate, fit, keep_direction) -> dict:
-    """``layout`` and ``order`` for pipeline.Settings from the layout options."""
+def layout_kwargs(width, height, page, landscape, scale, margin, rotate, fit, layer, keep_direction) -> dict:
+    """``layout``, ``order`` and ``layer`` for pipeline.Settings from the layout options."""
+    orientation = None if landscape is None else ("landscape" if landscape else "portrait")
     return dict(layout={k: v for k, v in dict(width=width, height=height, scale=scale, margin=margin, rotate=rotate,
-                                                 fit=fit).items() if v is not None},
-                order={"reverse": False} if keep_direction else {})
+                                                 fit=fit, page=page, orientation=orientation).items() if v is not None},
+                order={"reverse": False} if keep_direction else {}, layer=layer)
 
 
 def job_options(f):
@@ -88,8 +95,8 @@ def job_options(f):
     return f
 
 
-def job_kwargs(machine, tracer, tracer_opt, posts, post_opt, solver, smoothing, path_tolerance, width, height, scale,
-               margin, rotate, fit, keep_direction, plugin_dirs, allow_deviation=False) -> dict:
+def job_kwargs(machine, tracer, tracer_opt, posts, post_opt, solver, smoothing, path_tolerance, width, height, page,
+               landscape, scale, margin, rotate, fit, layer, keep_direction, plugin_dirs, allow_deviation=False) -> dict:
     """The shared options, parsed: keyword arguments for pipeline.Settings
     (with ``machine`` still the profile's name or path)."""
     post_opts = post_options(post_opt)
@@ -104,5 +111,5 @@ def job_kwargs(machine, tracer, tracer_opt, posts, post_opt, solver, smoothing, 
         machine=machine, tracer=tracer, tracer_options=_pairs(tracer_opt, "--tracer-opt"), posts=posts,
         post_options=post_opts, solver=solver, smoothing=smoothing, path_tolerance=path_tolerance,
         plugin_dirs=tuple(plugin_dirs), allow_deviation=bool(allow_deviation),
-        **layout_kwargs(width, height, scale, margin, rotate, fit, keep_direction),
+        **layout_kwargs(width, height, page, landscape, scale, margin, rotate, fit, layer, keep_direction),
     )

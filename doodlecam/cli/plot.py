@@ -28,7 +28,7 @@ def plot(input, out, machine, strokes, tracer, tracer_opt, solver, plugin_dirs, 
     from doodlecam.checks import check_input, check_settings
     from doodlecam.cli.firstrun import first_run_notice
     from doodlecam.machine import load_machine
-    from doodlecam.pipeline import Settings, plan_job, trace
+    from doodlecam.pipeline import Settings, plan_job, select_layer, trace
     from doodlecam.registry import kinematics_for
     from doodlecam.plot import output_paths, pick_strokes, plot_job
     from doodlecam.trace.layout import fit_to_work_area
@@ -40,7 +40,8 @@ def plot(input, out, machine, strokes, tracer, tracer_opt, solver, plugin_dirs, 
     check_input(Path(input))
     check_settings(settings, settings.machine, [Path(input)], out.parent)  # every mistake before the tracing
     first_run_notice()
-    drawing = fit_to_work_area(trace(Path(input), settings), settings.machine, settings.layout)
+    drawing = select_layer(fit_to_work_area(trace(Path(input), settings), settings.machine, settings.layout),
+                           settings.layer)
     job = plan_job(drawing, settings.machine, settings.solver or settings.machine.solver, settings.plugin_dirs,
                    order=settings.order)
     pick_strokes(job, strokes)  # a bad --stroke fails before drawing

@@ -81,9 +81,19 @@ def fit_to_work_area(drawing: Drawing, machine, options: dict[str, Any] | None =
         y0, y1 = -y1, -y0
     flip_y = -1.0 if drawing.y_down else 1.0
     margin = machine.margin if opt["margin"] is None else opt["margin"]
-    aw, ah = machine.width - 2 * margin, machine.height - 2 * margin
+    pw, ph = machine.width, machine.height  # what the drawing goes on: the work area, or a page centred on it
+    if opt["page"] is not None:
+        pw, ph = opt["page"]
+        if opt["orientation"] is not None and (pw > ph) != (opt["orientation"] == "landscape"):
+            pw, ph = ph, pw
+        if pw > machine.width * (1 + 1e-9) or ph > machine.height * (1 + 1e-9):
+            turn = " (try the other orientation)" if ph <= machine.width and pw <= machine.height else ""
+            raise InputError(f"{src}: a {pw:g} x {ph:g} mm page does not fit the {machine.width:g} x {machine.height:g} mm "
+                             f"work area of machine '{machine.name}'; choose a smaller page{turn}")
+    aw, ah = pw - 2 * margin, ph - 2 * margin
     if aw <= 0 or ah <= 0:
-        raise InputError(f"{src}: margin {margin:g} mm leaves no room on the {machine.width:g} x {machine.height:g} mm work area; use a smaller margin")
+        raise InputError(f"{src}: margin {margin:g} mm leaves no room on the {pw:g} x {ph:g} mm "
+                         f"{'page' if opt['page'] else 'work area'}; use a smaller margin")
     w, h = max(x1 - x0, 1e-9), max(y1 - y0, 1e-9)
 
     def fill(turns: int) -> float:  # the scale that fills the area
@@ -105,7 +115,7 @@ def fit_to_work_area(drawing: Drawing, machine, options: dict[str, Any] | None =
             f"{src}: at {cw * scale:.1f} x {ch * scale:.1f} mm the drawing does not fit the "
             f"{aw:g} x {ah:g} mm inside the margin of machine '{machine.name}'; choose a smaller size or scale")
     cx, cy = (x0 + x1) / 2, (y0 + y1) / 2
-    ox, oy = margin + aw / 2, margin + ah / 2
+    ox, oy = machine.width / 2, machine.height / 2  # the page (or the work area) is centred
     cos, sin = [(1, 0), (0, 1), (-1, 0), (0, -1)][turns]
     min_len = machine.pen.width if opt["min_length"] is None else opt["min_length"]
     # All points at once: thousands of hatch strokes cost one pass, not a loop.
@@ -126,5 +136,6 @@ def fit_to_work_area(drawing: Drawing, machine, options: dict[str, Any] | None =
                 size_mm=(cw * scale, ch * scale), dropped_short=len(drawing.polylines) - len(out),
                 min_length_mm=min_len)
     meta.pop("canvas", None)
+    layers = tuple(n for n, k in zip(drawing.layers, keep) if k)
     return Drawing(tuple(out), units="mm", y_down=False, source=drawing.source,
-                   extent=(machine.width, machine.height), meta=meta)
+                   extent=(machine.width, machine.height), meta=meta, layers=layers)
