@@ -81,10 +81,12 @@ RAMP_REPLANS = 3  # ... and of one whose ramps pass a (nonlinear) actuator's lim
 
 
 def plan_job(drawing: Drawing, machine: Machine, solver: str = "reach", plugin_dirs=(), order: dict | None = None,
-             smoothing: float | None = None) -> Job:
+             smoothing: float | None = None, fitted: list[Stroke] | None = None) -> Job:
     """Order, fit, plan and sample a drawing already in machine millimetres.
 
     ``order`` overrides the profile's [order] options (doodlecam.trace.layout.ORDER_DEFAULTS).
+    ``fitted``: strokes already ordered and fitted (an edited job, e.g. from the
+    studio): planned as given, without ordering or fitting ``drawing`` again.
     """
     from doodlecam.geometry.fit import fit_pieces
     from doodlecam.geometry.order import order_strokes
@@ -102,14 +104,16 @@ def plan_job(drawing: Drawing, machine: Machine, solver: str = "reach", plugin_d
     timings: dict[str, float] = {}
 
     t0 = time.perf_counter()
-    oo = order_options({**machine.order, **(order or {})})
-    ordered = order_strokes(drawing.polylines, machine.home, allow_reverse=oo["reverse"],
-                            merge=oo["merge"], budget=oo["budget"])
+    if fitted is None:
+        oo = order_options({**machine.order, **(order or {})})
+        ordered = order_strokes(drawing.polylines, machine.home, allow_reverse=oo["reverse"],
+                                merge=oo["merge"], budget=oo["budget"])
     timings["order"] = time.perf_counter() - t0
 
     t0 = time.perf_counter()
-    strokes = []
-    for i, p in zip(ordered.source, ordered.polylines):
+    strokes = [] if fitted is None else [Stroke(spline=s.spline, source_index=s.source_index, fit_error=s.fit_error)
+                                         for s in fitted]
+    for i, p in zip(ordered.source, ordered.polylines) if fitted is None else ():
         for spline, err in fit_pieces(p, machine.degree, machine.tolerance):
             strokes.append(Stroke(spline=spline, source_index=i, fit_error=err))
     timings["fit"] = time.perf_counter() - t0

@@ -30,7 +30,7 @@ LAYERS: list[tuple[str, ...]] = [
     ("doodlecam.trace",),
     ("doodlecam.plan",),
     ("doodlecam.pipeline", "doodlecam.plugins", "doodlecam.postprocessors"),
-    ("doodlecam.plot", "doodlecam.batch"),
+    ("doodlecam.plot", "doodlecam.batch", "doodlecam.studio"),
     ("doodlecam.cli",),
     ("doodlecam.__main__",),
 ]
