@@ -116,17 +116,18 @@ class Sender:
 
         try:
             r = self._sender.run()
-            self._update(state="done", executed=r.commands, time_left_s=0.0,
-                         message=f"done: {r.commands} commands in {r.elapsed:.1f} s")
+            end = dict(state="done", executed=r.commands, time_left_s=0.0,
+                       message=f"done: {r.commands} commands in {r.elapsed:.1f} s")
         except Paused as e:
-            self._update(state="stopped", message=str(e))
+            end = dict(state="stopped", message=str(e))
         except DoodleError as e:
-            self._update(state="failed", message=str(e))
+            end = dict(state="failed", message=str(e))
         except Exception as e:  # never let a send kill the server quietly
-            self._update(state="failed", message=f"send failed: {type(e).__name__}: {e}")
-        finally:
-            if self._sim is not None:
-                self._sim.stop()
+            end = dict(state="failed", message=f"send failed: {type(e).__name__}: {e}")
+        if self._sim is not None:
+            self._sim.stop()
+        self._thread = None  # the next send may start as soon as the state says this one ended
+        self._update(**end)
 
     def stop(self) -> dict:
         """Stop at the end of the current stroke, pen up (the sender's Ctrl-C)."""

@@ -176,7 +176,10 @@ class Session:
             deg = st.spline.degree
             changed = {i}
             if op == "move":
-                control = np.asarray(kw.get("control"), dtype=float) if kw.get("control") is not None else None
+                try:
+                    control = np.asarray(kw.get("control"), dtype=float) if kw.get("control") is not None else None
+                except (TypeError, ValueError):
+                    control = None
                 if control is None or control.ndim != 2 or control.shape[1] != 2 or not np.isfinite(control).all():
                     raise InputError("move needs 'control': a list of [x, y] control points in mm")
                 if len(control) < deg + 1:
@@ -224,19 +227,17 @@ class Session:
         self.job = job
 
     def undo(self) -> dict:
-        with self.lock:
-            if not self.undo_stack:
-                raise InputError("nothing to undo")
-            self.redo_stack.append(self._require())
-            self.job = self.undo_stack.pop()
-            return self.summary()
+        return self._step(self.undo_stack, self.redo_stack, "undo")
 
     def redo(self) -> dict:
+        return self._step(self.redo_stack, self.undo_stack, "redo")
+
+    def _step(self, source: list[Job], other: list[Job], what: str) -> dict:
         with self.lock:
-            if not self.redo_stack:
-                raise InputError("nothing to redo")
-            self.undo_stack.append(self._require())
-            self.job = self.redo_stack.pop()
+            if not source:
+                raise InputError(f"nothing to {what}")
+            other.append(self._require())
+            self.job = source.pop()
             return self.summary()
 
     # ------------------------------------------------------------ views
