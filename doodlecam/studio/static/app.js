@@ -65,6 +65,8 @@ function fitView() {
 }
 const sx = (x) => x * S.scale + S.ox, sy = (y) => -y * S.scale + S.oy;
 const wx = (X) => (X - S.ox) / S.scale, wy = (Y) => -(Y - S.oy) / S.scale;
+window.studioScreen = (x, y) => [sx(x), sy(y)]; // mm -> canvas pixels, for tests
+window.studioEvaluate = evaluate;
 
 function draw(target = ctx, withSelection = true) {
   const g = target, W = paper.clientWidth, H = paper.clientHeight;
@@ -102,11 +104,11 @@ function drawSelection(g) {
   g.strokeStyle = "#111"; g.lineWidth = S.drag ? 2 : 3; g.globalAlpha = S.drag ? 1 : 0.35; g.beginPath();
   for (let k = 0; k < n; k++) k ? g.lineTo(sx(S.curve[2 * k]), sy(S.curve[2 * k + 1])) : g.moveTo(sx(S.curve[0]), sy(S.curve[1]));
   g.stroke(); g.globalAlpha = 1;
-  g.strokeStyle = "#e07000"; g.lineWidth = 0.8; g.beginPath();
+  g.strokeStyle = "rgba(224, 112, 0, 0.6)"; g.lineWidth = 0.6; g.beginPath();
   control.forEach((p, k) => k ? g.lineTo(sx(p[0]), sy(p[1])) : g.moveTo(sx(p[0]), sy(p[1])));
   g.stroke();
   g.fillStyle = "#e07000";
-  for (const p of control) g.fillRect(sx(p[0]) - 3, sy(p[1]) - 3, 6, 6);
+  for (const p of control) g.fillRect(sx(p[0]) - 2, sy(p[1]) - 2, 4, 4);
   // the stroke order: its number at its start
   g.fillStyle = "#000"; g.font = "12px sans-serif"; g.fillText(String(s.i + 1), sx(control[0][0]) + 5, sy(control[0][1]) - 5);
 }
@@ -282,7 +284,7 @@ async function load(file) {
   const t0 = performance.now();
   const opts = {};
   await api(`/api/load?name=${encodeURIComponent(file.name)}`, { method: "POST", body: file });
-  S.fitted = false; S.selected = -1;
+  S.fitted = false; S.selected = -1; S.traced = undefined;
   await refresh();
   await tracerPanel();
   window.studioPerf.firstView = performance.now() - t0;
@@ -351,10 +353,13 @@ async function retrace() {
   for (const el of $("tracer-options").querySelectorAll("input,select")) {
     options[el.name] = el.type === "checkbox" ? el.checked : el.dataset.type === "float" || el.dataset.type === "int" ? Number(el.value) : el.value;
   }
+  const key = JSON.stringify([$("tracer").value, options]);
+  if (key === S.traced) return; // e.g. the input's own change event on blur after a typed value
+  S.traced = key;
   try {
     await api("/api/trace", { method: "POST", json: { tracer: $("tracer").value || null, options } });
     S.selected = -1; await refresh();
-  } catch (e) { /* shown */ }
+  } catch (e) { S.traced = undefined; /* the error is shown; the same options may be tried again */ }
 }
 
 // ------------------------------------------------------------------ simulation

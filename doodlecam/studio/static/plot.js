@@ -30,7 +30,7 @@ export function linePlot(canvas, { title, xlabel, series, limits = [] }) {
     g.beginPath(); g.moveTo(L, Y(l.y)); g.lineTo(W - R, Y(l.y)); g.stroke();
   }
   g.setLineDash([]);
-  let lx = L + 150;
+  let lx = L + g.measureText(title).width + 14;
   for (const s of series) {
     g.strokeStyle = s.color; g.lineWidth = 1.5; g.beginPath();
     for (let i = 0; i < s.x.length; i++) {
