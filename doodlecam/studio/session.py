@@ -48,7 +48,7 @@ class Session:
         self.job: Job | None = None
         self.undo_stack: list[Job] = []
         self.redo_stack: list[Job] = []
-        self._ratios: dict[int, tuple[float, float]] = {}  # id(Stroke) -> (acc, vel) ratio, cached
+        self._ratios: dict[int, tuple[Stroke, float, float]] = {}  # id(stroke) -> (stroke, acc, vel), cached
 
     # ------------------------------------------------------------ tracers
 
@@ -84,7 +84,18 @@ class Session:
             self.name, self.data = name, data
             self.tracer, self.tracer_options = tracer, dict(options or {})
             self._set(job, keep_history=False)
+            self._check_later(job)
             return self.summary()
+
+    def _check_later(self, job: Job) -> None:
+        """Each stroke's limit ratios, checked in the background: the first edit then only checks its own."""
+        def run():
+            for st in job.strokes:
+                if self.job is not job:
+                    return  # superseded by another load
+                self.ratios(st)
+
+        threading.Thread(target=run, name="studio-check", daemon=True).start()
 
     def retrace(self, tracer: str | None, options: dict[str, Any]) -> dict:
         with self.lock:
@@ -149,12 +160,12 @@ class Session:
         """(acceleration, velocity) worst ratio to the limits, checked on the planner's fine grid."""
         from doodlecam.plan.planner import Limits, check_profile
 
-        key = id(stroke)
-        if key not in self._ratios:
+        hit = self._ratios.get(id(stroke))
+        if hit is None or hit[0] is not stroke:  # the stroke is kept in the entry, so its id is not reused
             kin = registry.kinematics_for(self.machine, self.settings.plugin_dirs)
             r = check_profile(stroke.spline, stroke.profile, Limits.from_machine(self.machine, kin))
-            self._ratios[key] = (float(r[0]), float(r[1]))
-        return self._ratios[key]
+            hit = self._ratios[id(stroke)] = (stroke, float(r[0]), float(r[1]))
+        return hit[1], hit[2]
 
     def _index(self, i: Any, n: int, what: str = "stroke") -> int:
         try:
@@ -361,6 +372,7 @@ class Session:
                            smoothing=self.settings.smoothing, fitted=strokes)
             self.name, self.data = source or name, b""
             self._set(job, keep_history=False)
+            self._check_later(job)
             return self.summary()
 
 

@@ -134,6 +134,8 @@ function summary(s) {
 }
 
 async function refresh() {
+  // the view and the selected stroke's figures are fetched at once
+  const figs = S.selected >= 0 ? api(`/api/stroke/${S.selected}`).catch(() => null) : null;
   S.view = await api("/api/view");
   if (!S.fitted) fitView();
   $("machine").textContent = `machine ${S.view.machine.name} · ${S.view.summary.file}`;
@@ -142,15 +144,15 @@ async function refresh() {
   if (S.selected >= S.view.strokes.length) S.selected = -1;
   S.timeline = null;
   draw();
-  if (S.selected >= 0) await figures();
+  if (S.selected >= 0) await figures(figs);
   document.body.dataset.strokes = S.view.strokes.length;
 }
 
-async function figures() {
+async function figures(fetched) {
   const i = S.selected;
   $("sel-index").textContent = i >= 0 ? `${i + 1} of ${S.view.strokes.length}` : "–";
   if (i < 0) { $("stroke-figures").innerHTML = ""; return; }
-  const f = await api(`/api/stroke/${i}`);
+  const f = (fetched && await fetched) || await api(`/api/stroke/${i}`);
   const rows = [["length", `${f.length_mm.toFixed(2)} mm`], ["control points", f.control_points], ["time", `${f.time_s.toFixed(3)} s`],
     ["worst acceleration ratio", f.worst_acceleration_ratio.toFixed(4)], ["worst velocity ratio", f.worst_velocity_ratio.toFixed(4)],
     ["off the curve between samples", `${f.max_between_samples_mm.toFixed(3)} mm`]];
