@@ -270,3 +270,42 @@ def test_stop_ends_at_a_stroke_boundary_with_the_pen_up(loaded):
     assert not sender._sim.pen  # the PLC holds the job with the pen lifted
     assert "no send is running" in one_line(loaded.post("/api/send/stop"))
     assert "HOST:PORT" in one_line(loaded.post("/api/send", json={"target": "plc-without-port:x"}))
+
+
+def test_motion_design_routes(tmp_path):
+    import shutil
+
+    from doodlecam.motion.design import load_design, solve_design
+    from doodlecam.motion.export import read_table
+
+    c = make_client(tmp_path)
+    folder = Path(c.app.state.config.folders[0])
+    shutil.copy(ROOT / "samples/motion/slider.toml", folder / "slider.toml")
+    (folder / "notes.toml").write_text("[other]\nx = 1\n")
+    assert c.get("/api/motion/designs").json() == ["slider.toml"]
+    r = c.post("/api/motion/open", json={"path": "slider.toml"})
+    assert r.status_code == 200, r.text
+    doc, res = r.json()["doc"], r.json()["result"]
+    assert set(res["axes"]) == {"table32", "fixed"}
+    # the thesis's Fig. 3.7: acc = -75 at the second point meanders, acc = 0 does not
+    assert {f["kind"] for f in res["findings"] if "table32" in f["where"]} >= {"meander"}
+    assert not [f for f in res["findings"] if "fixed" in f["where"]]
+    # positions at the design points are the table's
+    t = np.array(res["t"])
+    for p in doc["axis"]["fixed"]["point"]:
+        assert np.interp(p["t"], t, res["axes"]["fixed"][0]) == pytest.approx(p["pos"], abs=2e-3)
+    doc["axis"]["table32"]["point"][1]["acc"] = 0.0  # the cure, edited as in the page
+    fixed = c.post("/api/motion/solve", json={"doc": doc, "name": "slider.toml"}).json()
+    assert not [f for f in fixed["findings"] if f["kind"] == "meander"]
+    assert np.allclose(fixed["axes"]["table32"][0], fixed["axes"]["fixed"][0])
+    csv = c.post("/api/motion/table", json={"doc": doc, "name": "slider.toml"})
+    assert csv.status_code == 200 and 'filename="slider.csv"' in csv.headers["content-disposition"]
+    (tmp_path / "t.csv").write_bytes(csv.content)
+    header, rows = read_table(tmp_path / "t.csv")
+    assert header[:2] == ["t", "table32_pos"] and len(rows) == load_design(folder / "slider.toml").samples
+    tt, axes = solve_design(load_design(folder / "slider.toml")).sample()
+    assert np.allclose(rows[:, header.index("fixed_pos")], axes["fixed"][0], atol=1e-6)
+    for body, words in [({"doc": {"motion": {"input": "sideways"}}}, "input"), ({"doc": [1]}, "JSON object")]:
+        r = c.post("/api/motion/solve", json=body)
+        assert r.status_code == 400 and words in one_line(r), r.text
+    assert "outside the folders" in one_line(c.post("/api/motion/open", json={"path": "../../etc/x.toml"}))

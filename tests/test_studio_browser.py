@@ -220,3 +220,35 @@ def test_7_send_to_the_plc_simulator(page, server):
     assert page.evaluate("document.getElementById('send-progress').value") == 100
     assert "done" in page.text_content("#send-status")
     shot(page, "send")
+
+
+def test_8_motion_page_curves_follow_a_changed_segment_law(page, server):
+    shutil.copy(ROOT / "samples" / "motion" / "fuse.toml", server["folder"] / "fuse.toml")
+    page.click(".tabs button[data-tab=motion]")
+    page.wait_for_function("document.body.dataset.motionVersion >= 1", timeout=30_000)
+    assert page.locator("#motion-sample").input_value() == "fuse.toml"
+    before = page.evaluate("studioMotion.result")
+    # the curves pass through the design table's positions at its times
+    points = page.evaluate("studioMotion.doc.point")
+    t = np.array(before["t"])
+    for p in points:
+        if isinstance(p.get("x"), (int, float)):
+            assert np.interp(p["t"], t, before["axes"]["x"][0]) == pytest.approx(p["x"], abs=0.5)
+    law = page.locator("#motion-tables table[data-kind=segment] tr[data-row='0'] select[name=law]")
+    assert law.input_value() == "polynomial"
+    law.select_option("cycloidal")
+    page.wait_for_function("document.body.dataset.motionVersion >= 2", timeout=30_000)
+    after = page.evaluate("studioMotion.result")
+    assert after["segments"][0]["law"] == "cycloidal"
+    assert not np.allclose(np.array(after["axes"]["x"][2], dtype=float), np.array(before["axes"]["x"][2], dtype=float),
+                           equal_nan=True)
+    flags = page.locator("#motion-tables td.checks").all_text_contents()
+    assert flags == segment_flags(after) and len(flags) == len(after["segments"]) // 2  # X-Y input: one row, two axes
+    shot(page, "motion")
+
+
+def segment_flags(result) -> list[str]:
+    """Per segment number, the findings of both axes as the page writes them ("envelope, meander" or "ok")."""
+    numbers = sorted({s["number"] for s in result["segments"]})
+    kinds = [sorted({k for s in result["segments"] if s["number"] == n for k in s["findings"]}) for n in numbers]
+    return [", ".join(k) or "ok" for k in kinds]

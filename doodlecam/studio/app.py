@@ -22,6 +22,7 @@ from fastapi.responses import FileResponse, JSONResponse, Response, StreamingRes
 from fastapi.staticfiles import StaticFiles
 
 from doodlecam.errors import DoodleError, InputError, OutputError
+from doodlecam.studio import motion as studio_motion
 from doodlecam.studio.sending import Sender
 from doodlecam.studio.session import Session
 
@@ -246,6 +247,32 @@ def create_app(session: Session, config: StudioConfig | None = None) -> FastAPI:
     async def open_job(request: Request, name: str = "job.json"):
         data = await body(request)
         return await run_in_threadpool(session.open_job, data, name)
+
+    # ------------------------------------------------------------ motion design (MOTDES)
+
+    @app.get("/api/motion/designs")
+    def motion_designs():
+        return studio_motion.designs(config.folders)
+
+    @app.post("/api/motion/open")
+    async def motion_open(request: Request):
+        p = inside(config.folders, (await payload(request)).get("path"))
+        if not p.is_file():
+            raise InputError(f"{p}: no such file; check the path")
+        doc = studio_motion.read(p)
+        return _json({"doc": doc, "result": await run_in_threadpool(studio_motion.solve, doc, p.name), "name": p.name})
+
+    @app.post("/api/motion/solve")
+    async def motion_solve(request: Request):
+        doc = await payload(request)
+        return _json(await run_in_threadpool(studio_motion.solve, doc.get("doc"), str(doc.get("name") or "design")))
+
+    @app.post("/api/motion/table")
+    async def motion_table(request: Request):
+        doc = await payload(request)
+        name = Path(str(doc.get("name") or "design")).stem
+        data = await run_in_threadpool(studio_motion.table_csv, doc.get("doc"), name)
+        return Response(data, media_type="text/csv", headers={"Content-Disposition": f'attachment; filename="{name}.csv"'})
 
     # ------------------------------------------------------------ send
 
