@@ -309,3 +309,40 @@ def test_motion_design_routes(tmp_path):
         r = c.post("/api/motion/solve", json=body)
         assert r.status_code == 400 and words in one_line(r), r.text
     assert "outside the folders" in one_line(c.post("/api/motion/open", json={"path": "../../etc/x.toml"}))
+
+
+def test_the_studio_command(tmp_path):
+    """`doodlecam studio` itself: bad input is one line before any server; a real server answers, then stops."""
+    import signal
+    import subprocess
+    import sys
+
+    import httpx
+
+    def run(*args):
+        return subprocess.run([sys.executable, "-m", "doodlecam", "studio", "--no-browser", *args], capture_output=True,
+                              text=True, timeout=120, cwd=tmp_path)
+
+    (tmp_path / "notes.txt").write_text("hello")
+    for args, words in [(["missing.png"], "no such file"), (["notes.txt"], "no tracer reads"),
+                        (["--folder", "nowhere"], "no such folder"), (["--host", "203.0.113.1"], "cannot listen")]:
+        r = run(*args)
+        assert r.returncode != 0 and words in r.stderr, (args, r.stderr)
+        assert "Traceback" not in r.stderr and len(r.stderr.strip().splitlines()) == 1
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["notes.txt"]
+    p = subprocess.Popen([sys.executable, "-m", "doodlecam", "studio", "--no-browser", "--port", "0"], cwd=tmp_path,
+                         stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    try:
+        line = p.stdout.readline()
+        assert line.startswith("doodlecam studio: http://127.0.0.1:"), line + p.stderr.read()
+        url = line.split()[-1]
+        token = url.split("token=")[1]
+        base = url.split("/?")[0]
+        assert httpx.get(base + "/api/state", timeout=10).json()["loaded"] is False
+        assert httpx.post(base + "/api/send", json={}, timeout=10).status_code == 403
+        assert "access token " + token in p.stdout.readline()
+        busy = run("--port", base.rsplit(":", 1)[1])
+        assert busy.returncode != 0 and "cannot listen" in busy.stderr
+    finally:
+        p.send_signal(signal.SIGINT)
+        p.wait(20)

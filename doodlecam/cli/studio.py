@@ -23,6 +23,7 @@ LOOPBACK = ("127.0.0.1", "localhost", "::1")
 @job_options
 def studio(file, port, host, no_browser, folders, max_upload, **options):
     """Open a job in the browser: trace, edit curves, plan, simulate, export and send."""
+    import socket
     import threading
     import webbrowser
 
@@ -44,25 +45,32 @@ def studio(file, port, host, no_browser, folders, max_upload, **options):
         click.echo(f"tracing and planning {file} ...")
         session.load(file.name, file.read_bytes())
 
-    config = uvicorn.Config(create_app(session, cfg), host=host, port=port, log_level="warning")
-    server = uvicorn.Server(config)
-    url_host = "127.0.0.1" if host in ("0.0.0.0", "::") else host
+    # the socket is bound here, so a busy port or a bad address is one line, not a server log
+    family = socket.AF_INET6 if ":" in host else socket.AF_INET
+    sock = socket.socket(family, socket.SOCK_STREAM)
+    sock.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
+    try:
+        sock.bind((host, port))
+    except (OSError, OverflowError) as e:
+        sock.close()
+        raise InputError(f"cannot listen on {host}:{port} ({getattr(e, 'strerror', None) or e}); "
+                         "pick another --port or --host") from None
+    bound = sock.getsockname()[1]
+    server = uvicorn.Server(uvicorn.Config(create_app(session, cfg), log_level="warning"))
+    url_host = "127.0.0.1" if host in ("0.0.0.0", "::") else (f"[{host}]" if ":" in host else host)
 
     def announce():
         while not server.started:
             if not thread.is_alive():
                 return
             threading.Event().wait(0.05)
-        bound = server.servers[0].sockets[0].getsockname()[1] if server.servers else port
         url = f"http://{url_host}:{bound}/?token={cfg.token}"
-        click.echo(f"doodlecam studio: {url}")
         need = "every request: listening beyond this computer" if cfg.require_token else "sending to a machine"
+        click.echo(f"doodlecam studio: {url}")
         click.echo(f"  access token {cfg.token} (needed for {need}); Ctrl-C stops")
         if not no_browser:
             webbrowser.open(url)
 
     thread = threading.Thread(target=announce, daemon=True)
     thread.start()
-    server.run()
-    if not server.started:
-        raise InputError(f"cannot listen on {host}:{port}; is the port in use? pick another --port")
+    server.run(sockets=[sock])
