@@ -258,16 +258,25 @@ def test_send_to_simulator_completes_even_when_the_page_goes(loaded):
     assert not sender._sim.pen
 
 
-def test_stop_ends_at_a_stroke_boundary_with_the_pen_up(loaded):
+def test_stop_ends_at_a_stroke_boundary_with_the_pen_up_and_resumes(loaded):
     sender = loaded.app.state.sender
-    assert loaded.post("/api/send", json={"target": "simulator", "speed": 2}).status_code == 200
+    assert loaded.post("/api/send", json={"target": "simulator", "speed": 20}).status_code == 200
     assert "a send is running" in one_line(loaded.post("/api/send", json={"target": "simulator"}))
     wait_state(loaded, lambda s: s["executed"] > 5)
     assert loaded.post("/api/send/stop").status_code == 200
     s = wait_state(loaded, lambda s: s["state"] != "sending")
     assert s["state"] == "stopped" and "pen up" in s["message"], s
     assert 0 < s["executed"] < s["total"]
-    assert not sender._sim.pen  # the PLC holds the job with the pen lifted
+    # the PLC holds the job at rest with the pen lifted (the simulator's own state)
+    assert not sender._sim.pen and not np.any(sender._sim.vel)
+    held = s["executed"]
+    records = sender._sender.records
+    # sending the same job again resumes after the last executed command
+    assert loaded.post("/api/send", json={"target": "simulator", "speed": 20}).status_code == 200
+    s = wait_state(loaded, lambda s: s["state"] != "sending")
+    assert s["state"] == "done" and f"resumed at command {held + 1}" in s["message"], s
+    ran = [c for job, c in sender._sim.executed_log if job == sender._sender.job_id]
+    assert sorted(ran) == list(range(1, len(records) + 1))  # every command once, none repeated
     assert "no send is running" in one_line(loaded.post("/api/send/stop"))
     assert "HOST:PORT" in one_line(loaded.post("/api/send", json={"target": "plc-without-port:x"}))
 

@@ -68,6 +68,7 @@ def create_app(session: Session, config: StudioConfig | None = None) -> FastAPI:
     app = FastAPI(title="doodlecam studio", docs_url=None, redoc_url=None, openapi_url=None)
     app.state.session, app.state.config, app.state.sender = session, config, Sender()
     sender: Sender = app.state.sender
+    app.router.add_event_handler("shutdown", sender.close)
 
     @app.middleware("http")
     async def guard(request: Request, call_next):

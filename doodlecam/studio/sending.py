@@ -3,7 +3,10 @@
 The send runs in its own thread, owned by the server, not by a page: closing
 the tab does not touch it, so the job runs to its end (the PLC never sees a
 half-sent job). Stop asks the sender as Ctrl-C does: the PLC stops at the end
-of the current stroke with the pen up and holds the job (send again to resume).
+of the current stroke with the pen up and holds the job; sending the same job
+again resumes it after the last executed command (the PLC's count is the
+truth, as for ``doodlecam send``). The built-in simulator lives as long as the
+server, so a job it holds can be resumed too.
 """
 
 from __future__ import annotations
@@ -81,7 +84,11 @@ class Sender:
             raise InputError(f"speed must be a positive number, got {speed!r}")
         sim = None
         if target == "simulator":
-            sim = PlcSimulator(PlcConfig.from_machine(machine, speed=speed or math.inf)).start()
+            want = speed or math.inf
+            if self._sim is None or self._sim.cfg.speed != want:  # one simulator per speed: it keeps held jobs
+                self.close()
+                self._sim = PlcSimulator(PlcConfig.from_machine(machine, speed=want)).start()
+            sim = self._sim
             host, port = sim.address
         else:
             host, port = parse_target(target, 5005)
@@ -94,15 +101,10 @@ class Sender:
             self._update(executed=executed, total=total, position_mm=pos,
                          time_left_s=float(left[min(executed, len(left) - 1)]))
 
-        try:
-            sender = UdpSender(host, port, plc_bytes, "studio.plc", progress=progress)
-        except DoodleError:
-            if sim is not None:
-                sim.stop()
-            raise
+        sender = UdpSender(host, port, plc_bytes, "studio.plc", progress=progress)
         header = sender.plc_header
         left = planned_time_left(sender.records, header)
-        self._sender, self._sim = sender, sim
+        self._sender = sender
         with self.changed:
             self.s = SendState(state="sending", target=target if sim is None else f"PLC simulator {host}:{port}",
                                total=sender.n, time_left_s=float(left[0]), version=self.s.version + 1)
@@ -117,15 +119,14 @@ class Sender:
         try:
             r = self._sender.run()
             end = dict(state="done", executed=r.commands, time_left_s=0.0,
-                       message=f"done: {r.commands} commands in {r.elapsed:.1f} s")
-        except Paused as e:
-            end = dict(state="stopped", message=str(e))
+                       message=f"done: {r.commands} commands in {r.elapsed:.1f} s"
+                       + (f", resumed at command {r.start_at}" if r.resumed else ""))
+        except Paused as e:  # the PLC's count, confirmed by its stop (progress reports lag behind it)
+            end = dict(state="stopped", message=str(e), executed=self._sender.executed)
         except DoodleError as e:
             end = dict(state="failed", message=str(e))
         except Exception as e:  # never let a send kill the server quietly
             end = dict(state="failed", message=f"send failed: {type(e).__name__}: {e}")
-        if self._sim is not None:
-            self._sim.stop()
         self._thread = None  # the next send may start as soon as the state says this one ended
         self._update(**end)
 
@@ -137,6 +138,8 @@ class Sender:
         self._update(message="stopping at the end of the current stroke")
         return self.snapshot()[1]
 
-    def join(self, timeout: float | None = None) -> None:
-        if self._thread is not None:
-            self._thread.join(timeout)
+    def close(self) -> None:
+        """Stop the built-in simulator (at server shutdown, or for another speed)."""
+        if self._sim is not None:
+            self._sim.stop()
+            self._sim = None

@@ -438,6 +438,7 @@ function showSend(s) {
     : `${s.state}${s.message ? ": " + s.message : ""}`;
   $("send-status").dataset.state = s.state;
   $("send").disabled = s.state === "sending"; $("stop").disabled = s.state !== "sending";
+  $("send").textContent = s.state === "stopped" ? "Resume" : "Send"; // the PLC holds a stopped job
 }
 function follow() {
   const es = new EventSource(withToken("/api/send/events"));
