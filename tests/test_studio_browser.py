@@ -244,6 +244,9 @@ def test_8_motion_page_curves_follow_a_changed_segment_law(page, server):
                            equal_nan=True)
     flags = page.locator("#motion-tables td.checks").all_text_contents()
     assert flags == segment_flags(after) and len(flags) == len(after["segments"]) // 2  # X-Y input: one row, two axes
+    page.click("#m-play")  # the end effector along the trajectory, in real time (0.666 s)
+    page.wait_for_function("document.getElementById('m-time').textContent.startsWith('0.666 /')", timeout=30_000)
+    assert page.evaluate("studioMotion.frames") > 10
     shot(page, "motion")
 
 

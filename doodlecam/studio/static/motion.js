@@ -17,6 +17,7 @@ export async function open(api) {
   sel.innerHTML = list.map((p) => `<option>${p}</option>`).join("");
   sel.onchange = () => load(sel.value);
   $("motion-export").onclick = exportTable;
+  $("m-play").onclick = animate;
   if (list.length) await load(list[0]);
   else $("motion-status").textContent = "no motion designs (*.toml with [motion]) in the studio's folders";
 }
@@ -125,4 +126,44 @@ async function exportTable(e) {
   if (!r.ok) { $("error").textContent = (await r.json()).error; $("error").hidden = false; return; }
   const a = document.createElement("a");
   a.href = URL.createObjectURL(await r.blob()); a.download = M.name.replace(/\.toml$/, "") + ".csv"; a.click();
+}
+
+// The end effector along the trajectory: with axes x and y, the pen on the X-Y plane
+// (its path drawn); otherwise each axis as a slider on its own track. Real time.
+function animate() {
+  const r = M.result, names = Object.keys(r.axes), t = r.t, T = t[t.length - 1] - t[0];
+  const c = $("m-anim"), dpr = window.devicePixelRatio || 1, W = c.clientWidth, H = c.clientHeight;
+  c.width = W * dpr; c.height = H * dpr;
+  const g = c.getContext("2d"); g.setTransform(dpr, 0, 0, dpr, 0, 0);
+  const xy = names.includes("x") && names.includes("y");
+  const range = (a) => { const v = a.filter((x) => x !== null); return [Math.min(...v), Math.max(...v) || 1]; };
+  const at = (a, s) => { // linear interpolation at time s
+    let k = t.findIndex((x) => x >= s); if (k <= 0) return a[0];
+    const f = (s - t[k - 1]) / (t[k] - t[k - 1]); return a[k - 1] + f * (a[k] - a[k - 1]);
+  };
+  const start = performance.now();
+  M.frames = 0;
+  const frame = (now) => {
+    const s = Math.min(T, (now - start) / 1000) + t[0];
+    g.clearRect(0, 0, W, H);
+    if (xy) {
+      const X = r.axes.x[0], Y = r.axes.y[0], [x0, x1] = range(X), [y0, y1] = range(Y);
+      const k = Math.min((W - 40) / Math.max(x1 - x0, 1e-9), (H - 40) / Math.max(y1 - y0, 1e-9));
+      const px = (x) => 20 + (x - x0) * k, py = (y) => H - 20 - (y - y0) * k;
+      g.strokeStyle = "#999"; g.beginPath(); X.forEach((x, i) => i ? g.lineTo(px(x), py(Y[i])) : g.moveTo(px(x), py(Y[i]))); g.stroke();
+      g.fillStyle = "#d00"; g.beginPath(); g.arc(px(at(X, s)), py(at(Y, s)), 6, 0, 2 * Math.PI); g.fill();
+    } else {
+      names.forEach((n, i) => {
+        const P = r.axes[n][0], [p0, p1] = range(P), y = 20 + i * (H - 40) / Math.max(1, names.length - 1 || 1);
+        const px = (p) => 60 + (p - p0) / Math.max(p1 - p0, 1e-9) * (W - 80);
+        g.fillStyle = "#333"; g.fillText(n, 4, y + 4);
+        g.strokeStyle = "#bbb"; g.beginPath(); g.moveTo(px(p0), y); g.lineTo(px(p1), y); g.stroke();
+        g.fillStyle = COLORS[i % 4]; g.fillRect(px(at(P, s)) - 8, y - 6, 16, 12);
+      });
+    }
+    $("m-time").textContent = `${(s - t[0]).toFixed(3)} / ${T.toFixed(3)} s`;
+    M.frames++;
+    if (s - t[0] < T) requestAnimationFrame(frame);
+  };
+  requestAnimationFrame(frame);
 }
