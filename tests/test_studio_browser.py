@@ -255,3 +255,20 @@ def segment_flags(result) -> list[str]:
     numbers = sorted({s["number"] for s in result["segments"]})
     kinds = [sorted({k for s in result["segments"] if s["number"] == n for k in s["findings"]}) for n in numbers]
     return [", ".join(k) or "ok" for k in kinds]
+
+
+def test_9_drop_a_file_on_the_paper(page, server):
+    import base64
+
+    page.click(".tabs button[data-tab=paper]")
+    data = base64.b64encode((ROOT / "samples" / "images" / "horse.png").read_bytes()).decode()
+    page.evaluate("""(b64) => {
+        const bytes = Uint8Array.from(atob(b64), (c) => c.charCodeAt(0));
+        const dt = new DataTransfer();
+        dt.items.add(new File([bytes], "horse.png", { type: "image/png" }));
+        document.getElementById("paper-wrap").dispatchEvent(new DragEvent("drop", { dataTransfer: dt, bubbles: true }));
+    }""", data)
+    page.wait_for_function("document.getElementById('machine').textContent.endsWith('horse.png')", timeout=60_000)
+    assert page.text_content("#stat-strokes") == str(summary(server)["strokes"])
+    page.check("#show-order")
+    assert ink_pixels(page) > 1000

@@ -226,14 +226,7 @@ def create_app(session: Session, config: StudioConfig | None = None) -> FastAPI:
             raise InputError("posts must be a list of post names, e.g. [\"gcode\"]")
 
         def run():
-            from dataclasses import replace
-
-            from doodlecam.pipeline import run_posts
-
-            with session.lock:
-                job = session._require()
-                outs = run_posts(job, replace(session.settings, posts=tuple(posts)))
-                return write_outputs(folder, Path(session.name).stem or "job", outs)
+            return write_outputs(folder, Path(session.name).stem or "job", session.posts(tuple(posts)))
 
         return {"written": [str(p) for p in await run_in_threadpool(run)]}
 

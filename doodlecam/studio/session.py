@@ -349,11 +349,16 @@ class Session:
 
     def export(self, post: str) -> tuple[str, bytes]:
         """(file name, bytes) of one post of the current job."""
+        (_, ext, data), = self.posts((post,))
+        return Path(self.name).stem + ext, data
+
+    def posts(self, names: tuple[str, ...]) -> list[tuple[str, str, bytes]]:
+        """[(post, extension, bytes)] of the current job, as ``pipeline.run_posts``."""
         with self.lock:
             job = self._require()
-            registry.get("postprocessor", post, self.settings.plugin_dirs)  # unknown post: one line
-            (_, ext, data), = run_posts(job, replace(self.settings, posts=(post,)))
-            return Path(self.name).stem + ext, data
+            for post in names:
+                registry.get("postprocessor", post, self.settings.plugin_dirs)  # unknown post: one line
+            return run_posts(job, replace(self.settings, posts=tuple(names)))
 
     def save(self) -> dict:
         """The edited job as versioned JSON: the machine and every stroke's spline, in drawing order."""

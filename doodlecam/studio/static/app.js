@@ -92,6 +92,10 @@ function draw(target = ctx, withSelection = true) {
   }
   g.lineWidth = 1.6;
   paths.forEach((p, c) => { g.strokeStyle = speedColor(c); g.stroke(p); });
+  if ($("show-order").checked) { // each stroke's number at its start: the order the pen draws them
+    g.fillStyle = "#000"; g.font = "10px sans-serif";
+    for (const s of S.view.strokes) g.fillText(String(s.i + 1), sx(s.points[0][0]) + 3, sy(s.points[0][1]) - 3);
+  }
   if (withSelection) drawSelection(g);
 }
 
@@ -467,6 +471,7 @@ document.querySelector(".tabs").addEventListener("click", (e) => {
 // ------------------------------------------------------------------ start
 
 window.addEventListener("resize", resize);
+$("show-order").addEventListener("change", () => { S.base = null; draw(); });
 (async () => {
   resize(); legend();
   await posts();
