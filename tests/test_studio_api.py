@@ -73,10 +73,10 @@ def test_bad_uploads_say_one_line_and_write_nothing(tmp_path):
     for name, data, words in [("notes.txt", b"hello", "no tracer reads"), ("empty.png", b"", "empty"),
                               ("broken.png", b"\x89PNG not really", "broken.png"),
                               ("camera.png", (ROOT / "samples/images/camera.png").read_bytes(), "limit"),
-                              ("", b"x", "no file name")]:
+                              ("", b"x", "no file name"), ("..", b"x", "no file name")]:
         r = c.post(f"/api/load?name={name}", content=data)
         assert r.status_code == 400, (name, r.text)
-        assert words in one_line(r)
+        assert words in one_line(r) and "doodlecam-studio-" not in one_line(r)  # names the upload, not a temporary copy
     assert c.get("/api/state").json()["loaded"] is False
     assert (set(os.listdir(tmp_path / "work")), set(os.listdir("/tmp"))) == before
     assert "open a picture" in one_line(c.get("/api/view"))
@@ -352,6 +352,18 @@ def test_the_studio_command(tmp_path):
         assert "access token " + token in p.stdout.readline()
         busy = run("--port", base.rsplit(":", 1)[1])
         assert busy.returncode != 0 and "cannot listen" in busy.stderr
+    finally:
+        p.send_signal(signal.SIGINT)
+        p.wait(20)
+    # beyond the loopback interface every request needs the printed token
+    p = subprocess.Popen([sys.executable, "-m", "doodlecam", "studio", "--no-browser", "--port", "0", "--host", "0.0.0.0"],
+                         cwd=tmp_path, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    try:
+        url = p.stdout.readline().split()[-1]
+        assert "every request" in p.stdout.readline()
+        base, token = url.split("/?token=")
+        assert httpx.get(base + "/api/state", timeout=10).status_code == 403
+        assert httpx.get(base + "/api/state", headers={"x-doodlecam-token": token}, timeout=10).status_code == 200
     finally:
         p.send_signal(signal.SIGINT)
         p.wait(20)

@@ -133,6 +133,8 @@ def _select_longest(page) -> int:
     p = page.evaluate(f"studio.view.strokes[{k}].points[Math.floor(studio.view.strokes[{k}].points.length / 3)]")
     x, y = page.evaluate(f"studioScreen({p[0]}, {p[1]})")
     box = page.locator("#paper").bounding_box()
+    page.mouse.move(box["x"] + x, box["y"] + y)  # hover: a tooltip with the stroke's figures
+    assert page.get_attribute("#paper", "title").startswith(f"stroke {k + 1}: ")
     page.mouse.click(box["x"] + x, box["y"] + y)
     page.wait_for_function(f"document.getElementById('sel-index').textContent.startsWith('{k + 1} of')")
     page.wait_for_selector("#stroke-figures tr")

@@ -72,7 +72,7 @@ class Session:
     def load(self, name: str, data: bytes, tracer: str | None = None, options: dict[str, Any] | None = None) -> dict:
         """Trace and plan an uploaded file (kept in memory; traced from a private temporary copy)."""
         name = Path(name or "").name
-        if not name:
+        if not name or name in (".", "..") or "\x00" in name:
             raise InputError("the upload has no file name; pick a file")
         if len(data) > self.max_upload:
             raise InputError(f"{name}: {len(data) / 1e6:.1f} MB is larger than the studio's limit of "
@@ -110,7 +110,11 @@ class Session:
         with tempfile.TemporaryDirectory(prefix="doodlecam-studio-") as tmp:
             path = Path(tmp) / name
             path.write_bytes(data)
-            drawing = trace(path, settings)
+            try:
+                drawing = trace(path, settings)
+            except DoodleError as e:  # the message names the upload, not the private copy
+                e.args = (str(e).replace(str(path), name),)
+                raise
         drawing = replace(drawing, source=name)
         mm = fit_to_work_area(drawing, settings.machine, settings.layout)
         if not mm.polylines:
@@ -274,7 +278,8 @@ class Session:
             for n, (st, sa) in enumerate(zip(job.strokes, job.samples)):
                 pos = sa.integrate()
                 speed = np.concatenate([[0.0], np.hypot(*sa.velocity.T)])
-                strokes.append({"i": n, "degree": st.spline.degree, "control": np.round(st.spline.control, 4).tolist(),
+                strokes.append({"i": n, "degree": st.spline.degree, "length": round(st.spline.length, 3),
+                                "control": np.round(st.spline.control, 4).tolist(),
                                 "points": np.round(pos, 3).tolist(), "speed": np.round(speed, 2).tolist(),
                                 "time": round(len(sa.velocity) * sa.delta_time, 4)})
             travels = [[*np.round(t.start, 3).tolist(), *np.round(t.end, 3).tolist(), round(t.duration, 4)]

@@ -210,6 +210,9 @@ paper.addEventListener("mousemove", (e) => {
     S.drag.moved = true;
     draw();
     window.studioPerf.moves.push(performance.now() - t0);
+  } else if (!pan && S.view) { // hover: the stroke under the pointer and its figures, as a tooltip
+    const i = nearestStroke(e.offsetX, e.offsetY), s = S.view.strokes[i];
+    paper.title = s ? `stroke ${i + 1}: ${s.length.toFixed(1)} mm, ${s.control.length} control points, ${s.time.toFixed(2)} s (click for more)` : "";
   } else if (pan) {
     S.ox = pan.ox + e.offsetX - pan.x; S.oy = pan.oy + e.offsetY - pan.y;
     pan.moved = pan.moved || Math.abs(e.offsetX - pan.x) + Math.abs(e.offsetY - pan.y) > 3;
