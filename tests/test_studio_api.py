@@ -326,7 +326,7 @@ def test_the_studio_command(tmp_path):
     import subprocess
     import sys
 
-    import httpx
+    import httpx2 as httpx
 
     def run(*args):
         return subprocess.run([sys.executable, "-m", "doodlecam", "studio", "--no-browser", *args], capture_output=True,
