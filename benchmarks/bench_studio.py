@@ -7,7 +7,8 @@
 2. Dragging a control point of the stroke with the number of control points nearest 100:
    script time per mousemove event (the page's handler: B-spline evaluation + redraw), in the page.
 3. Re-planning the dragged stroke and updating the figures: mouse release until the page
-   shows the new plan (wall), and the server's CPU time for the edit (time.process_time).
+   shows the new plan (wall), this process's CPU time meanwhile (server and Playwright's client),
+   and the CPU time of the same requests (edit, view, figures) through the API without a browser.
 4. Simulation playback of the whole job: frame intervals and script time per frame.
 
 Wall times depend on the load of the machine (2 shared cores here); the server's CPU time does not.
@@ -121,7 +122,28 @@ def run_once(p) -> dict:
         srv.should_exit = True
     finally:
         browser.close()
+    out["replan_api_cpu_ms"] = replan_api_cpu(session) * 1000
     return out
+
+
+def replan_api_cpu(session, n: int = 10) -> float:
+    """CPU s per re-plan as the page asks for it (edit, view, figures), through the HTTP API
+    in this process without a browser: the server's share of target 3."""
+    from fastapi.testclient import TestClient
+
+    from doodlecam.studio.app import StudioConfig, create_app
+
+    c = TestClient(create_app(session, StudioConfig(token="bench")), headers={"x-doodlecam-token": "bench"})
+    view = c.get("/api/view").json()
+    k = min(range(len(view["strokes"])), key=lambda i: abs(len(view["strokes"][i]["control"]) - 100))
+    control = np.array(view["strokes"][k]["control"])
+    c0 = time.process_time()
+    for _ in range(n):
+        control[len(control) // 2] += 0.3
+        c.post("/api/edit", json={"op": "move", "stroke": k, "control": control.tolist()})
+        c.get("/api/view")
+        c.get(f"/api/stroke/{k}")
+    return (time.process_time() - c0) / n
 
 
 def main() -> None:
