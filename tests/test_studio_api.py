@@ -174,6 +174,13 @@ def test_structure_edits_and_their_errors(loaded):
                         ({"op": "move", "stroke": 0, "control": [[0, 0], [1, 1], [2, "x"], [3, 3]]}, "mm")]:
         r = loaded.post("/api/edit", json=body)
         assert r.status_code == 400 and words in one_line(r), (body, r.text)
+    # a stroke dragged off the paper: the planner's one line, and the job stays as it was
+    before = loaded.get("/api/view").json()
+    far = np.array(before["strokes"][0]["control"])
+    far[len(far) // 2] = [5000.0, 5000.0]
+    r = loaded.post("/api/edit", json={"op": "move", "stroke": 0, "control": far.tolist()})
+    assert r.status_code == 400 and "outside the 400 x 300 mm work area" in one_line(r)
+    assert loaded.get("/api/view").json() == before
     while loaded.get("/api/state").json()["summary"]["can_undo"]:
         loaded.post("/api/undo")
     assert loaded.get("/api/state").json()["summary"] == {**s0, "can_redo": True}

@@ -134,7 +134,7 @@ class Session:
         if not strokes:
             return [], []
         s = self.settings
-        drawing = Drawing(tuple(st.spline.control for st in strokes), units="mm")  # hull of the curves: reachability
+        drawing = _curves(strokes)
         job = plan_job(drawing, self.machine, s.solver or self.machine.solver, s.plugin_dirs,
                        smoothing=s.smoothing, fitted=strokes)
         return list(job.strokes), list(job.samples)
@@ -377,13 +377,19 @@ class Session:
         """Load a saved job and plan it (no tracing)."""
         strokes, source = read_job(data, name, self.machine.name)
         with self.lock:
-            drawing = Drawing(tuple(st.spline.control for st in strokes), units="mm", source=source)
+            drawing = replace(_curves(strokes), source=source)
             job = plan_job(drawing, self.machine, self.settings.solver or self.machine.solver, self.settings.plugin_dirs,
                            smoothing=self.settings.smoothing, fitted=strokes)
             self.name, self.data = source or name, b""
             self._set(job, keep_history=False)
             self._check_later(job)
             return self.summary()
+
+
+def _curves(strokes: list[Stroke]) -> Drawing:
+    """The strokes' curves, densely sampled: what plan_job checks for reachability
+    (the curve, not its control points, which may lie outside a non-convex workspace)."""
+    return Drawing(tuple(st.spline(np.linspace(0.0, 1.0, 16 * len(st.spline.control))) for st in strokes), units="mm")
 
 
 def read_job(data: bytes, name: str, machine: str | None = None) -> tuple[list[Stroke], str]:
