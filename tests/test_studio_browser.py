@@ -179,6 +179,22 @@ def test_4_undo_restores_the_plan(page, server):
     assert page.text_content("#stat-time") == f"{s['job_time_s']:.2f} s"
 
 
+def test_4b_right_click_inserts_a_control_point_and_ctrl_z_undoes(page, server):
+    k = page.evaluate("studio.selected")
+    assert k >= 0
+    n = len(page.evaluate(f"studio.view.strokes[{k}].control"))
+    c = page.evaluate(f"studio.view.strokes[{k}].control[3]")
+    x, y = page.evaluate(f"studioScreen({c[0]}, {c[1]})")
+    box = page.locator("#paper").bounding_box()
+    page.once("dialog", lambda d: d.accept())  # "Insert a control point after point 4?"
+    page.mouse.click(box["x"] + x, box["y"] + y, button="right")
+    page.wait_for_function(f"studio.view.strokes[{k}].control.length === {n + 1}")
+    assert summary(server)["can_undo"]
+    page.keyboard.press("Control+z")
+    page.wait_for_function(f"studio.view.strokes[{k}].control.length === {n}")
+    assert not summary(server)["can_undo"]
+
+
 def test_5_export_gcode_equals_convert(page, server, tmp_path):
     page.select_option("#post", "gcode")
     with page.expect_download() as dl:
@@ -263,6 +279,12 @@ def test_9_drop_a_file_on_the_paper(page, server):
     import base64
 
     page.click(".tabs button[data-tab=paper]")
+    strokes = page.text_content("#stat-strokes")
+    # a file no tracer reads: convert's one line in the page, the job kept
+    page.set_input_files("#file", files=[{"name": "notes.txt", "mimeType": "text/plain", "buffer": b"hello"}])
+    page.wait_for_selector("#error:not([hidden])")
+    assert page.text_content("#error").startswith("notes.txt: no tracer reads '.txt' files")
+    assert page.text_content("#stat-strokes") == strokes
     data = base64.b64encode((ROOT / "samples" / "images" / "horse.png").read_bytes()).decode()
     page.evaluate("""(b64) => {
         const bytes = Uint8Array.from(atob(b64), (c) => c.charCodeAt(0));
