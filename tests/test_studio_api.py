@@ -136,12 +136,17 @@ def test_move_control_point_replans_only_that_stroke(loaded, tmp_path):
     assert np.abs(vx).max() <= m.x.max_velocity * (1 + 1e-6) and np.abs(vy).max() <= m.y.max_velocity * (1 + 1e-6)
     assert f["max_between_samples_mm"] <= m.path_tolerance + 1e-3
 
-    # the saved job, planned afresh without tracing, posts the same G-code as the edited session
+    # the saved job, planned afresh without tracing, posts the same G-code as the edited session,
+    # and the job's figures (kept up to date edit by edit) are those of the fresh plan
     saved = loaded.get("/api/job")
     assert saved.json()["format"] == "doodlecam-studio-job" and saved.json()["version"] == 1
     other = make_client(tmp_path)
     assert other.post("/api/job?name=coins.job.json", content=saved.content).status_code == 200
     assert other.get("/api/export/gcode").content == loaded.get("/api/export/gcode").content
+    mine, fresh = (json.loads(c.get("/api/export/json").content)["meta"] for c in (loaded, other))
+    for key in ("control_points", "worst_acceleration_ratio", "worst_velocity_ratio", "max_between_samples_mm",
+                "max_fit_error_mm", "travel_time_by_law"):
+        assert mine[key] == pytest.approx(fresh[key], rel=1e-9, abs=1e-12), key
 
     # undo restores the plan exactly; redo the edit
     assert loaded.post("/api/undo").json()["job_time_s"] == t0

@@ -48,7 +48,7 @@ class Session:
         self.job: Job | None = None
         self.undo_stack: list[Job] = []
         self.redo_stack: list[Job] = []
-        self._ratios: dict[int, tuple[Stroke, float, float]] = {}  # id(stroke) -> (stroke, acc, vel), cached
+        self._checks: dict[int, tuple] = {}  # id(stroke) -> (stroke, acc ratio, vel ratio, deviation per period), cached
 
     # ------------------------------------------------------------ tracers
 
@@ -88,12 +88,12 @@ class Session:
             return self.summary()
 
     def _check_later(self, job: Job) -> None:
-        """Each stroke's limit ratios, checked in the background: the first edit then only checks its own."""
+        """Each stroke's checks, in the background: the first edit then only checks its own."""
         def run():
-            for st in job.strokes:
+            for st, sa in zip(job.strokes, job.samples):
                 if self.job is not job:
                     return  # superseded by another load
-                self.ratios(st)
+                self.checks(st, sa)
 
         threading.Thread(target=run, name="studio-check", daemon=True).start()
 
@@ -154,22 +154,27 @@ class Session:
         points.append(np.asarray(m.home, float))
         travels = tuple(make_travel(points[2 * i], points[2 * i + 1], m) for i in range(len(strokes) + 1))
         old = self._require()
-        acc, vel = zip(*(self.ratios(st) for st in strokes)) if strokes else ((0.0,), (0.0,))
+        checks = [self.checks(st, sa) for st, sa in zip(strokes, samples)]
         meta = {**old.meta, "control_points": sum(len(st.spline.control) for st in strokes),
-                "worst_acceleration_ratio": max(acc), "worst_velocity_ratio": max(vel),
+                "worst_acceleration_ratio": max((c[0] for c in checks), default=0.0),
+                "worst_velocity_ratio": max((c[1] for c in checks), default=0.0),
+                "max_between_samples_mm": max((float(c[2].max(initial=0.0)) for c in checks), default=0.0),
+                "max_fit_error_mm": max((st.fit_error for st in strokes), default=0.0),
                 "travel_time_by_law": travel_time_by_law(travels, m), "edited": True}
         return replace(old, strokes=tuple(strokes), samples=tuple(samples), travels=travels, meta=meta)
 
-    def ratios(self, stroke: Stroke) -> tuple[float, float]:
-        """(acceleration, velocity) worst ratio to the limits, checked on the planner's fine grid."""
+    def checks(self, stroke: Stroke, samples) -> tuple[float, float, np.ndarray]:
+        """(acceleration, velocity) worst ratio to the limits, checked on the planner's fine grid,
+        and the executed path's distance from the curve per sample period (mm), as plan_job checks them."""
+        from doodlecam.plan.follow import path_deviation
         from doodlecam.plan.planner import Limits, check_profile
 
-        hit = self._ratios.get(id(stroke))
+        hit = self._checks.get(id(stroke))
         if hit is None or hit[0] is not stroke:  # the stroke is kept in the entry, so its id is not reused
             kin = registry.kinematics_for(self.machine, self.settings.plugin_dirs)
             r = check_profile(stroke.spline, stroke.profile, Limits.from_machine(self.machine, kin))
-            hit = self._ratios[id(stroke)] = (stroke, float(r[0]), float(r[1]))
-        return hit[1], hit[2]
+            hit = self._checks[id(stroke)] = (stroke, float(r[0]), float(r[1]), path_deviation(stroke.spline, samples))
+        return hit[1], hit[2], hit[3]
 
     def _index(self, i: Any, n: int, what: str = "stroke") -> int:
         try:
@@ -237,7 +242,7 @@ class Session:
             self.undo_stack = (self.undo_stack + [self.job])[-HISTORY:]
         elif not keep_history:
             self.undo_stack = []
-            self._ratios.clear()
+            self._checks.clear()
         self.redo_stack = []
         self.job = job
 
@@ -293,15 +298,12 @@ class Session:
     def stroke(self, i: Any) -> dict:
         """The figures of one stroke: the report's plots (path velocity sqrt(b(u)), axis velocities and
         accelerations against their limits, the executed path's distance from the curve per period)."""
-        from doodlecam.plan.follow import path_deviation
-
         with self.lock:
             job = self._require()
             k = self._index(i, len(job.strokes))
             st, sa = job.strokes[k], job.samples[k]
             p = st.profile
-            dev = path_deviation(st.spline, sa)
-            acc, vel = self.ratios(st)
+            acc, vel, dev = self.checks(st, sa)
             v = np.vstack([np.zeros((1, 2)), sa.velocity])
             a = np.diff(v, axis=0) / sa.delta_time  # the PLC ramps: constant per period
             t = np.arange(len(v)) * sa.delta_time
