@@ -206,6 +206,14 @@ def test_paths_stay_inside_the_chosen_folders(loaded, tmp_path):
         r = loaded.post("/api/open", json={"path": where + "/coins.png"})
         assert r.status_code == 400 and "outside the folders" in one_line(r), where
     assert not list(outside.iterdir()) and not (tmp_path / "escape").exists()
+    # a file opened from the folder is never overwritten by an export
+    vector = folder / "badge.svg"
+    vector.write_bytes((ROOT / "samples/vectors/badge.svg").read_bytes())
+    assert loaded.post("/api/open", json={"path": "badge.svg"}).status_code == 200
+    r = loaded.post("/api/export", json={"posts": ["svg"], "folder": "."})
+    assert r.status_code == 400 and "opened from" in one_line(r)
+    assert vector.read_bytes() == (ROOT / "samples/vectors/badge.svg").read_bytes()
+    assert loaded.post("/api/load?name=coins.png", content=PICTURE.read_bytes()).status_code == 200
     r = loaded.get("/api/export/nope")
     assert r.status_code == 400 and "nope" in one_line(r)
 

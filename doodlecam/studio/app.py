@@ -67,6 +67,7 @@ def create_app(session: Session, config: StudioConfig | None = None) -> FastAPI:
     config = config or StudioConfig()
     app = FastAPI(title="doodlecam studio", docs_url=None, redoc_url=None, openapi_url=None)
     app.state.session, app.state.config, app.state.sender = session, config, Sender()
+    app.state.opened = None  # the input file opened by path, if any
     sender: Sender = app.state.sender
     app.router.add_event_handler("shutdown", sender.close)
 
@@ -168,7 +169,9 @@ def create_app(session: Session, config: StudioConfig | None = None) -> FastAPI:
             raise InputError(f"{p}: no such file; check the path")
         if p.stat().st_size > session.max_upload:
             raise InputError(f"{p}: larger than the studio's limit of {session.max_upload / 1e6:.0f} MB")
-        return await run_in_threadpool(session.load, p.name, p.read_bytes(), doc.get("tracer"), doc.get("options") or {})
+        summary = await run_in_threadpool(session.load, p.name, p.read_bytes(), doc.get("tracer"), doc.get("options") or {})
+        app.state.opened = p  # never to be overwritten by an export
+        return summary
 
     @app.post("/api/trace")
     async def retrace(request: Request):
@@ -226,7 +229,14 @@ def create_app(session: Session, config: StudioConfig | None = None) -> FastAPI:
             raise InputError("posts must be a list of post names, e.g. [\"gcode\"]")
 
         def run():
-            return write_outputs(folder, Path(session.name).stem or "job", session.posts(tuple(posts)))
+            stem = Path(session.name).stem or "job"
+            outs = session.posts(tuple(posts))
+            opened = app.state.opened
+            for _, ext, _ in outs:
+                if opened is not None and (folder / f"{stem}{ext}").resolve() == opened:
+                    raise OutputError(f"{folder / (stem + ext)} is the file the job was opened from; "
+                                      "export into another folder")
+            return write_outputs(folder, stem, outs)
 
         return {"written": [str(p) for p in await run_in_threadpool(run)]}
 
