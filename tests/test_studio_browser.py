@@ -204,7 +204,8 @@ def test_5_export_gcode_equals_convert(page, server, tmp_path):
     assert cli_main(["convert", str(CAMERA), "-o", str(tmp_path), "--post", "gcode", "--tracer", "edges",
                      "--tracer-opt", "sigma=4"]) == 0
     assert data == (tmp_path / "camera.gcode").read_bytes()
-    # redo the edit: the G-code of the edited job equals a fresh plan of the saved job (no re-tracing)
+    # redo the last edit (4b's inserted point): the G-code of the edited job equals a fresh plan of
+    # the saved job (no re-tracing)
     page.click("#redo")
     page.wait_for_function("document.getElementById('undo').disabled === false")
     with page.expect_download() as dl:
@@ -236,7 +237,7 @@ def test_7_send_to_the_plc_simulator(page, server):
     page.click("#send")
     page.wait_for_selector("#send-status[data-state=done]", timeout=60_000)
     assert page.evaluate("document.getElementById('send-progress').value") == 100
-    assert "done" in page.text_content("#send-status")
+    assert page.text_content("#send-status").startswith(f"done: {summary_commands(server)} commands in ")
     shot(page, "send")
 
 
@@ -296,3 +297,10 @@ def test_9_drop_a_file_on_the_paper(page, server):
     assert page.text_content("#stat-strokes") == str(summary(server)["strokes"])
     page.check("#show-order")
     assert ink_pixels(page) > 1000
+
+
+def summary_commands(server) -> int:
+    """Commands in the job's PLC file, read back with the packet-file reader."""
+    from doodlecam.link.plc.packetfile import read_plc_array
+
+    return len(read_plc_array(server["app"].state.session.export("plc")[1])[1])

@@ -119,7 +119,7 @@ class Sender:
         try:
             r = self._sender.run()
             end = dict(state="done", executed=r.commands, time_left_s=0.0,
-                       message=f"done: {r.commands} commands in {r.elapsed:.1f} s"
+                       message=f"{r.commands} commands in {r.elapsed:.2f} s"
                        + (f", resumed at command {r.start_at}" if r.resumed else ""))
         except Paused as e:  # the PLC's count, confirmed by its stop (progress reports lag behind it)
             end = dict(state="stopped", message=str(e), executed=self._sender.executed)
