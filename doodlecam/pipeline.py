@@ -83,10 +83,12 @@ RAMP_GAIN = 1.25  # the share of a limit drops by this times the excess measured
 
 
 def plan_job(drawing: Drawing, machine: Machine, solver: str = "reach", plugin_dirs=(), order: dict | None = None,
-             smoothing: float | None = None) -> Job:
+             smoothing: float | None = None, fitted: list[Stroke] | None = None) -> Job:
     """Order, fit, plan and sample a drawing already in machine millimetres.
 
     ``order`` overrides the profile's [order] options (doodlecam.trace.layout.ORDER_DEFAULTS).
+    ``fitted``: strokes already ordered and fitted (an edited job, e.g. from the
+    studio): planned as given, without ordering or fitting ``drawing`` again.
     """
     from doodlecam.geometry.fit import fit_pieces
     from doodlecam.geometry.order import order_strokes
@@ -104,20 +106,22 @@ def plan_job(drawing: Drawing, machine: Machine, solver: str = "reach", plugin_d
     timings: dict[str, float] = {}
 
     t0 = time.perf_counter()
-    oo = order_options({**machine.order, **(order or {})})
-    # One layer after another (a pen each, in the drawing's order); strokes ordered within it.
-    names = drawing.layers or ("",) * len(drawing.polylines)
-    ordered = []  # (source index, polyline, layer)
-    for layer in dict.fromkeys(names):
-        mine = [i for i, n in enumerate(names) if n == layer]
-        o = order_strokes([drawing.polylines[i] for i in mine], machine.home, allow_reverse=oo["reverse"],
-                          merge=oo["merge"], budget=oo["budget"], moves=oo["moves"])
-        ordered += [(mine[k], p, layer) for k, p in zip(o.source, o.polylines)]
+    if fitted is None:
+        oo = order_options({**machine.order, **(order or {})})
+        # One layer after another (a pen each, in the drawing's order); strokes ordered within it.
+        names = drawing.layers or ("",) * len(drawing.polylines)
+        ordered = []  # (source index, polyline, layer)
+        for layer in dict.fromkeys(names):
+            mine = [i for i, n in enumerate(names) if n == layer]
+            o = order_strokes([drawing.polylines[i] for i in mine], machine.home, allow_reverse=oo["reverse"],
+                              merge=oo["merge"], budget=oo["budget"], moves=oo["moves"])
+            ordered += [(mine[k], p, layer) for k, p in zip(o.source, o.polylines)]
     timings["order"] = time.perf_counter() - t0
 
     t0 = time.perf_counter()
-    strokes = []
-    for i, p, layer in ordered:
+    strokes = [] if fitted is None else [Stroke(spline=s.spline, source_index=s.source_index, fit_error=s.fit_error,
+                                                layer=s.layer) for s in fitted]
+    for i, p, layer in ordered if fitted is None else ():
         for spline, err in fit_pieces(p, machine.degree, machine.tolerance):
             strokes.append(Stroke(spline=spline, source_index=i, fit_error=err, layer=layer))
     timings["fit"] = time.perf_counter() - t0

@@ -31,7 +31,7 @@ LAYERS: list[tuple[str, ...]] = [
     ("doodlecam.plan",),
     ("doodlecam.checks",),  # every mistake found before any work
     ("doodlecam.pipeline", "doodlecam.plugins", "doodlecam.postprocessors"),
-    ("doodlecam.plot", "doodlecam.batch", "doodlecam.calibration"),
+    ("doodlecam.plot", "doodlecam.batch", "doodlecam.calibration", "doodlecam.studio"),
     ("doodlecam.cli",),
     ("doodlecam.__main__",),
 ]

@@ -29,6 +29,7 @@ LAZY_COMMANDS: dict[str, str] = {
     "learn": "doodlecam.cli.motion:learn",
     "batch": "doodlecam.cli.batch:batch",
     "plugins": "doodlecam.cli.plugins:plugins",
+    "studio": "doodlecam.cli.studio:studio",
 }
 
 

@@ -1,0 +1,329 @@
+"""The studio's web application: a FastAPI app over one Session, plus the static page.
+
+Safety (docs/studio.md): every /api request needs the access token when the
+server listens beyond the loopback interface, and starting or stopping a
+send always needs it; paths in requests resolve inside the folders the user
+chose or are refused; a failing request answers one line (JSON ``error``)
+and the server carries on.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import json
+import secrets
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+from fastapi import FastAPI, Request
+from fastapi.concurrency import run_in_threadpool
+from fastapi.responses import FileResponse, JSONResponse, Response, StreamingResponse
+from fastapi.staticfiles import StaticFiles
+
+from doodlecam.errors import DoodleError, InputError, OutputError
+from doodlecam.studio import motion as studio_motion
+from doodlecam.studio.sending import Sender
+from doodlecam.studio.session import Session
+
+STATIC = Path(__file__).parent / "static"
+TOKEN_HEADER = "x-doodlecam-token"
+
+
+@dataclass
+class StudioConfig:
+    token: str = field(default_factory=lambda: secrets.token_urlsafe(24))
+    require_token: bool = False  # True when listening beyond 127.0.0.1
+    folders: tuple[Path, ...] = ()  # the only places files are read from or written to by path
+
+
+def inside(folders: tuple[Path, ...], text: Any, what: str = "path") -> Path:
+    """``text`` resolved (symlinks followed) inside one of ``folders``, else an InputError.
+    Relative paths are taken from the first folder."""
+    if not folders:
+        raise InputError("the studio was started without folders; start it with --folder DIR to read or write files there")
+    if not isinstance(text, str) or not text or "\x00" in text:
+        raise InputError(f"{what} must be a path inside {folders[0]}")
+    p = Path(text)
+    p = (p if p.is_absolute() else folders[0] / p).resolve()
+    for f in folders:
+        root = f.resolve()
+        if p == root or root in p.parents:
+            return p
+    raise InputError(f"{text}: outside the folders the studio may use ({', '.join(map(str, folders))})")
+
+
+def _json(doc: Any) -> Response:
+    """A large JSON answer (views, figures, timelines): json.dumps at C speed instead of
+    FastAPI's per-value encoder, which costs tens of ms on a job's thousands of points."""
+    return Response(json.dumps(doc, separators=(",", ":")), media_type="application/json")
+
+
+def _error(status: int, message: str) -> JSONResponse:
+    return JSONResponse({"error": message}, status_code=status)
+
+
+def create_app(session: Session, config: StudioConfig | None = None) -> FastAPI:
+    config = config or StudioConfig()
+    app = FastAPI(title="doodlecam studio", docs_url=None, redoc_url=None, openapi_url=None)
+    app.state.session, app.state.config, app.state.sender = session, config, Sender()
+    app.state.opened = None  # the input file opened by path, if any
+    sender: Sender = app.state.sender
+    app.router.add_event_handler("shutdown", sender.close)
+
+    @app.middleware("http")
+    async def guard(request: Request, call_next):
+        path = request.url.path
+        sending = path.startswith("/api/send") and request.method == "POST"
+        if path.startswith("/api/") and (config.require_token or sending):
+            given = request.headers.get(TOKEN_HEADER) or request.query_params.get("token") or ""
+            if not secrets.compare_digest(given.encode(), config.token.encode()):
+                return _error(403, "this request needs the access token the studio printed at start "
+                                   "(open the printed URL, or add ?token=...)")
+        try:
+            return await call_next(request)
+        except Exception as e:  # a request never kills the server: one line back
+            return _error(500, f"internal error: {type(e).__name__}: {e}")
+
+    @app.exception_handler(DoodleError)
+    async def doodle_error(request: Request, e: DoodleError):
+        return _error(400, str(e))
+
+    async def body(request: Request) -> bytes:
+        """The request body, refused beyond the session's upload limit before it is all read."""
+        limit = session.max_upload
+        size = request.headers.get("content-length")
+        if size and size.isdigit() and int(size) > limit:
+            raise InputError(f"the upload is {int(size) / 1e6:.1f} MB, larger than the studio's limit of "
+                             f"{limit / 1e6:.0f} MB; start it with a larger --max-upload")
+        chunks, n = [], 0
+        async for chunk in request.stream():
+            n += len(chunk)
+            if n > limit:
+                raise InputError(f"the upload is larger than the studio's limit of {limit / 1e6:.0f} MB; "
+                                 "start it with a larger --max-upload")
+            chunks.append(chunk)
+        return b"".join(chunks)
+
+    async def payload(request: Request) -> dict:
+        try:
+            doc = json.loads(await body(request) or b"{}")
+        except (UnicodeDecodeError, json.JSONDecodeError):
+            raise InputError("the request body is not JSON") from None
+        if not isinstance(doc, dict):
+            raise InputError("the request body must be a JSON object")
+        return doc
+
+    def options_param(text: str | None) -> dict:
+        if not text:
+            return {}
+        try:
+            opts = json.loads(text)
+        except json.JSONDecodeError:
+            raise InputError("tracer options must be a JSON object") from None
+        if not isinstance(opts, dict):
+            raise InputError("tracer options must be a JSON object")
+        return opts
+
+    # ------------------------------------------------------------ pages
+
+    @app.get("/")
+    def index():
+        return FileResponse(STATIC / "index.html", headers={"Cache-Control": "no-store"})
+
+    @app.get("/favicon.ico")
+    def favicon():
+        return Response(status_code=204)
+
+    app.mount("/static", StaticFiles(directory=STATIC), name="static")
+
+    # ------------------------------------------------------------ job
+
+    @app.get("/api/state")
+    def state():
+        m = session.machine
+        return {"machine": m.name, "loaded": session.job is not None,
+                "summary": session.summary() if session.job is not None else None,
+                "folders": [str(f) for f in config.folders], "send": sender.snapshot()[1]}
+
+    @app.get("/api/tracers")
+    def tracers():
+        return session.tracers()
+
+    @app.get("/api/posts")
+    def posts():
+        from doodlecam import registry
+
+        return sorted(i.name for i in registry.discover(session.settings.plugin_dirs) if i.kind == "postprocessor")
+
+    @app.post("/api/load")
+    async def load(request: Request, name: str = "", tracer: str | None = None, options: str | None = None):
+        data = await body(request)
+        return await run_in_threadpool(session.load, name, data, tracer or None, options_param(options))
+
+    @app.post("/api/open")
+    async def open_path(request: Request):
+        doc = await payload(request)
+        p = inside(config.folders, doc.get("path"))
+        if not p.is_file():
+            raise InputError(f"{p}: no such file; check the path")
+        if p.stat().st_size > session.max_upload:
+            raise InputError(f"{p}: larger than the studio's limit of {session.max_upload / 1e6:.0f} MB")
+        summary = await run_in_threadpool(session.load, p.name, p.read_bytes(), doc.get("tracer"), doc.get("options") or {})
+        app.state.opened = p  # never to be overwritten by an export
+        return summary
+
+    @app.post("/api/trace")
+    async def retrace(request: Request):
+        doc = await payload(request)
+        opts = doc.get("options") or {}
+        if not isinstance(opts, dict):
+            raise InputError("tracer options must be a JSON object")
+        return await run_in_threadpool(session.retrace, doc.get("tracer") or None, opts)
+
+    @app.get("/api/view")
+    def view():
+        return _json(session.view())
+
+    @app.get("/api/stroke/{i}")
+    def stroke(i: str):
+        return _json(session.stroke(i))
+
+    @app.post("/api/edit")
+    async def edit(request: Request):
+        doc = await payload(request)
+        op = doc.pop("op", None)
+        i = doc.pop("stroke", None)
+        allowed = {"control", "point", "to"}
+        extra = set(doc) - allowed
+        if extra:
+            raise InputError(f"unknown edit field '{sorted(extra)[0]}'; use op, stroke, control, point, to")
+        return await run_in_threadpool(lambda: session.edit(str(op), i, **doc))
+
+    @app.post("/api/undo")
+    def undo():
+        return session.undo()
+
+    @app.post("/api/redo")
+    def redo():
+        return session.redo()
+
+    @app.get("/api/timeline")
+    def timeline():
+        return _json(session.timeline())
+
+    @app.get("/api/export/{post}")
+    def export(post: str):
+        name, data = session.export(post)
+        return Response(data, media_type="application/octet-stream",
+                        headers={"Content-Disposition": f'attachment; filename="{name}"'})
+
+    @app.post("/api/export")
+    async def export_to(request: Request):
+        from doodlecam.pipeline import write_outputs
+
+        doc = await payload(request)
+        folder = inside(config.folders, doc.get("folder") or ".", "folder")
+        posts = doc.get("posts") or []
+        if not isinstance(posts, list) or not posts or not all(isinstance(p, str) for p in posts):
+            raise InputError("posts must be a list of post names, e.g. [\"gcode\"]")
+
+        def run():
+            stem = Path(session.name).stem or "job"
+            outs = session.posts(tuple(posts))
+            opened = app.state.opened
+            for _, ext, _ in outs:
+                if opened is not None and (folder / f"{stem}{ext}").resolve() == opened:
+                    raise OutputError(f"{folder / (stem + ext)} is the file the job was opened from; "
+                                      "export into another folder")
+            return write_outputs(folder, stem, outs)
+
+        return {"written": [str(p) for p in await run_in_threadpool(run)]}
+
+    @app.get("/api/job")
+    def save_job():
+        doc = session.save()
+        name = (Path(session.name).stem or "job") + ".job.json"
+        return Response(json.dumps(doc), media_type="application/json",
+                        headers={"Content-Disposition": f'attachment; filename="{name}"'})
+
+    @app.post("/api/job")
+    async def open_job(request: Request, name: str = "job.json"):
+        data = await body(request)
+        return await run_in_threadpool(session.open_job, data, name)
+
+    # ------------------------------------------------------------ motion design (MOTDES)
+
+    @app.get("/api/motion/designs")
+    def motion_designs():
+        return studio_motion.designs(config.folders)
+
+    @app.post("/api/motion/open")
+    async def motion_open(request: Request):
+        p = inside(config.folders, (await payload(request)).get("path"))
+        if not p.is_file():
+            raise InputError(f"{p}: no such file; check the path")
+        doc = studio_motion.read(p)
+        return _json({"doc": doc, "result": await run_in_threadpool(studio_motion.solve, doc, p.name), "name": p.name})
+
+    @app.post("/api/motion/solve")
+    async def motion_solve(request: Request):
+        doc = await payload(request)
+        return _json(await run_in_threadpool(studio_motion.solve, doc.get("doc"), str(doc.get("name") or "design")))
+
+    @app.post("/api/motion/table")
+    async def motion_table(request: Request):
+        doc = await payload(request)
+        name = Path(str(doc.get("name") or "design")).stem
+        data = await run_in_threadpool(studio_motion.table_csv, doc.get("doc"), name)
+        return Response(data, media_type="text/csv", headers={"Content-Disposition": f'attachment; filename="{name}.csv"'})
+
+    # ------------------------------------------------------------ send
+
+    @app.get("/api/send")
+    def send_state():
+        return sender.snapshot()[1]
+
+    @app.post("/api/send")
+    async def send(request: Request):
+        doc = await payload(request)
+        target = doc.get("target") or "simulator"
+        if not isinstance(target, str):
+            raise InputError("target must be 'simulator' or HOST:PORT")
+
+        def start():
+            _, data = session.export("plc")
+            return sender.start(data, session.machine, target, doc.get("speed"))
+
+        return await run_in_threadpool(start)
+
+    @app.post("/api/send/stop")
+    def send_stop():
+        return sender.stop()
+
+    @app.get("/api/send/events")
+    async def send_events(request: Request):
+        """Server-sent events: the send's state on every change, until it ends."""
+
+        async def stream():
+            version, snap = sender.snapshot()
+            yield f"data: {json.dumps(snap)}\n\n"
+            while snap["state"] == "sending":
+                if await request.is_disconnected():
+                    return  # the send goes on: it belongs to the server, not to the page
+                version, snap = await asyncio.to_thread(sender.wait, version, 0.5)
+                yield f"data: {json.dumps(snap)}\n\n"
+
+        return StreamingResponse(stream(), media_type="text/event-stream", headers={"Cache-Control": "no-store"})
+
+    return app
+
+
+def check_folders(folders) -> tuple[Path, ...]:
+    out = []
+    for f in folders:
+        p = Path(f)
+        if not p.is_dir():
+            raise OutputError(f"{f}: no such folder; create it or give another --folder")
+        out.append(p.resolve())
+    return tuple(out)

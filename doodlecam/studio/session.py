@@ -1,0 +1,421 @@
+"""The studio's state: one loaded file, its traced drawing and the (edited) planned job.
+
+Every stage is the CLI's: ``pipeline.trace`` -> ``trace.layout.fit_to_work_area``
+-> ``pipeline.plan_job`` -> ``pipeline.run_posts``. An edit changes strokes'
+control points; only the changed strokes are planned again (``plan_job`` with
+``fitted=``), the others keep their plans, so the job equals what planning the
+whole edited job would give. Units: mm and s.
+"""
+
+from __future__ import annotations
+
+import json
+import tempfile
+import threading
+from dataclasses import replace
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from doodlecam import registry
+from doodlecam.errors import DoodleError, InputError
+from doodlecam.model import Drawing, Job, Spline, Stroke
+from doodlecam.pipeline import Settings, plan_job, run_posts, trace
+
+JOB_FORMAT = "doodlecam-studio-job"
+JOB_VERSION = 1
+HISTORY = 100  # undo steps kept
+
+
+def _settings_machine(settings: Settings):
+    m = settings.machine
+    return m if settings.path_tolerance is None else replace(m, path_tolerance=float(settings.path_tolerance))
+
+
+class Session:
+    """One user's job. Methods raise DoodleErrors (one line each) on bad input."""
+
+    def __init__(self, settings: Settings, max_upload: int = 20 << 20):
+        self.settings = settings
+        self.machine = _settings_machine(settings)
+        self.max_upload = max_upload
+        self.lock = threading.RLock()  # requests run in a thread pool
+        self.name = ""
+        self.data = b""
+        self.tracer: str | None = settings.tracer
+        self.tracer_options: dict[str, Any] = dict(settings.tracer_options)
+        self.job: Job | None = None
+        self.undo_stack: list[Job] = []
+        self.redo_stack: list[Job] = []
+        self._checks: dict[int, tuple] = {}  # id(stroke) -> (stroke, acc ratio, vel ratio, deviation per period), cached
+
+    # ------------------------------------------------------------ tracers
+
+    def tracers(self) -> list[dict[str, Any]]:
+        """Every tracer plugin with its declared options: the page builds its panel from these."""
+        out = []
+        for info in registry.discover(self.settings.plugin_dirs):
+            if info.kind != "tracer":
+                continue
+            try:
+                cls = info.load()
+            except DoodleError:
+                continue
+            out.append({"name": cls.name, "extensions": list(cls.extensions), 
+                        "options": [{"name": o.name, "type": o.type.__name__, "default": o.default, "help": o.help,
+                                     "choices": list(o.choices) if o.choices else None} for o in cls.options]})
+        return sorted(out, key=lambda t: t["name"])
+
+    # ------------------------------------------------------------ load, trace, plan
+
+    def load(self, name: str, data: bytes, tracer: str | None = None, options: dict[str, Any] | None = None) -> dict:
+        """Trace and plan an uploaded file (kept in memory; traced from a private temporary copy)."""
+        name = Path(name or "").name
+        if not name or name in (".", "..") or "\x00" in name:
+            raise InputError("the upload has no file name; pick a file")
+        if len(data) > self.max_upload:
+            raise InputError(f"{name}: {len(data) / 1e6:.1f} MB is larger than the studio's limit of "
+                             f"{self.max_upload / 1e6:.0f} MB; start it with a larger --max-upload")
+        if not data:
+            raise InputError(f"{name}: the file is empty; pick another")
+        with self.lock:
+            job = self._trace_plan(name, data, tracer, options or {})
+            self.name, self.data = name, data
+            self.tracer, self.tracer_options = tracer, dict(options or {})
+            self._set(job, keep_history=False)
+            self._check_later(job)
+            return self.summary()
+
+    def _check_later(self, job: Job) -> None:
+        """Each stroke's checks, in the background: the first edit then only checks its own."""
+        def run():
+            for st, sa in zip(job.strokes, job.samples):
+                if self.job is not job:
+                    return  # superseded by another load
+                self.checks(st, sa)
+
+        threading.Thread(target=run, name="studio-check", daemon=True).start()
+
+    def retrace(self, tracer: str | None, options: dict[str, Any]) -> dict:
+        with self.lock:
+            if not self.data:
+                raise InputError("no file is loaded; open a picture or vector file first")
+            return self.load(self.name, self.data, tracer, options)
+
+    def _trace_plan(self, name: str, data: bytes, tracer: str | None, options: dict[str, Any]) -> Job:
+        from doodlecam.trace.layout import fit_to_work_area
+
+        settings = replace(self.settings, tracer=tracer or None, tracer_options=options)
+        with tempfile.TemporaryDirectory(prefix="doodlecam-studio-") as tmp:
+            path = Path(tmp) / name
+            path.write_bytes(data)
+            try:
+                drawing = trace(path, settings)
+            except DoodleError as e:  # the message names the upload, not the private copy
+                e.args = (str(e).replace(str(path), name),)
+                raise
+        drawing = replace(drawing, source=name)
+        mm = fit_to_work_area(drawing, settings.machine, settings.layout)
+        if not mm.polylines:
+            raise InputError(f"{name}: nothing to draw with these tracer options; loosen them (e.g. a lower threshold)")
+        return plan_job(mm, self.machine, settings.solver or self.machine.solver, settings.plugin_dirs,
+                        smoothing=settings.smoothing, order=settings.order)
+
+    def _require(self) -> Job:
+        if self.job is None:
+            raise InputError("no job yet; open a picture or vector file first")
+        return self.job
+
+    # ------------------------------------------------------------ edits
+
+    def _plan_strokes(self, strokes: list[Stroke]) -> tuple[list[Stroke], list]:
+        """Plan strokes (already fitted and ordered) with the job's settings: (planned, samples)."""
+        if not strokes:
+            return [], []
+        s = self.settings
+        drawing = _curves(strokes)
+        job = plan_job(drawing, self.machine, s.solver or self.machine.solver, s.plugin_dirs,
+                       smoothing=s.smoothing, fitted=strokes)
+        return list(job.strokes), list(job.samples)
+
+    def _rebuild(self, strokes: list[Stroke], samples: list, changed: set[int]) -> Job:
+        """The job with ``strokes`` in this order, re-planning those at ``changed``."""
+        from doodlecam.plan.travel import make_travel, travel_time_by_law
+
+        idx = sorted(changed)
+        planned, smp = self._plan_strokes([strokes[i] for i in idx])
+        for i, st, sa in zip(idx, planned, smp):
+            strokes[i], samples[i] = st, sa
+        m = self.machine
+        points = [np.asarray(m.home, float)]
+        for st in strokes:
+            points += [st.spline.start, st.spline.end]
+        points.append(np.asarray(m.home, float))
+        travels = tuple(make_travel(points[2 * i], points[2 * i + 1], m) for i in range(len(strokes) + 1))
+        old = self._require()
+        checks = [self.checks(st, sa) for st, sa in zip(strokes, samples)]
+        meta = {**old.meta, "control_points": sum(len(st.spline.control) for st in strokes),
+                "worst_acceleration_ratio": max((c[0] for c in checks), default=0.0),
+                "worst_velocity_ratio": max((c[1] for c in checks), default=0.0),
+                "max_between_samples_mm": max((float(c[2].max(initial=0.0)) for c in checks), default=0.0),
+                "max_fit_error_mm": max((st.fit_error for st in strokes), default=0.0),
+                "travel_time_by_law": travel_time_by_law(travels, m), "edited": True}
+        return replace(old, strokes=tuple(strokes), samples=tuple(samples), travels=travels, meta=meta)
+
+    def checks(self, stroke: Stroke, samples) -> tuple[float, float, np.ndarray]:
+        """(acceleration, velocity) worst ratio to the limits, checked on the planner's fine grid,
+        and the executed path's distance from the curve per sample period (mm), as plan_job checks them."""
+        from doodlecam.plan.follow import path_deviation
+        from doodlecam.plan.planner import Limits, check_profile
+
+        hit = self._checks.get(id(stroke))
+        if hit is None or hit[0] is not stroke:  # the stroke is kept in the entry, so its id is not reused
+            kin = registry.kinematics_for(self.machine, self.settings.plugin_dirs)
+            r = check_profile(stroke.spline, stroke.profile, Limits.from_machine(self.machine, kin))
+            hit = self._checks[id(stroke)] = (stroke, float(r[0]), float(r[1]), path_deviation(stroke.spline, samples))
+        return hit[1], hit[2], hit[3]
+
+    def _index(self, i: Any, n: int, what: str = "stroke") -> int:
+        try:
+            k = int(i)
+        except (TypeError, ValueError):
+            raise InputError(f"{what} must be a number, got {i!r}") from None
+        if not 0 <= k < n:
+            raise InputError(f"{what} {k} does not exist (0 to {n - 1}); reload the page")
+        return k
+
+    def edit(self, op: str, stroke: Any = None, **kw) -> dict:
+        """Apply one edit; returns the new summary. ops: move, insert, delete_point, delete, reverse, split, reorder."""
+        with self.lock:
+            job = self._require()
+            strokes, samples = list(job.strokes), list(job.samples)
+            i = self._index(stroke, len(strokes))
+            st = strokes[i]
+            ctrl = np.array(st.spline.control)
+            deg = st.spline.degree
+            changed = {i}
+            if op == "move":
+                try:
+                    control = np.asarray(kw.get("control"), dtype=float) if kw.get("control") is not None else None
+                except (TypeError, ValueError):
+                    control = None
+                if control is None or control.ndim != 2 or control.shape[1] != 2 or not np.isfinite(control).all():
+                    raise InputError("move needs 'control': a list of [x, y] control points in mm")
+                if len(control) < deg + 1:
+                    raise InputError(f"a stroke needs at least {deg + 1} control points")
+                strokes[i] = Stroke(Spline(deg, control), source_index=st.source_index)
+            elif op == "insert":  # a new point halfway between control points k and k + 1
+                k = self._index(kw.get("point"), len(ctrl) - 1, "control point")
+                strokes[i] = Stroke(Spline(deg, np.insert(ctrl, k + 1, (ctrl[k] + ctrl[k + 1]) / 2, axis=0)),
+                                    source_index=st.source_index)
+            elif op == "delete_point":
+                k = self._index(kw.get("point"), len(ctrl), "control point")
+                if len(ctrl) <= deg + 1:
+                    raise InputError(f"a stroke needs at least {deg + 1} control points; delete the stroke instead")
+                strokes[i] = Stroke(Spline(deg, np.delete(ctrl, k, axis=0)), source_index=st.source_index)
+            elif op == "delete":
+                del strokes[i], samples[i]
+                changed = set()
+            elif op == "reverse":
+                strokes[i] = Stroke(st.spline.reversed(), source_index=st.source_index)
+            elif op == "split":  # at control point k: two strokes sharing it
+                k = self._index(kw.get("point"), len(ctrl), "control point")
+                if k < deg or len(ctrl) - k < deg + 1:
+                    raise InputError(f"split at a control point with at least {deg} others on each side")
+                strokes[i:i + 1] = [Stroke(Spline(deg, ctrl[:k + 1]), source_index=st.source_index),
+                                    Stroke(Spline(deg, ctrl[k:]), source_index=st.source_index)]
+                samples[i:i + 1] = [None, None]
+                changed = {i, i + 1}
+            elif op == "reorder":
+                to = self._index(kw.get("to"), len(strokes), "position")
+                strokes.insert(to, strokes.pop(i))
+                samples.insert(to, samples.pop(i))
+                changed = set()
+            else:
+                raise InputError(f"unknown edit '{op}'; use move, insert, delete_point, delete, reverse, split or reorder")
+            self._set(self._rebuild(strokes, samples, changed))
+            return self.summary()
+
+    def _set(self, job: Job, keep_history: bool = True) -> None:
+        if keep_history and self.job is not None:
+            self.undo_stack = (self.undo_stack + [self.job])[-HISTORY:]
+        elif not keep_history:
+            self.undo_stack = []
+            self._checks.clear()
+        self.redo_stack = []
+        self.job = job
+
+    def undo(self) -> dict:
+        return self._step(self.undo_stack, self.redo_stack, "undo")
+
+    def redo(self) -> dict:
+        return self._step(self.redo_stack, self.undo_stack, "redo")
+
+    def _step(self, source: list[Job], other: list[Job], what: str) -> dict:
+        with self.lock:
+            if not source:
+                raise InputError(f"nothing to {what}")
+            other.append(self._require())
+            self.job = source.pop()
+            return self.summary()
+
+    # ------------------------------------------------------------ views
+
+    def summary(self) -> dict:
+        job = self._require()
+        return {"file": self.name, "machine": self.machine.name, "strokes": len(job.strokes),
+                "control_points": sum(len(s.spline.control) for s in job.strokes),
+                "pen_down_mm": round(job.pen_down_length, 3), "travel_mm": round(job.travel_length, 3),
+                "job_time_s": round(job.duration, 3), "draw_time_s": round(job.draw_time, 3),
+                "worst_acceleration_ratio": round(job.meta.get("worst_acceleration_ratio", 0.0), 6),
+                "worst_velocity_ratio": round(job.meta.get("worst_velocity_ratio", 0.0), 6),
+                "tracer": self.tracer, "tracer_options": self.tracer_options,
+                "can_undo": bool(self.undo_stack), "can_redo": bool(self.redo_stack)}
+
+    def view(self) -> dict:
+        """Everything the page draws: the work area, each stroke as executed (positions
+        at the sample instants and the speed there), its control points, the travels."""
+        with self.lock:
+            job = self._require()
+            m = self.machine
+            strokes = []
+            for n, (st, sa) in enumerate(zip(job.strokes, job.samples)):
+                pos = sa.integrate()
+                speed = np.concatenate([[0.0], np.hypot(*sa.velocity.T)])
+                strokes.append({"i": n, "degree": st.spline.degree, "length": round(st.spline.length, 3),
+                                "control": np.round(st.spline.control, 4).tolist(),
+                                "points": np.round(pos, 3).tolist(), "speed": np.round(speed, 2).tolist(),
+                                "time": round(len(sa.velocity) * sa.delta_time, 4)})
+            travels = [[*np.round(t.start, 3).tolist(), *np.round(t.end, 3).tolist(), round(t.duration, 4)]
+                       for t in job.travels]
+            return {"machine": {"name": m.name, "width": m.width, "height": m.height, "margin": m.margin,
+                                "home": list(m.home), "vmax": max(m.x.max_velocity, m.y.max_velocity),
+                                "delta_time": m.delta_time, "pen_up_delay": m.pen.up_delay,
+                                "pen_down_delay": m.pen.down_delay},
+                    "strokes": strokes, "travels": travels, "summary": self.summary()}
+
+    def stroke(self, i: Any) -> dict:
+        """The figures of one stroke: the report's plots (path velocity sqrt(b(u)), axis velocities and
+        accelerations against their limits, the executed path's distance from the curve per period)."""
+        with self.lock:
+            job = self._require()
+            k = self._index(i, len(job.strokes))
+            st, sa = job.strokes[k], job.samples[k]
+            p = st.profile
+            acc, vel, dev = self.checks(st, sa)
+            v = np.vstack([np.zeros((1, 2)), sa.velocity])
+            a = np.diff(v, axis=0) / sa.delta_time  # the PLC ramps: constant per period
+            t = np.arange(len(v)) * sa.delta_time
+            m = self.machine
+            return {"i": k, "length_mm": round(st.spline.length, 3), "control_points": len(st.spline.control),
+                    "time_s": round(len(sa.velocity) * sa.delta_time, 4), "planned_time_s": round(p.duration, 4),
+                    "worst_acceleration_ratio": round(acc, 6), "worst_velocity_ratio": round(vel, 6),
+                    "max_between_samples_mm": round(float(dev.max(initial=0.0)), 4),
+                    "fit_error_mm": round(st.fit_error, 4),
+                    "plots": {"u": p.u.tolist(), "sqrt_b": np.sqrt(np.maximum(p.b, 0.0)).tolist(),
+                              "t": t.tolist(), "vx": v[:, 0].tolist(), "vy": v[:, 1].tolist(),
+                              "ta": t[:-1].tolist(), "ax": a[:, 0].tolist(), "ay": a[:, 1].tolist(),
+                              "vmax": [m.x.max_velocity, m.y.max_velocity],
+                              "amax": [m.x.max_acceleration, m.y.max_acceleration],
+                              "deviation": dev.tolist(), "path_tolerance": m.path_tolerance}}
+
+    def timeline(self) -> dict:
+        """The executed motion for the simulation: times (s) and pen positions (mm), pen state.
+        Strokes as the PLC integrates their velocity samples; travels by their law; pen delays as waits."""
+        from doodlecam.plan.travel import travel_state
+
+        with self.lock:
+            job = self._require()
+            m = self.machine
+            ts, xs, pen = [0.0], [np.asarray(m.home, float)], [0]
+            now = 0.0
+
+            def add(times, pts, down):
+                nonlocal now
+                ts.extend((now + times).tolist())
+                xs.extend(pts)
+                pen.extend([down] * len(times))
+                now += float(times[-1])
+
+            for k, tr in enumerate(job.travels):
+                if tr.duration > 0:
+                    tt = np.linspace(0.0, tr.duration, max(2, int(tr.duration / 0.02) + 1))
+                    add(tt, travel_state(tr, m, tt)[0], 0)
+                if k == len(job.strokes):
+                    break
+                sa = job.samples[k]
+                add(np.array([m.pen.down_delay]), [xs[-1]], 0)
+                pos = sa.integrate()
+                add(np.arange(len(pos)) * sa.delta_time, pos, 1)
+                add(np.array([m.pen.up_delay]), [xs[-1]], 0)
+            return {"t": np.round(ts, 5).tolist(), "xy": np.round(np.array(xs), 3).tolist(), "pen": pen,
+                    "duration": now}
+
+    # ------------------------------------------------------------ export, save, load
+
+    def export(self, post: str) -> tuple[str, bytes]:
+        """(file name, bytes) of one post of the current job."""
+        (_, ext, data), = self.posts((post,))
+        return Path(self.name).stem + ext, data
+
+    def posts(self, names: tuple[str, ...]) -> list[tuple[str, str, bytes]]:
+        """[(post, extension, bytes)] of the current job, as ``pipeline.run_posts``."""
+        with self.lock:
+            job = self._require()
+            for post in names:
+                registry.get("postprocessor", post, self.settings.plugin_dirs)  # unknown post: one line
+            return run_posts(job, replace(self.settings, posts=tuple(names)))
+
+    def save(self) -> dict:
+        """The edited job as versioned JSON: the machine and every stroke's spline, in drawing order."""
+        with self.lock:
+            job = self._require()
+            return {"format": JOB_FORMAT, "version": JOB_VERSION, "machine": self.machine.name, "source": self.name,
+                    "strokes": [{"degree": s.spline.degree, "control": s.spline.control.tolist(),
+                                 "source_index": s.source_index, "fit_error": s.fit_error} for s in job.strokes]}
+
+    def open_job(self, data: bytes, name: str = "job.json") -> dict:
+        """Load a saved job and plan it (no tracing)."""
+        strokes, source = read_job(data, name, self.machine.name)
+        with self.lock:
+            drawing = replace(_curves(strokes), source=source)
+            job = plan_job(drawing, self.machine, self.settings.solver or self.machine.solver, self.settings.plugin_dirs,
+                           smoothing=self.settings.smoothing, fitted=strokes)
+            self.name, self.data = source or name, b""
+            self._set(job, keep_history=False)
+            self._check_later(job)
+            return self.summary()
+
+
+def _curves(strokes: list[Stroke]) -> Drawing:
+    """The strokes' curves, densely sampled: what plan_job checks for reachability
+    (the curve, not its control points, which may lie outside a non-convex workspace)."""
+    return Drawing(tuple(st.spline(np.linspace(0.0, 1.0, 16 * len(st.spline.control))) for st in strokes), units="mm")
+
+
+def read_job(data: bytes, name: str, machine: str | None = None) -> tuple[list[Stroke], str]:
+    """Strokes and source name of a saved studio job (format version 1); one-line InputErrors."""
+    try:
+        doc = json.loads(data)
+    except (UnicodeDecodeError, json.JSONDecodeError) as e:
+        raise InputError(f"{name}: not a JSON file ({e}); give a job saved by the studio") from None
+    if not isinstance(doc, dict) or doc.get("format") != JOB_FORMAT:
+        raise InputError(f"{name}: not a doodlecam studio job (no \"format\": \"{JOB_FORMAT}\"); give a job saved by the studio")
+    if doc.get("version") != JOB_VERSION:
+        raise InputError(f"{name}: job format version {doc.get('version')!r}; this doodlecam reads version {JOB_VERSION}")
+    if machine is not None and doc.get("machine") != machine:
+        raise InputError(f"{name}: saved for machine '{doc.get('machine')}', the studio runs '{machine}'; "
+                         f"start it with --machine {doc.get('machine')}")
+    strokes = []
+    try:
+        for n, s in enumerate(doc["strokes"]):
+            strokes.append(Stroke(Spline(int(s["degree"]), np.asarray(s["control"], float)),
+                                  source_index=int(s.get("source_index", -1)), fit_error=float(s.get("fit_error", 0.0))))
+            if not np.isfinite(strokes[-1].spline.control).all():
+                raise ValueError("control points must be finite")
+    except (KeyError, TypeError, ValueError) as e:
+        raise InputError(f"{name}: stroke {len(strokes)} is malformed ({e}); give a job saved by the studio") from None
+    if not strokes:
+        raise InputError(f"{name}: the job has no strokes")
+    return strokes, str(doc.get("source", ""))

@@ -1,0 +1,487 @@
+// doodlecam studio: the page. Plain ES modules, no build step.
+import { evaluate } from "/static/bspline.js";
+import { linePlot } from "/static/plot.js";
+
+const $ = (id) => document.getElementById(id);
+const token = new URLSearchParams(location.search).get("token") || "";
+const withToken = (url) => url + (url.includes("?") ? "&" : "?") + "token=" + encodeURIComponent(token);
+
+// ------------------------------------------------------------------ API
+
+let pending = 0;
+async function api(path, { method = "GET", body, json } = {}) {
+  const headers = { "x-doodlecam-token": token };
+  if (json !== undefined) { body = JSON.stringify(json); headers["content-type"] = "application/json"; }
+  pending++; $("busy").hidden = false;
+  try {
+    const r = await fetch(path, { method, body, headers });
+    const data = await r.json().catch(() => ({ error: `HTTP ${r.status}` }));
+    if (!r.ok) throw new Error(data.error || `HTTP ${r.status}`);
+    $("error").hidden = true;
+    return data;
+  } catch (e) {
+    showError(e.message);
+    throw e;
+  } finally {
+    if (--pending === 0) $("busy").hidden = true;
+  }
+}
+function showError(msg) { $("error").textContent = msg; $("error").hidden = false; }
+
+// ------------------------------------------------------------------ state
+
+const S = {
+  view: null, // /api/view
+  selected: -1,
+  drag: null, // {point, control}
+  scale: 1, ox: 0, oy: 0, // screen = (x * scale + ox, -y * scale + oy)
+  fitted: false,
+  base: null, // offscreen canvas with the job drawn (for the simulation)
+  timeline: null,
+  sim: { t: 0, playing: false, last: 0 },
+};
+window.studio = S; // for tests and the benchmark
+window.studioPerf = { moves: [], frames: [], replan: [], firstView: null };
+
+// ------------------------------------------------------------------ drawing
+
+const paper = $("paper");
+const ctx = paper.getContext("2d");
+const COLORS = 16;
+const speedColor = (k) => `hsl(${240 - 240 * k / (COLORS - 1)}, 85%, 45%)`;
+
+function resize() {
+  const dpr = window.devicePixelRatio || 1;
+  paper.width = paper.clientWidth * dpr; paper.height = paper.clientHeight * dpr;
+  ctx.setTransform(dpr, 0, 0, dpr, 0, 0);
+  if (S.view && !S.fitted) fitView();
+  draw();
+}
+function fitView() {
+  const m = S.view.machine, W = paper.clientWidth, H = paper.clientHeight;
+  S.scale = Math.min((W - 20) / m.width, (H - 20) / m.height);
+  S.ox = (W - m.width * S.scale) / 2; S.oy = (H + m.height * S.scale) / 2;
+  S.fitted = true;
+}
+const sx = (x) => x * S.scale + S.ox, sy = (y) => -y * S.scale + S.oy;
+const wx = (X) => (X - S.ox) / S.scale, wy = (Y) => -(Y - S.oy) / S.scale;
+window.studioScreen = (x, y) => [sx(x), sy(y)]; // mm -> canvas pixels, for tests
+window.studioEvaluate = evaluate;
+
+function draw(target = ctx, withSelection = true) {
+  const g = target, W = paper.clientWidth, H = paper.clientHeight;
+  g.clearRect(0, 0, W, H);
+  if (!S.view) return;
+  const m = S.view.machine;
+  g.fillStyle = "#fff"; g.fillRect(sx(0), sy(m.height), m.width * S.scale, m.height * S.scale);
+  g.strokeStyle = "#bbb"; g.setLineDash([2, 2]);
+  g.strokeRect(sx(m.margin), sy(m.height - m.margin), (m.width - 2 * m.margin) * S.scale, (m.height - 2 * m.margin) * S.scale);
+  // pen-up travel, dashed
+  g.strokeStyle = "#999"; g.lineWidth = 0.8; g.setLineDash([4, 4]); g.beginPath();
+  for (const t of S.view.travels) { g.moveTo(sx(t[0]), sy(t[1])); g.lineTo(sx(t[2]), sy(t[3])); }
+  g.stroke(); g.setLineDash([]);
+  // pen-down strokes as executed, coloured by planned speed (one path per colour)
+  const vmax = m.vmax, paths = Array.from({ length: COLORS }, () => new Path2D());
+  for (const s of S.view.strokes) {
+    if (S.drag && s.i === S.selected) continue;
+    const p = s.points, v = s.speed;
+    for (let k = 1; k < p.length; k++) {
+      const c = Math.min(COLORS - 1, Math.round((v[k] + v[k - 1]) / 2 / vmax * (COLORS - 1)));
+      paths[c].moveTo(sx(p[k - 1][0]), sy(p[k - 1][1])); paths[c].lineTo(sx(p[k][0]), sy(p[k][1]));
+    }
+  }
+  g.lineWidth = 1.6;
+  paths.forEach((p, c) => { g.strokeStyle = speedColor(c); g.stroke(p); });
+  if ($("show-order").checked) { // each stroke's number at its start: the order the pen draws them
+    g.fillStyle = "#000"; g.font = "10px sans-serif";
+    for (const s of S.view.strokes) g.fillText(String(s.i + 1), sx(s.points[0][0]) + 3, sy(s.points[0][1]) - 3);
+  }
+  if (withSelection) drawSelection(g);
+}
+
+function drawSelection(g) {
+  const s = S.view && S.view.strokes[S.selected];
+  if (!s) return;
+  const control = S.drag ? S.drag.control : s.control;
+  const n = Math.max(200, control.length * 12);
+  S.curve = evaluate(control, s.degree, n, S.curve && S.curve.length === 2 * n ? S.curve : null);
+  g.strokeStyle = "#111"; g.lineWidth = S.drag ? 2 : 3; g.globalAlpha = S.drag ? 1 : 0.35; g.beginPath();
+  for (let k = 0; k < n; k++) k ? g.lineTo(sx(S.curve[2 * k]), sy(S.curve[2 * k + 1])) : g.moveTo(sx(S.curve[0]), sy(S.curve[1]));
+  g.stroke(); g.globalAlpha = 1;
+  g.strokeStyle = "rgba(224, 112, 0, 0.6)"; g.lineWidth = 0.6; g.beginPath();
+  control.forEach((p, k) => k ? g.lineTo(sx(p[0]), sy(p[1])) : g.moveTo(sx(p[0]), sy(p[1])));
+  g.stroke();
+  g.fillStyle = "#e07000";
+  for (const p of control) g.fillRect(sx(p[0]) - 2, sy(p[1]) - 2, 4, 4);
+  // the stroke order: its number at its start
+  g.fillStyle = "#000"; g.font = "12px sans-serif"; g.fillText(String(s.i + 1), sx(control[0][0]) + 5, sy(control[0][1]) - 5);
+}
+
+function legend() {
+  const c = $("legend-bar").getContext("2d");
+  for (let k = 0; k < COLORS; k++) { c.fillStyle = speedColor(k); c.fillRect(k * 10, 0, 10, 10); }
+  $("legend-hi").textContent = S.view ? S.view.machine.vmax.toFixed(0) : "";
+}
+
+// ------------------------------------------------------------------ job and figures
+
+function summary(s) {
+  if (!s) return;
+  $("stat-strokes").textContent = s.strokes;
+  $("stat-control").textContent = s.control_points;
+  $("stat-ink").textContent = `${(s.pen_down_mm / 1000).toFixed(3)} m`;
+  $("stat-travel").textContent = `${(s.travel_mm / 1000).toFixed(3)} m`;
+  $("stat-time").textContent = `${s.job_time_s.toFixed(2)} s`;
+  $("stat-ratio").textContent = `a ${s.worst_acceleration_ratio.toFixed(4)}, v ${s.worst_velocity_ratio.toFixed(4)}`;
+  $("undo").disabled = !s.can_undo; $("redo").disabled = !s.can_redo;
+  document.body.dataset.jobTime = s.job_time_s;
+}
+
+async function refresh() {
+  // the view and the selected stroke's figures are fetched at once
+  const figs = S.selected >= 0 ? api(`/api/stroke/${S.selected}`).catch(() => null) : null;
+  S.view = await api("/api/view");
+  if (!S.fitted) fitView();
+  $("machine").textContent = `machine ${S.view.machine.name} · ${S.view.summary.file}`;
+  summary(S.view.summary);
+  legend();
+  if (S.selected >= S.view.strokes.length) S.selected = -1;
+  S.timeline = null;
+  draw();
+  if (S.selected >= 0) await figures(figs);
+  document.body.dataset.strokes = S.view.strokes.length;
+}
+
+async function figures(fetched) {
+  const i = S.selected;
+  $("sel-index").textContent = i >= 0 ? `${i + 1} of ${S.view.strokes.length}` : "–";
+  if (i < 0) { $("stroke-figures").innerHTML = ""; return; }
+  const f = (fetched && await fetched) || await api(`/api/stroke/${i}`);
+  const rows = [["length", `${f.length_mm.toFixed(2)} mm`], ["control points", f.control_points], ["time", `${f.time_s.toFixed(3)} s`],
+    ["worst acceleration ratio", f.worst_acceleration_ratio.toFixed(4)], ["worst velocity ratio", f.worst_velocity_ratio.toFixed(4)],
+    ["off the curve between samples", `${f.max_between_samples_mm.toFixed(3)} mm`]];
+  $("stroke-figures").innerHTML = rows.map(([k, v]) => `<tr><th>${k}</th><td>${v}</td></tr>`).join("");
+  const p = f.plots;
+  linePlot($("plot-b"), { title: "path velocity √b(u)", xlabel: "u", series: [{ x: p.u, y: p.sqrt_b, color: "#06c", label: "√b" }] });
+  linePlot($("plot-v"), { title: "axis velocity, mm/s", xlabel: "s", series: [
+    { x: p.t, y: p.vx, color: "#c30", label: "x" }, { x: p.t, y: p.vy, color: "#093", label: "y" }],
+  limits: [{ y: p.vmax[0] }, { y: -p.vmax[0] }, { y: p.vmax[1], color: "#f88" }, { y: -p.vmax[1], color: "#f88" }] });
+  linePlot($("plot-a"), { title: "axis acceleration, mm/s²", xlabel: "s", series: [
+    { x: p.ta, y: p.ax, color: "#c30", label: "x", step: true }, { x: p.ta, y: p.ay, color: "#093", label: "y", step: true }],
+  limits: [{ y: p.amax[0] }, { y: -p.amax[0] }, { y: p.amax[1], color: "#f88" }, { y: -p.amax[1], color: "#f88" }] });
+  const ix = p.deviation.map((_, k) => k);
+  linePlot($("plot-d"), { title: "executed path off the curve per period, mm", xlabel: "period", series: [
+    { x: ix, y: p.deviation, color: "#606", label: "deviation", step: true }],
+  limits: p.path_tolerance > 0 ? [{ y: p.path_tolerance }] : [] });
+}
+
+// ------------------------------------------------------------------ mouse: select, drag, zoom, pan
+
+function nearestStroke(X, Y) {
+  let best = -1, bd = 8 * 8;
+  for (const s of S.view.strokes) for (const p of s.points) {
+    const dx = sx(p[0]) - X, dy = sy(p[1]) - Y, d = dx * dx + dy * dy;
+    if (d < bd) { bd = d; best = s.i; }
+  }
+  return best;
+}
+function nearestPoint(X, Y) {
+  const s = S.view.strokes[S.selected];
+  if (!s) return -1;
+  let best = -1, bd = 8 * 8;
+  s.control.forEach((p, k) => { const dx = sx(p[0]) - X, dy = sy(p[1]) - Y, d = dx * dx + dy * dy; if (d < bd) { bd = d; best = k; } });
+  return best;
+}
+
+let pan = null;
+paper.addEventListener("mousedown", (e) => {
+  if (!S.view || e.button !== 0) return;
+  const k = nearestPoint(e.offsetX, e.offsetY);
+  if (k >= 0) {
+    S.drag = { point: k, control: S.view.strokes[S.selected].control.map((p) => p.slice()), moved: false };
+    return;
+  }
+  pan = { x: e.offsetX, y: e.offsetY, ox: S.ox, oy: S.oy, moved: false };
+});
+paper.addEventListener("mousemove", (e) => {
+  if (S.drag) {
+    const t0 = performance.now();
+    S.drag.control[S.drag.point] = [wx(e.offsetX), wy(e.offsetY)];
+    S.drag.moved = true;
+    draw();
+    window.studioPerf.moves.push(performance.now() - t0);
+  } else if (!pan && S.view) { // hover: the stroke under the pointer and its figures, as a tooltip
+    const i = nearestStroke(e.offsetX, e.offsetY), s = S.view.strokes[i];
+    paper.title = s ? `stroke ${i + 1}: ${s.length.toFixed(1)} mm, ${s.control.length} control points, ${s.time.toFixed(2)} s (click for more)` : "";
+  } else if (pan) {
+    S.ox = pan.ox + e.offsetX - pan.x; S.oy = pan.oy + e.offsetY - pan.y;
+    pan.moved = pan.moved || Math.abs(e.offsetX - pan.x) + Math.abs(e.offsetY - pan.y) > 3;
+    draw();
+  }
+});
+window.addEventListener("mouseup", async (e) => {
+  if (S.drag) {
+    const d = S.drag;
+    if (!d.moved) { S.drag = null; return; }
+    const t0 = performance.now();
+    try {
+      await api("/api/edit", { method: "POST", json: { op: "move", stroke: S.selected, control: d.control } });
+      S.drag = null;
+      await refresh();
+      window.studioPerf.replan.push(performance.now() - t0);
+    } catch (err) { S.drag = null; draw(); }
+    return;
+  }
+  if (pan && !pan.moved && e.target === paper) {
+    S.selected = nearestStroke(e.offsetX, e.offsetY);
+    draw(); figures();
+  }
+  pan = null;
+});
+paper.addEventListener("wheel", (e) => {
+  if (!S.view) return;
+  e.preventDefault();
+  const f = Math.exp(-e.deltaY * 0.0015), x = wx(e.offsetX), y = wy(e.offsetY);
+  S.scale *= f; S.ox = e.offsetX - x * S.scale; S.oy = e.offsetY + y * S.scale;
+  draw();
+}, { passive: false });
+paper.addEventListener("dblclick", () => { if (S.view) { fitView(); draw(); } });
+paper.addEventListener("contextmenu", async (e) => {
+  if (!S.view) return;
+  const k = nearestPoint(e.offsetX, e.offsetY);
+  if (k < 0) return;
+  e.preventDefault();
+  const s = S.view.strokes[S.selected];
+  const op = k < s.control.length - 1 && confirm(`Insert a control point after point ${k + 1}? (Cancel: delete point ${k + 1})`)
+    ? "insert" : "delete_point";
+  await edit({ op, point: k });
+});
+
+async function edit(fields) {
+  await api("/api/edit", { method: "POST", json: { stroke: S.selected, ...fields } });
+  await refresh();
+}
+
+$("stroke-tools").addEventListener("click", async (e) => {
+  const op = e.target.dataset.op;
+  if (!op || S.selected < 0) return;
+  if (op === "up" || op === "down") {
+    const to = S.selected + (op === "up" ? -1 : 1);
+    if (to < 0 || to >= S.view.strokes.length) return;
+    await edit({ op: "reorder", to }); S.selected = to; draw(); figures();
+  } else if (op === "split") {
+    const s = S.view.strokes[S.selected];
+    await edit({ op: "split", point: Math.floor(s.control.length / 2) });
+  } else {
+    await edit({ op });
+    if (op === "delete") { S.selected = -1; draw(); figures(); }
+  }
+});
+
+async function undoRedo(which) { await api(`/api/${which}`, { method: "POST" }); await refresh(); }
+$("undo").onclick = () => undoRedo("undo");
+$("redo").onclick = () => undoRedo("redo");
+window.addEventListener("keydown", (e) => {
+  if (!(e.ctrlKey || e.metaKey) || e.target.tagName === "INPUT") return;
+  if (e.key === "z" && !e.shiftKey) { e.preventDefault(); undoRedo("undo"); }
+  if (e.key === "y" || (e.key === "Z" && e.shiftKey)) { e.preventDefault(); undoRedo("redo"); }
+});
+
+// ------------------------------------------------------------------ load and trace
+
+async function load(file) {
+  const t0 = performance.now();
+  const opts = {};
+  await api(`/api/load?name=${encodeURIComponent(file.name)}`, { method: "POST", body: file });
+  S.fitted = false; S.selected = -1; S.traced = undefined;
+  await refresh();
+  await tracerPanel();
+  window.studioPerf.firstView = performance.now() - t0;
+}
+$("file").addEventListener("change", (e) => { if (e.target.files[0]) load(e.target.files[0]).catch(() => {}); e.target.value = ""; });
+$("jobfile").addEventListener("change", async (e) => {
+  const f = e.target.files[0]; e.target.value = "";
+  if (!f) return;
+  await api(`/api/job?name=${encodeURIComponent(f.name)}`, { method: "POST", body: f });
+  S.fitted = false; S.selected = -1; await refresh();
+});
+const wrap = $("paper-wrap");
+wrap.addEventListener("dragover", (e) => { e.preventDefault(); $("drop").hidden = false; });
+wrap.addEventListener("dragleave", () => { $("drop").hidden = true; });
+wrap.addEventListener("drop", (e) => {
+  e.preventDefault(); $("drop").hidden = true;
+  if (e.dataTransfer.files[0]) load(e.dataTransfer.files[0]).catch(() => {});
+});
+
+let TRACERS = [];
+async function tracerPanel() {
+  if (!TRACERS.length) TRACERS = await api("/api/tracers");
+  const st = await api("/api/state");
+  const sel = $("tracer"), cur = st.summary ? st.summary.tracer : null;
+  const ext = st.summary ? "." + st.summary.file.split(".").pop().toLowerCase() : "";
+  const usable = TRACERS.filter((t) => !ext || t.extensions.includes(ext));
+  sel.innerHTML = `<option value="">automatic</option>` + usable.map((t) => `<option>${t.name}</option>`).join("");
+  sel.value = cur || "";
+  const name = cur || (usable.find((t) => t.name === "edges") || usable[0] || {}).name;
+  const tr = TRACERS.find((t) => t.name === name);
+  const box = $("tracer-options");
+  box.innerHTML = "";
+  if (!tr) return;
+  const given = st.summary ? st.summary.tracer_options : {};
+  for (const o of tr.options) {
+    const v = o.name in given ? given[o.name] : o.default;
+    let input;
+    if (o.choices) {
+      input = document.createElement("select");
+      input.innerHTML = o.choices.map((c) => `<option>${c}</option>`).join("");
+      input.value = v;
+    } else if (o.type === "bool") {
+      input = document.createElement("input"); input.type = "checkbox"; input.checked = !!v;
+    } else {
+      input = document.createElement("input");
+      input.type = o.type === "float" || o.type === "int" ? "number" : "text";
+      if (o.type === "float") input.step = "any";
+      input.value = v;
+    }
+    input.name = o.name; input.dataset.type = o.type; input.title = o.help;
+    const label = document.createElement("label");
+    label.title = o.help; label.append(o.name, input);
+    box.append(label);
+    input.addEventListener("change", retraceSoon);
+  }
+}
+$("tracer").addEventListener("change", async () => {
+  await api("/api/trace", { method: "POST", json: { tracer: $("tracer").value || null, options: {} } });
+  await refresh(); await tracerPanel();
+});
+
+let retraceTimer = null;
+function retraceSoon() { clearTimeout(retraceTimer); retraceTimer = setTimeout(retrace, 400); } // debounced
+async function retrace() {
+  const options = {};
+  for (const el of $("tracer-options").querySelectorAll("input,select")) {
+    options[el.name] = el.type === "checkbox" ? el.checked : el.dataset.type === "float" || el.dataset.type === "int" ? Number(el.value) : el.value;
+  }
+  const key = JSON.stringify([$("tracer").value, options]);
+  if (key === S.traced) return; // e.g. the input's own change event on blur after a typed value
+  S.traced = key;
+  try {
+    await api("/api/trace", { method: "POST", json: { tracer: $("tracer").value || null, options } });
+    S.selected = -1; await refresh();
+  } catch (e) { S.traced = undefined; /* the error is shown; the same options may be tried again */ }
+}
+
+// ------------------------------------------------------------------ simulation
+
+function posAt(t) {
+  const T = S.timeline.t, P = S.timeline.xy;
+  let lo = 0, hi = T.length - 1;
+  while (hi - lo > 1) { const mid = (lo + hi) >> 1; if (T[mid] <= t) lo = mid; else hi = mid; }
+  const f = T[hi] > T[lo] ? Math.min(1, Math.max(0, (t - T[lo]) / (T[hi] - T[lo]))) : 0;
+  return [P[lo][0] + f * (P[hi][0] - P[lo][0]), P[lo][1] + f * (P[hi][1] - P[lo][1]), S.timeline.pen[hi], lo];
+}
+function simFrame(now) {
+  const t0 = performance.now();
+  const sim = S.sim, T = S.timeline.duration;
+  if (sim.playing) {
+    sim.t = Math.min(T, sim.t + (now - sim.last) / 1000 * Number($("sim-speed").value));
+    sim.last = now;
+  }
+  if (!S.base || S.base.width !== paper.width || S.base.key !== `${S.scale},${S.ox},${S.oy}`) {
+    S.base = document.createElement("canvas"); S.base.width = paper.width; S.base.height = paper.height;
+    S.base.key = `${S.scale},${S.ox},${S.oy}`;
+    const g = S.base.getContext("2d"); const dpr = window.devicePixelRatio || 1; g.setTransform(dpr, 0, 0, dpr, 0, 0);
+    draw(g, false);
+  }
+  ctx.save(); ctx.setTransform(1, 0, 0, 1, 0, 0); ctx.drawImage(S.base, 0, 0); ctx.restore();
+  const [x, y, pen] = posAt(sim.t);
+  ctx.fillStyle = pen ? "#d00" : "#fff"; ctx.strokeStyle = "#000"; ctx.lineWidth = 1.5;
+  ctx.beginPath(); ctx.arc(sx(x), sy(y), 6, 0, 2 * Math.PI); ctx.fill(); ctx.stroke();
+  $("sim-time").textContent = `${sim.t.toFixed(1)} / ${T.toFixed(1)} s (left ${(T - sim.t).toFixed(1)} s)`;
+  $("scrub").value = Math.round(sim.t / T * 1000);
+  window.studioPerf.frames.push({ at: now, script: performance.now() - t0 });
+  if (sim.playing && sim.t < T) requestAnimationFrame(simFrame);
+  else { sim.playing = false; $("play").textContent = "▶ Simulate"; }
+}
+async function ensureTimeline() { if (!S.timeline) S.timeline = await api("/api/timeline"); }
+$("play").onclick = async () => {
+  if (!S.view) return;
+  await ensureTimeline();
+  const sim = S.sim;
+  sim.playing = !sim.playing;
+  $("play").textContent = sim.playing ? "❚❚ Pause" : "▶ Simulate";
+  if (sim.playing) {
+    if (sim.t >= S.timeline.duration) sim.t = 0;
+    sim.last = performance.now(); requestAnimationFrame(simFrame);
+  }
+};
+$("scrub").addEventListener("input", async () => {
+  if (!S.view) return;
+  await ensureTimeline();
+  S.sim.t = $("scrub").value / 1000 * S.timeline.duration;
+  if (!S.sim.playing) simFrame(performance.now());
+});
+
+// ------------------------------------------------------------------ export and send
+
+async function posts() {
+  const names = await api("/api/posts");
+  $("post").innerHTML = names.map((n) => `<option>${n}</option>`).join("");
+  $("post").value = names.includes("gcode") ? "gcode" : names[0];
+}
+$("download").addEventListener("click", (e) => { e.currentTarget.href = withToken(`/api/export/${$("post").value}`); });
+$("save").addEventListener("click", (e) => { e.currentTarget.href = withToken("/api/job"); });
+$("export").onclick = async () => {
+  const r = await api("/api/export", { method: "POST", json: { posts: [$("post").value], folder: $("export-folder").value } });
+  $("export-result").textContent = "wrote " + r.written.join(", ");
+};
+$("target").onchange = () => { $("target-host").hidden = $("target").value !== "host"; };
+
+function showSend(s) {
+  $("send-progress").value = s.percent;
+  const pos = s.position_mm ? ` at (${s.position_mm[0].toFixed(1)}, ${s.position_mm[1].toFixed(1)}) mm` : "";
+  $("send-status").textContent = s.state === "sending"
+    ? `sending: command ${s.executed} of ${s.total} (${s.percent.toFixed(1)} %), ${s.time_left_s.toFixed(1)} s left${pos}`
+    : `${s.state}${s.message ? ": " + s.message : ""}`;
+  $("send-status").dataset.state = s.state;
+  $("send").disabled = s.state === "sending"; $("stop").disabled = s.state !== "sending";
+  $("send").textContent = s.state === "stopped" ? "Resume" : "Send"; // the PLC holds a stopped job
+}
+function follow() {
+  const es = new EventSource(withToken("/api/send/events"));
+  es.onmessage = (e) => { const s = JSON.parse(e.data); showSend(s); if (s.state !== "sending") es.close(); };
+  es.onerror = () => es.close();
+}
+$("send").onclick = async () => {
+  const target = $("target").value === "host" ? $("target-host").value : "simulator";
+  const speed = $("send-speed").value ? Number($("send-speed").value) : null;
+  showSend(await api("/api/send", { method: "POST", json: { target, speed } }));
+  follow();
+};
+$("stop").onclick = async () => { showSend(await api("/api/send/stop", { method: "POST" })); };
+
+// ------------------------------------------------------------------ tabs
+
+document.querySelector(".tabs").addEventListener("click", (e) => {
+  const tab = e.target.dataset.tab;
+  if (!tab) return;
+  for (const b of document.querySelectorAll(".tabs button")) b.classList.toggle("active", b.dataset.tab === tab);
+  $("paper-tab").hidden = tab !== "paper"; $("motion-tab").hidden = tab !== "motion";
+  if (tab === "motion") import("/static/motion.js").then((m) => m.open(api)).catch((err) => showError(err.message));
+  else resize();
+});
+
+// ------------------------------------------------------------------ start
+
+window.addEventListener("resize", resize);
+$("show-order").addEventListener("change", () => { S.base = null; draw(); });
+(async () => {
+  resize(); legend();
+  await posts();
+  const st = await api("/api/state");
+  $("machine").textContent = `machine ${st.machine}`;
+  if (st.send.state === "sending") { showSend(st.send); follow(); } // a send outlives its page: pick it up
+  if (st.loaded) { await refresh(); await tracerPanel(); window.studioPerf.firstView = performance.now(); }
+  else await tracerPanel();
+  document.body.dataset.ready = "1";
+})();

@@ -1,0 +1,389 @@
+"""doodlecam studio's JSON API through FastAPI's TestClient (docs/studio.md).
+
+What the machine would execute is checked from the job's own velocity samples
+and posts, independently of the studio's code: ramps integrated as the PLC
+does, accelerations against the limits, the G-code compared with ``doodlecam
+convert``'s and with a fresh plan of the saved job.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+from fastapi.testclient import TestClient
+
+from doodlecam.cli import main as cli_main
+from doodlecam.machine import load_machine
+from doodlecam.model import Spline
+from doodlecam.pipeline import Settings
+from doodlecam.studio.app import StudioConfig, create_app
+from doodlecam.studio.session import Session
+
+ROOT = Path(__file__).resolve().parents[1]
+PICTURE = ROOT / "samples" / "images" / "coins.png"
+
+
+def make_client(tmp_path: Path, **cfg) -> TestClient:
+    session = Session(Settings(machine=load_machine("doodlebot")), max_upload=cfg.pop("max_upload", 20 << 20))
+    folder = tmp_path / "work"
+    folder.mkdir(exist_ok=True)
+    app = create_app(session, StudioConfig(token="secret-token", folders=(folder,), **cfg))
+    return TestClient(app, headers={"x-doodlecam-token": "secret-token"})
+
+
+@pytest.fixture(scope="module")
+def loaded(tmp_path_factory):
+    """A client with the coins traced and planned (shared: loading costs a few seconds)."""
+    c = make_client(tmp_path_factory.mktemp("studio"))
+    r = c.post("/api/load?name=coins.png", content=PICTURE.read_bytes())
+    assert r.status_code == 200, r.text
+    return c
+
+
+def one_line(r) -> str:
+    msg = r.json()["error"]
+    assert "\n" not in msg and "Traceback" not in msg and len(msg) < 300
+    return msg
+
+
+def test_load_traces_plans_and_matches_convert(loaded, tmp_path):
+    s = loaded.get("/api/state").json()["summary"]
+    assert s["strokes"] > 3 and s["job_time_s"] > 0
+    view = loaded.get("/api/view").json()
+    assert len(view["strokes"]) == s["strokes"] and len(view["travels"]) == s["strokes"] + 1
+    m = view["machine"]
+    for st in view["strokes"]:  # what the PLC executes stays on the paper
+        p = np.array(st["points"])
+        assert (p >= -1e-6).all() and (p[:, 0] <= m["width"] + 1e-6).all() and (p[:, 1] <= m["height"] + 1e-6).all()
+    # the studio's G-code is byte for byte what `doodlecam convert` writes for the same file
+    r = loaded.get("/api/export/gcode")
+    assert r.status_code == 200 and 'filename="coins.gcode"' in r.headers["content-disposition"]
+    assert cli_main([ "convert", str(PICTURE), "-o", str(tmp_path), "--post", "gcode"]) == 0
+    assert r.content == (tmp_path / "coins.gcode").read_bytes()
+
+
+def test_bad_uploads_say_one_line_and_write_nothing(tmp_path):
+    c = make_client(tmp_path, max_upload=50_000)
+    before = set(os.listdir(tmp_path / "work")), set(os.listdir("/tmp"))
+    for name, data, words in [("notes.txt", b"hello", "no tracer reads"), ("empty.png", b"", "empty"),
+                              ("broken.png", b"\x89PNG not really", "broken.png"),
+                              ("camera.png", (ROOT / "samples/images/camera.png").read_bytes(), "limit"),
+                              ("", b"x", "no file name"), ("..", b"x", "no file name")]:
+        r = c.post(f"/api/load?name={name}", content=data)
+        assert r.status_code == 400, (name, r.text)
+        assert words in one_line(r) and "doodlecam-studio-" not in one_line(r)  # names the upload, not a temporary copy
+    assert c.get("/api/state").json()["loaded"] is False
+    assert (set(os.listdir(tmp_path / "work")), set(os.listdir("/tmp"))) == before
+    assert "open a picture" in one_line(c.get("/api/view"))
+
+
+def test_tracer_panel_options_and_retrace(tmp_path):
+    c = make_client(tmp_path)
+    tracers = {t["name"]: t for t in c.get("/api/tracers").json()}
+    assert {"edges", "contours", "hatch", "vector"} <= set(tracers)
+    sigma = next(o for o in tracers["edges"]["options"] if o["name"] == "sigma")
+    assert sigma["type"] == "float" and sigma["default"] == 2.0 and sigma["help"]
+    n0 = c.post("/api/load?name=coins.png", content=PICTURE.read_bytes()).json()["strokes"]
+    r = c.post("/api/trace", json={"tracer": "edges", "options": {"sigma": 6.0, "min_length": 40}})
+    assert r.status_code == 200 and r.json()["strokes"] != n0
+    assert r.json()["tracer_options"] == {"sigma": 6.0, "min_length": 40}
+    bad = c.post("/api/trace", json={"tracer": "edges", "options": {"sigma": "wide"}})
+    assert bad.status_code == 400 and "sigma" in one_line(bad)
+    assert "no option" in one_line(c.post("/api/trace", json={"tracer": "edges", "options": {"nope": 1}}))
+    assert c.get("/api/state").json()["summary"]["strokes"] == r.json()["strokes"]  # a failed re-trace keeps the job
+
+
+def executed(view_stroke) -> np.ndarray:
+    return np.array(view_stroke["points"])
+
+
+def test_move_control_point_replans_only_that_stroke(loaded, tmp_path):
+    view = loaded.get("/api/view").json()
+    k = max(range(len(view["strokes"])), key=lambda i: len(view["strokes"][i]["control"]))
+    st = view["strokes"][k]
+    control = np.array(st["control"])
+    j = len(control) // 2
+    control[j] += [4.0, -3.0]
+    t0 = loaded.get("/api/state").json()["summary"]["job_time_s"]
+    r = loaded.post("/api/edit", json={"op": "move", "stroke": k, "control": control.tolist()})
+    assert r.status_code == 200, r.text
+    assert r.json()["can_undo"] and r.json()["job_time_s"] != t0
+    new = loaded.get("/api/view").json()
+    assert np.allclose(new["strokes"][k]["control"], control, atol=1e-4)
+    for i, (a, b) in enumerate(zip(view["strokes"], new["strokes"])):
+        if i != k:
+            assert a == b  # untouched strokes keep their plans
+    # the machine's executed path, integrated independently: on the new curve, within its limits
+    m = load_machine("doodlebot")
+    f = loaded.get(f"/api/stroke/{k}").json()
+    vx, vy = np.array(f["plots"]["vx"]), np.array(f["plots"]["vy"])
+    dt = m.delta_time
+    pos = executed(new["strokes"][k])
+    steps = np.cumsum(0.5 * dt * np.c_[vx[1:] + vx[:-1], vy[1:] + vy[:-1]], axis=0)
+    assert np.allclose(pos[1:], pos[0] + steps, atol=1e-3)
+    spline = Spline(3, control)
+    assert np.linalg.norm(pos[-1] - spline.end) < 1 / m.x.steps_per_mm  # ends on the moved curve's end
+    dense = spline(np.linspace(0, 1, 20001))
+    dist = np.min(np.linalg.norm(pos[:, None, :] - dense[None, ::4, :], axis=2), axis=1)
+    assert dist.max() < m.path_tolerance + 0.05
+    acc = np.abs(np.diff(np.c_[vx, vy], axis=0)) / dt
+    assert (acc[:, 0] <= m.x.max_acceleration * (1 + 1e-6)).all() and (acc[:, 1] <= m.y.max_acceleration * (1 + 1e-6)).all()
+    assert np.abs(vx).max() <= m.x.max_velocity * (1 + 1e-6) and np.abs(vy).max() <= m.y.max_velocity * (1 + 1e-6)
+    assert f["max_between_samples_mm"] <= m.path_tolerance + 1e-3
+
+    # the saved job, planned afresh without tracing, posts the same G-code as the edited session,
+    # and the job's figures (kept up to date edit by edit) are those of the fresh plan
+    saved = loaded.get("/api/job")
+    assert saved.json()["format"] == "doodlecam-studio-job" and saved.json()["version"] == 1
+    other = make_client(tmp_path)
+    assert other.post("/api/job?name=coins.job.json", content=saved.content).status_code == 200
+    assert other.get("/api/export/gcode").content == loaded.get("/api/export/gcode").content
+    mine, fresh = (json.loads(c.get("/api/export/json").content)["meta"] for c in (loaded, other))
+    for key in ("control_points", "worst_acceleration_ratio", "worst_velocity_ratio", "max_between_samples_mm",
+                "max_fit_error_mm", "travel_time_by_law"):
+        assert mine[key] == pytest.approx(fresh[key], rel=1e-9, abs=1e-12), key
+
+    # undo restores the plan exactly; redo the edit
+    assert loaded.post("/api/undo").json()["job_time_s"] == t0
+    assert loaded.get("/api/view").json()["strokes"] == view["strokes"]
+    assert loaded.post("/api/redo").json()["job_time_s"] == r.json()["job_time_s"]
+    loaded.post("/api/undo")
+    assert "nothing to undo" in one_line(loaded.post("/api/undo"))
+
+
+def test_structure_edits_and_their_errors(loaded):
+    s0 = loaded.get("/api/state").json()["summary"]
+    view = loaded.get("/api/view").json()
+    k = max(range(len(view["strokes"])), key=lambda i: len(view["strokes"][i]["control"]))
+    ctrl = view["strokes"][k]["control"]
+    s = loaded.post("/api/edit", json={"op": "insert", "stroke": k, "point": 0}).json()
+    assert s["control_points"] == s0["control_points"] + 1
+    s = loaded.post("/api/edit", json={"op": "delete_point", "stroke": k, "point": 1}).json()
+    assert s["control_points"] == s0["control_points"]
+    s = loaded.post("/api/edit", json={"op": "reverse", "stroke": k}).json()
+    assert loaded.get("/api/view").json()["strokes"][k]["control"][0] == ctrl[-1]
+    s = loaded.post("/api/edit", json={"op": "split", "stroke": k, "point": len(ctrl) // 2}).json()
+    assert s["strokes"] == s0["strokes"] + 1 and s["control_points"] == s0["control_points"] + 1
+    s = loaded.post("/api/edit", json={"op": "reorder", "stroke": 0, "to": 2}).json()
+    assert s["strokes"] == s0["strokes"] + 1
+    s = loaded.post("/api/edit", json={"op": "delete", "stroke": 0}).json()
+    assert s["strokes"] == s0["strokes"]
+    for body, words in [({"op": "move", "stroke": k}, "control"), ({"op": "reverse", "stroke": 10_000}, "does not exist"),
+                        ({"op": "fly", "stroke": 0}, "unknown edit"), ({"op": "move", "stroke": 0, "control": [[0, 0]]}, "at least"),
+                        ({"op": "reverse", "stroke": 0, "colour": 1}, "unknown edit field"),
+                        ({"op": "move", "stroke": 0, "control": [[0, 0], [1, 1], [2, "x"], [3, 3]]}, "mm")]:
+        r = loaded.post("/api/edit", json=body)
+        assert r.status_code == 400 and words in one_line(r), (body, r.text)
+    # a stroke dragged off the paper: the planner's one line, and the job stays as it was
+    before = loaded.get("/api/view").json()
+    far = np.array(before["strokes"][0]["control"])
+    far[len(far) // 2] = [5000.0, 5000.0]
+    r = loaded.post("/api/edit", json={"op": "move", "stroke": 0, "control": far.tolist()})
+    assert r.status_code == 400 and "outside the 400 x 300 mm work area" in one_line(r)
+    assert loaded.get("/api/view").json() == before
+    while loaded.get("/api/state").json()["summary"]["can_undo"]:
+        loaded.post("/api/undo")
+    assert loaded.get("/api/state").json()["summary"] == {**s0, "can_redo": True}
+
+
+def test_paths_stay_inside_the_chosen_folders(loaded, tmp_path):
+    folder = Path(loaded.app.state.config.folders[0])
+    r = loaded.post("/api/export", json={"posts": ["gcode", "svg"], "folder": "out"})
+    assert r.status_code == 200, r.text
+    assert sorted(Path(p).name for p in r.json()["written"]) == ["coins.gcode", "coins.svg"]
+    assert (folder / "out" / "coins.gcode").read_bytes() == loaded.get("/api/export/gcode").content
+    outside = tmp_path / "outside"
+    outside.mkdir()
+    (folder / "link").symlink_to(outside)
+    for where in ["../escape", str(outside), "link/x", "/etc"]:
+        r = loaded.post("/api/export", json={"posts": ["gcode"], "folder": where})
+        assert r.status_code == 400 and "outside the folders" in one_line(r), where
+        r = loaded.post("/api/open", json={"path": where + "/coins.png"})
+        assert r.status_code == 400 and "outside the folders" in one_line(r), where
+    assert not list(outside.iterdir()) and not (tmp_path / "escape").exists()
+    # a file opened from the folder is never overwritten by an export
+    vector = folder / "badge.svg"
+    vector.write_bytes((ROOT / "samples/vectors/badge.svg").read_bytes())
+    assert loaded.post("/api/open", json={"path": "badge.svg"}).status_code == 200
+    r = loaded.post("/api/export", json={"posts": ["svg"], "folder": "."})
+    assert r.status_code == 400 and "opened from" in one_line(r)
+    assert vector.read_bytes() == (ROOT / "samples/vectors/badge.svg").read_bytes()
+    assert loaded.post("/api/load?name=coins.png", content=PICTURE.read_bytes()).status_code == 200
+    r = loaded.get("/api/export/nope")
+    assert r.status_code == 400 and "nope" in one_line(r)
+
+
+def test_saved_job_errors(loaded):
+    for data, words in [(b"{not json", "not a JSON"), (b"[1]", "not a doodlecam studio job"),
+                        (json.dumps({"format": "doodlecam-studio-job", "version": 99}).encode(), "version 99"),
+                        (json.dumps({"format": "doodlecam-studio-job", "version": 1, "machine": "fivebar",
+                                     "strokes": []}).encode(), "--machine fivebar"),
+                        (json.dumps({"format": "doodlecam-studio-job", "version": 1, "machine": "doodlebot",
+                                     "strokes": [{"degree": 3, "control": [[0, 0]]}]}).encode(), "malformed")]:
+        r = loaded.post("/api/job?name=bad.json", content=data)
+        assert r.status_code == 400 and words in one_line(r), (data, r.text)
+    assert loaded.get("/api/state").json()["loaded"]
+
+
+def test_token_required_beyond_loopback_and_for_sending(tmp_path):
+    c = make_client(tmp_path, require_token=True)
+    bare = TestClient(c.app)
+    assert bare.get("/api/state").status_code == 403 and "token" in one_line(bare.get("/api/state"))
+    assert bare.get("/api/state?token=wrong").status_code == 403
+    assert bare.get("/api/state?token=secret-token").status_code == 200
+    assert bare.get("/").status_code == 200  # the page itself carries no data
+    local = TestClient(make_client(tmp_path).app)  # loopback: viewing without the token, sending never
+    assert local.get("/api/state").status_code == 200
+    assert local.post("/api/send", json={"target": "simulator"}).status_code == 403
+    assert local.post("/api/send/stop").status_code == 403
+
+
+def test_server_survives_a_failing_request(loaded, monkeypatch):
+    def boom():
+        raise RuntimeError("disk on fire")
+
+    monkeypatch.setattr(loaded.app.state.session, "timeline", boom)
+    r = loaded.get("/api/timeline")
+    assert r.status_code == 500 and one_line(r) == "internal error: RuntimeError: disk on fire"
+    assert loaded.get("/api/state").status_code == 200
+
+
+def wait_state(c: TestClient, until, timeout: float = 60.0) -> dict:
+    end = time.monotonic() + timeout
+    while time.monotonic() < end:
+        s = c.get("/api/send").json()
+        if until(s):
+            return s
+        time.sleep(0.05)
+    raise AssertionError(f"send state never reached: {s}")
+
+
+def test_send_to_simulator_completes_even_when_the_page_goes(loaded):
+    sender = loaded.app.state.sender
+    r = loaded.post("/api/send", json={"target": "simulator", "speed": 20})
+    assert r.status_code == 200 and r.json()["state"] == "sending"
+    # a page follows the events, then is closed mid-send: the send goes on
+    with loaded.stream("GET", "/api/send/events") as ev:
+        first = json.loads(next(ev.iter_lines()).removeprefix("data: "))
+        assert first["state"] == "sending" and first["total"] > 0
+    assert loaded.get("/api/send").json()["state"] == "sending"
+    s = wait_state(loaded, lambda s: s["state"] != "sending")
+    assert s["state"] == "done" and s["executed"] == s["total"] and s["percent"] == 100.0, s
+    # the simulated PLC executed every command and ended with the pen up
+    assert not sender._sim.pen
+
+
+def test_stop_ends_at_a_stroke_boundary_with_the_pen_up_and_resumes(loaded):
+    sender = loaded.app.state.sender
+    assert loaded.post("/api/send", json={"target": "simulator", "speed": 20}).status_code == 200
+    assert "a send is running" in one_line(loaded.post("/api/send", json={"target": "simulator"}))
+    wait_state(loaded, lambda s: s["executed"] > 5)
+    assert loaded.post("/api/send/stop").status_code == 200
+    s = wait_state(loaded, lambda s: s["state"] != "sending")
+    assert s["state"] == "stopped" and "pen up" in s["message"], s
+    assert 0 < s["executed"] < s["total"]
+    # the PLC holds the job at rest with the pen lifted (the simulator's own state)
+    assert not sender._sim.pen and not np.any(sender._sim.vel)
+    held = s["executed"]
+    records = sender._sender.records
+    # sending the same job again resumes after the last executed command
+    assert loaded.post("/api/send", json={"target": "simulator", "speed": 20}).status_code == 200
+    s = wait_state(loaded, lambda s: s["state"] != "sending")
+    assert s["state"] == "done" and f"resumed at command {held + 1}" in s["message"], s
+    ran = [c for job, c in sender._sim.executed_log if job == sender._sender.job_id]
+    assert sorted(ran) == list(range(1, len(records) + 1))  # every command once, none repeated
+    assert "no send is running" in one_line(loaded.post("/api/send/stop"))
+    assert "HOST:PORT" in one_line(loaded.post("/api/send", json={"target": "plc-without-port:x"}))
+
+
+def test_motion_design_routes(tmp_path):
+    import shutil
+
+    from doodlecam.motion.design import load_design, solve_design
+    from doodlecam.motion.export import read_table
+
+    c = make_client(tmp_path)
+    folder = Path(c.app.state.config.folders[0])
+    shutil.copy(ROOT / "samples/motion/slider.toml", folder / "slider.toml")
+    (folder / "notes.toml").write_text("[other]\nx = 1\n")
+    assert c.get("/api/motion/designs").json() == ["slider.toml"]
+    r = c.post("/api/motion/open", json={"path": "slider.toml"})
+    assert r.status_code == 200, r.text
+    doc, res = r.json()["doc"], r.json()["result"]
+    assert set(res["axes"]) == {"table32", "fixed"}
+    # the thesis's Fig. 3.7: acc = -75 at the second point meanders, acc = 0 does not
+    assert {f["kind"] for f in res["findings"] if "table32" in f["where"]} >= {"meander"}
+    assert not [f for f in res["findings"] if "fixed" in f["where"]]
+    # positions at the design points are the table's
+    t = np.array(res["t"])
+    for p in doc["axis"]["fixed"]["point"]:
+        assert np.interp(p["t"], t, res["axes"]["fixed"][0]) == pytest.approx(p["pos"], abs=2e-3)
+    doc["axis"]["table32"]["point"][1]["acc"] = 0.0  # the cure, edited as in the page
+    fixed = c.post("/api/motion/solve", json={"doc": doc, "name": "slider.toml"}).json()
+    assert not [f for f in fixed["findings"] if f["kind"] == "meander"]
+    assert np.allclose(fixed["axes"]["table32"][0], fixed["axes"]["fixed"][0])
+    csv = c.post("/api/motion/table", json={"doc": doc, "name": "slider.toml"})
+    assert csv.status_code == 200 and 'filename="slider.csv"' in csv.headers["content-disposition"]
+    (tmp_path / "t.csv").write_bytes(csv.content)
+    header, rows = read_table(tmp_path / "t.csv")
+    assert header[:2] == ["t", "table32_pos"] and len(rows) == load_design(folder / "slider.toml").samples
+    tt, axes = solve_design(load_design(folder / "slider.toml")).sample()
+    assert np.allclose(rows[:, header.index("fixed_pos")], axes["fixed"][0], atol=1e-6)
+    for body, words in [({"doc": {"motion": {"input": "sideways"}}}, "input"), ({"doc": [1]}, "JSON object")]:
+        r = c.post("/api/motion/solve", json=body)
+        assert r.status_code == 400 and words in one_line(r), r.text
+    assert "outside the folders" in one_line(c.post("/api/motion/open", json={"path": "../../etc/x.toml"}))
+
+
+def test_the_studio_command(tmp_path):
+    """`doodlecam studio` itself: bad input is one line before any server; a real server answers, then stops."""
+    import signal
+    import subprocess
+    import sys
+
+    import httpx2 as httpx
+
+    def run(*args):
+        return subprocess.run([sys.executable, "-m", "doodlecam", "studio", "--no-browser", *args], capture_output=True,
+                              text=True, timeout=120, cwd=tmp_path)
+
+    (tmp_path / "notes.txt").write_text("hello")
+    for args, words in [(["missing.png"], "no such file"), (["notes.txt"], "no tracer reads"),
+                        (["--folder", "nowhere"], "no such folder"), (["--host", "203.0.113.1"], "cannot listen")]:
+        r = run(*args)
+        assert r.returncode != 0 and words in r.stderr, (args, r.stderr)
+        assert "Traceback" not in r.stderr and len(r.stderr.strip().splitlines()) == 1
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["notes.txt"]
+    p = subprocess.Popen([sys.executable, "-m", "doodlecam", "studio", "--no-browser", "--port", "0"], cwd=tmp_path,
+                         stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    try:
+        line = p.stdout.readline()
+        assert line.startswith("doodlecam studio: http://127.0.0.1:"), line + p.stderr.read()
+        url = line.split()[-1]
+        token = url.split("token=")[1]
+        base = url.split("/?")[0]
+        assert httpx.get(base + "/api/state", timeout=10).json()["loaded"] is False
+        assert httpx.post(base + "/api/send", json={}, timeout=10).status_code == 403
+        assert "access token " + token in p.stdout.readline()
+        busy = run("--port", base.rsplit(":", 1)[1])
+        assert busy.returncode != 0 and "cannot listen" in busy.stderr
+    finally:
+        p.send_signal(signal.SIGINT)
+        p.wait(20)
+    # beyond the loopback interface every request needs the printed token
+    p = subprocess.Popen([sys.executable, "-m", "doodlecam", "studio", "--no-browser", "--port", "0", "--host", "0.0.0.0"],
+                         cwd=tmp_path, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    try:
+        url = p.stdout.readline().split()[-1]
+        assert "every request" in p.stdout.readline()
+        base, token = url.split("/?token=")
+        assert httpx.get(base + "/api/state", timeout=10).status_code == 403
+        assert httpx.get(base + "/api/state", headers={"x-doodlecam-token": token}, timeout=10).status_code == 200
+    finally:
+        p.send_signal(signal.SIGINT)
+        p.wait(20)

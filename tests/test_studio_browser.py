@@ -1,0 +1,306 @@
+"""doodlecam studio in a real headless Chromium (Debian's ``chromium``, driven by Playwright).
+
+One page goes through a user's session: load a picture, change a tracer
+option, select and drag a control point, undo, export G-code, simulate, send
+to the PLC simulator. What the page shows is checked against the server's
+job, and the job against ``doodlecam convert`` and the Python B-spline.
+Screenshots of the main views go to docs/ (DOODLECAM_SCREENSHOTS=1).
+"""
+
+from __future__ import annotations
+
+import os
+import shutil
+import socket
+import threading
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from doodlecam.cli import main as cli_main
+from doodlecam.machine import load_machine
+from doodlecam.model import Spline
+from doodlecam.pipeline import Settings
+from doodlecam.studio.app import StudioConfig, create_app
+from doodlecam.studio.session import Session
+
+ROOT = Path(__file__).resolve().parents[1]
+CAMERA = ROOT / "samples" / "images" / "camera.png"
+CHROMIUM = shutil.which("chromium") or "/usr/bin/chromium"
+CHROMIUM_ARGS = ["--no-sandbox", "--disable-gpu", "--disable-background-networking", "--disable-component-update",
+                 "--disable-sync", "--no-first-run"]
+SHOTS = ROOT / "docs" if os.environ.get("DOODLECAM_SCREENSHOTS") else None
+
+playwright_api = pytest.importorskip("playwright.sync_api")
+if not Path(CHROMIUM).exists():
+    pytest.skip("Debian's chromium is not installed (.ci/run installs it: apt-get install chromium)",
+                allow_module_level=True)
+
+
+def free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+@pytest.fixture(scope="module")
+def server(tmp_path_factory):
+    """The studio on 127.0.0.1:<free port> in a thread, shut down at the end."""
+    import uvicorn
+
+    folder = tmp_path_factory.mktemp("studio")
+    session = Session(Settings(machine=load_machine("doodlebot")))
+    cfg = StudioConfig(token="browser-test-token", folders=(folder,))
+    app = create_app(session, cfg)
+    port = free_port()
+    srv = uvicorn.Server(uvicorn.Config(app, host="127.0.0.1", port=port, log_level="warning"))
+    thread = threading.Thread(target=srv.run, daemon=True)
+    thread.start()
+    end = time.monotonic() + 30
+    while not srv.started:
+        assert time.monotonic() < end and thread.is_alive(), "the studio server did not start"
+        time.sleep(0.05)
+    yield {"url": f"http://127.0.0.1:{port}/?token={cfg.token}", "app": app, "folder": folder}
+    srv.should_exit = True
+    thread.join(10)
+
+
+@pytest.fixture(scope="module")
+def page(server):
+    with playwright_api.sync_playwright() as p:
+        browser = p.chromium.launch(executable_path=CHROMIUM, args=CHROMIUM_ARGS)
+        pg = browser.new_page(viewport={"width": 1400, "height": 850}, accept_downloads=True)
+        errors = []
+        pg.on("pageerror", lambda e: errors.append(str(e)))
+        pg.goto(server["url"])
+        pg.wait_for_selector("body[data-ready='1']")
+        yield pg
+        browser.close()
+        assert not errors, errors
+
+
+def shot(page, name: str) -> None:
+    if SHOTS is not None:
+        page.screenshot(path=str(SHOTS / f"studio-{name}.png"))
+
+
+def summary(server) -> dict:
+    return server["app"].state.session.summary()
+
+
+def ink_pixels(page) -> int:
+    """Canvas pixels drawn in a speed colour (saturated), counted in the page."""
+    return page.evaluate("""() => {
+        const c = document.getElementById('paper'), d = c.getContext('2d').getImageData(0, 0, c.width, c.height).data;
+        let n = 0;
+        for (let i = 0; i < d.length; i += 4) {
+            const mx = Math.max(d[i], d[i + 1], d[i + 2]), mn = Math.min(d[i], d[i + 1], d[i + 2]);
+            if (mx - mn > 80) n++;
+        }
+        return n;
+    }""")
+
+
+def test_1_load_a_picture_and_see_its_strokes(page, server):
+    page.set_input_files("#file", str(CAMERA))
+    page.wait_for_selector("body[data-strokes]", timeout=60_000)
+    s = summary(server)
+    assert page.text_content("#stat-strokes") == str(s["strokes"]) and s["strokes"] > 50
+    assert page.text_content("#stat-time") == f"{s['job_time_s']:.2f} s"
+    assert ink_pixels(page) > 5000
+    assert page.evaluate("studioPerf.firstView") > 0
+    shot(page, "job")
+
+
+def test_2_a_tracer_option_changes_the_strokes(page, server):
+    before = page.text_content("#stat-strokes")
+    sigma = page.locator("#tracer-options input[name=sigma]")
+    assert sigma.input_value() == "2"
+    sigma.fill("4")
+    sigma.dispatch_event("change")
+    page.wait_for_function(f"document.getElementById('stat-strokes').textContent !== '{before}'", timeout=60_000)
+    s = summary(server)
+    assert s["tracer_options"] == {"sigma": 4.0, "low": 0.7, "high": 0.9, "equalize": False, "smooth": 0.0,
+                                   "simplify": 0.25, "staircase": 0.8, "join": 2.0, "min_length": 4.0}
+    assert page.text_content("#stat-strokes") == str(s["strokes"]) != before
+
+
+def _select_longest(page) -> int:
+    k = page.evaluate("""() => { const v = studio.view.strokes;
+        return v.reduce((b, s) => s.control.length > v[b].control.length ? s.i : b, 0); }""")
+    p = page.evaluate(f"studio.view.strokes[{k}].points[Math.floor(studio.view.strokes[{k}].points.length / 3)]")
+    x, y = page.evaluate(f"studioScreen({p[0]}, {p[1]})")
+    box = page.locator("#paper").bounding_box()
+    page.mouse.move(box["x"] + x, box["y"] + y)  # hover: a tooltip with the stroke's figures
+    assert page.get_attribute("#paper", "title").startswith(f"stroke {k + 1}: ")
+    page.mouse.click(box["x"] + x, box["y"] + y)
+    page.wait_for_function(f"document.getElementById('sel-index').textContent.startsWith('{k + 1} of')")
+    page.wait_for_selector("#stroke-figures tr")
+    return k
+
+
+def test_3_drag_a_control_point_moves_the_curve_and_updates_the_time(page, server):
+    k = _select_longest(page)
+    assert page.evaluate("studio.selected") == k
+    shot(page, "stroke")
+    control = np.array(page.evaluate(f"studio.view.strokes[{k}].control"))
+    j = len(control) // 2
+    x, y = page.evaluate(f"studioScreen({control[j][0]}, {control[j][1]})")
+    box = page.locator("#paper").bounding_box()
+    t_before = page.get_attribute("body", "data-job-time")
+    page.mouse.move(box["x"] + x, box["y"] + y)
+    page.mouse.down()
+    for step in range(1, 11):
+        page.mouse.move(box["x"] + x + 3 * step, box["y"] + y + 2 * step)
+    # mid-drag: the curve is evaluated in the page; it agrees with the Python B-spline
+    dragged = np.array(page.evaluate("studio.drag.control"))
+    assert np.linalg.norm(dragged[j] - control[j]) > 1.0 and np.allclose(np.delete(dragged, j, 0), np.delete(control, j, 0))
+    curve = np.array(page.evaluate("Array.from(studio.curve)")).reshape(-1, 2)
+    assert np.allclose(curve, Spline(3, dragged)(np.linspace(0, 1, len(curve))), atol=1e-9)
+    page.mouse.up()
+    page.wait_for_function(f"document.body.dataset.jobTime !== '{t_before}'", timeout=30_000)
+    after = np.array(page.evaluate(f"studio.view.strokes[{k}].control"))
+    assert np.allclose(after, dragged, atol=1e-3)  # the server planned the dragged curve
+    s = summary(server)
+    assert page.text_content("#stat-time") == f"{s['job_time_s']:.2f} s" and s["can_undo"]
+    assert max(page.evaluate("studioPerf.moves")) < 1000  # it redrew on every move (the benchmark times it)
+    assert page.evaluate("studio.selected") == k  # the selection stays (control points shown)
+    shot(page, "edit")
+
+
+def test_4_undo_restores_the_plan(page, server):
+    edited = summary(server)["job_time_s"]
+    page.click("#undo")
+    page.wait_for_function(f"document.body.dataset.jobTime !== '{edited}'")
+    s = summary(server)
+    assert not s["can_undo"] and s["can_redo"]
+    assert page.text_content("#stat-time") == f"{s['job_time_s']:.2f} s"
+
+
+def test_4b_right_click_inserts_a_control_point_and_ctrl_z_undoes(page, server):
+    k = page.evaluate("studio.selected")
+    assert k >= 0
+    n = len(page.evaluate(f"studio.view.strokes[{k}].control"))
+    c = page.evaluate(f"studio.view.strokes[{k}].control[3]")
+    x, y = page.evaluate(f"studioScreen({c[0]}, {c[1]})")
+    box = page.locator("#paper").bounding_box()
+    page.once("dialog", lambda d: d.accept())  # "Insert a control point after point 4?"
+    page.mouse.click(box["x"] + x, box["y"] + y, button="right")
+    page.wait_for_function(f"studio.view.strokes[{k}].control.length === {n + 1}")
+    assert summary(server)["can_undo"]
+    page.keyboard.press("Control+z")
+    page.wait_for_function(f"studio.view.strokes[{k}].control.length === {n}")
+    assert not summary(server)["can_undo"]
+
+
+def test_5_export_gcode_equals_convert(page, server, tmp_path):
+    page.select_option("#post", "gcode")
+    with page.expect_download() as dl:
+        page.click("#download")
+    data = Path(dl.value.path()).read_bytes()
+    assert dl.value.suggested_filename == "camera.gcode"
+    assert cli_main(["convert", str(CAMERA), "-o", str(tmp_path), "--post", "gcode", "--tracer", "edges",
+                     "--tracer-opt", "sigma=4"]) == 0
+    assert data == (tmp_path / "camera.gcode").read_bytes()
+    # redo the last edit (4b's inserted point): the G-code of the edited job equals a fresh plan of
+    # the saved job (no re-tracing)
+    page.click("#redo")
+    page.wait_for_function("document.getElementById('undo').disabled === false")
+    with page.expect_download() as dl:
+        page.click("#download")
+    edited = Path(dl.value.path()).read_bytes()
+    with page.expect_download() as job:
+        page.click("#save")
+    fresh = Session(Settings(machine=load_machine("doodlebot")))
+    fresh.open_job(Path(job.value.path()).read_bytes())
+    assert edited != data and edited == fresh.export("gcode")[1]
+
+
+def test_6_simulate(page, server):
+    page.select_option("#sim-speed", "16")
+    page.click("#play")
+    page.wait_for_function("studioPerf.frames.length > 30", timeout=30_000)
+    page.click("#play")  # pause
+    t = page.evaluate("studio.sim.t")
+    assert 0 < t < page.evaluate("studio.timeline.duration")
+    assert "left" in page.text_content("#sim-time")
+    shot(page, "simulate")
+    page.locator("#scrub").fill("500")
+    page.locator("#scrub").dispatch_event("input")
+    assert abs(page.evaluate("studio.sim.t / studio.timeline.duration") - 0.5) < 1e-3
+
+
+def test_7_send_to_the_plc_simulator(page, server):
+    page.select_option("#target", "simulator")
+    page.click("#send")
+    page.wait_for_selector("#send-status[data-state=done]", timeout=60_000)
+    assert page.evaluate("document.getElementById('send-progress').value") == 100
+    assert page.text_content("#send-status").startswith(f"done: {summary_commands(server)} commands in ")
+    shot(page, "send")
+
+
+def test_8_motion_page_curves_follow_a_changed_segment_law(page, server):
+    shutil.copy(ROOT / "samples" / "motion" / "fuse.toml", server["folder"] / "fuse.toml")
+    page.click(".tabs button[data-tab=motion]")
+    page.wait_for_function("document.body.dataset.motionVersion >= 1", timeout=30_000)
+    assert page.locator("#motion-sample").input_value() == "fuse.toml"
+    before = page.evaluate("studioMotion.result")
+    # the curves pass through the design table's positions at its times
+    points = page.evaluate("studioMotion.doc.point")
+    t = np.array(before["t"])
+    for p in points:
+        if isinstance(p.get("x"), (int, float)):
+            assert np.interp(p["t"], t, before["axes"]["x"][0]) == pytest.approx(p["x"], abs=0.5)
+    law = page.locator("#motion-tables table[data-kind=segment] tr[data-row='0'] select[name=law]")
+    assert law.input_value() == "polynomial"
+    law.select_option("cycloidal")
+    page.wait_for_function("document.body.dataset.motionVersion >= 2", timeout=30_000)
+    after = page.evaluate("studioMotion.result")
+    assert after["segments"][0]["law"] == "cycloidal"
+    assert not np.allclose(np.array(after["axes"]["x"][2], dtype=float), np.array(before["axes"]["x"][2], dtype=float),
+                           equal_nan=True)
+    flags = page.locator("#motion-tables td.checks").all_text_contents()
+    assert flags == segment_flags(after) and len(flags) == len(after["segments"]) // 2  # X-Y input: one row, two axes
+    page.click("#m-play")  # the end effector along the trajectory, in real time (0.666 s)
+    page.wait_for_function("document.getElementById('m-time').textContent.startsWith('0.666 /')", timeout=30_000)
+    assert page.evaluate("studioMotion.frames") > 10
+    shot(page, "motion")
+
+
+def segment_flags(result) -> list[str]:
+    """Per segment number, the findings of both axes as the page writes them ("envelope, meander" or "ok")."""
+    numbers = sorted({s["number"] for s in result["segments"]})
+    kinds = [sorted({k for s in result["segments"] if s["number"] == n for k in s["findings"]}) for n in numbers]
+    return [", ".join(k) or "ok" for k in kinds]
+
+
+def test_9_drop_a_file_on_the_paper(page, server):
+    import base64
+
+    page.click(".tabs button[data-tab=paper]")
+    strokes = page.text_content("#stat-strokes")
+    # a file no tracer reads: convert's one line in the page, the job kept
+    page.set_input_files("#file", files=[{"name": "notes.txt", "mimeType": "text/plain", "buffer": b"hello"}])
+    page.wait_for_selector("#error:not([hidden])")
+    assert page.text_content("#error").startswith("notes.txt: no tracer reads '.txt' files")
+    assert page.text_content("#stat-strokes") == strokes
+    data = base64.b64encode((ROOT / "samples" / "images" / "horse.png").read_bytes()).decode()
+    page.evaluate("""(b64) => {
+        const bytes = Uint8Array.from(atob(b64), (c) => c.charCodeAt(0));
+        const dt = new DataTransfer();
+        dt.items.add(new File([bytes], "horse.png", { type: "image/png" }));
+        document.getElementById("paper-wrap").dispatchEvent(new DragEvent("drop", { dataTransfer: dt, bubbles: true }));
+    }""", data)
+    page.wait_for_function("document.getElementById('machine').textContent.endsWith('horse.png')", timeout=60_000)
+    assert page.text_content("#stat-strokes") == str(summary(server)["strokes"])
+    page.check("#show-order")
+    assert ink_pixels(page) > 1000
+
+
+def summary_commands(server) -> int:
+    """Commands in the job's PLC file, read back with the packet-file reader."""
+    from doodlecam.link.plc.packetfile import read_plc_array
+
+    return len(read_plc_array(server["app"].state.session.export("plc")[1])[1])
