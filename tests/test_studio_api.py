@@ -146,7 +146,10 @@ def test_move_control_point_replans_only_that_stroke(loaded, tmp_path):
     mine, fresh = (json.loads(c.get("/api/export/json").content)["meta"] for c in (loaded, other))
     for key in ("control_points", "worst_acceleration_ratio", "worst_velocity_ratio", "max_between_samples_mm",
                 "max_fit_error_mm", "travel_time_by_law"):
-        assert mine[key] == pytest.approx(fresh[key], rel=1e-9, abs=1e-12), key
+        # the deviation between samples is a measurement of re-planned strokes whose jerk bound depends on
+        # the strokes planned with them (issue 14's whole-bound lowering): equal to a micrometre
+        tol = 1e-3 if key == "max_between_samples_mm" else 1e-12
+        assert mine[key] == pytest.approx(fresh[key], rel=1e-9, abs=tol), key
 
     # undo restores the plan exactly; redo the edit
     assert loaded.post("/api/undo").json()["job_time_s"] == t0
@@ -280,7 +283,11 @@ def test_send_to_simulator_completes_even_when_the_page_goes(loaded):
 
 def test_stop_ends_at_a_stroke_boundary_with_the_pen_up_and_resumes(loaded):
     sender = loaded.app.state.sender
+    # the job was drawn to its end by the test before: the PLC refuses it unless asked to draw it again
     assert loaded.post("/api/send", json={"target": "simulator", "speed": 20}).status_code == 200
+    s = wait_state(loaded, lambda s: s["state"] != "sending")
+    assert s["state"] == "failed" and "again" in s["message"], s
+    assert loaded.post("/api/send", json={"target": "simulator", "speed": 20, "again": True}).status_code == 200
     assert "a send is running" in one_line(loaded.post("/api/send", json={"target": "simulator"}))
     wait_state(loaded, lambda s: s["executed"] > 5)
     assert loaded.post("/api/send/stop").status_code == 200
@@ -294,7 +301,7 @@ def test_stop_ends_at_a_stroke_boundary_with_the_pen_up_and_resumes(loaded):
     # sending the same job again resumes after the last executed command
     assert loaded.post("/api/send", json={"target": "simulator", "speed": 20}).status_code == 200
     s = wait_state(loaded, lambda s: s["state"] != "sending")
-    assert s["state"] == "done" and f"resumed at command {held + 1}" in s["message"], s
+    assert s["state"] == "done" and f"resumed at command {held + 1}" in s["message"], s["message"]
     ran = [c for job, c in sender._sim.executed_log if job == sender._sender.job_id]
     assert sorted(ran) == list(range(1, len(records) + 1))  # every command once, none repeated
     assert "no send is running" in one_line(loaded.post("/api/send/stop"))

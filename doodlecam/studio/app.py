@@ -293,7 +293,7 @@ def create_app(session: Session, config: StudioConfig | None = None) -> FastAPI:
 
         def start():
             _, data = session.export("plc")
-            return sender.start(data, session.machine, target, doc.get("speed"))
+            return sender.start(data, session.machine, target, doc.get("speed"), again=doc.get("again") is True)
 
         return await run_in_threadpool(start)
 

@@ -12,9 +12,11 @@ server, so a job it holds can be resumed too.
 from __future__ import annotations
 
 import math
+import tempfile
 import threading
 import time
 from dataclasses import dataclass, field
+from pathlib import Path
 from typing import Any
 
 from doodlecam.errors import DoodleError, InputError
@@ -50,6 +52,9 @@ class Sender:
         self._sender = None
         self._sim = None
         self._thread: threading.Thread | None = None
+        # The sender's record (job id, owner token, progress): with it a stopped job resumes on the
+        # PLC that holds it, which takes it only from the computer that started it (docs/protocol.md).
+        self._records = tempfile.TemporaryDirectory(prefix="doodlecam-studio-")
 
     def _update(self, **kw) -> None:
         with self.changed:
@@ -72,9 +77,10 @@ class Sender:
     def busy(self) -> bool:
         return self._thread is not None and self._thread.is_alive()
 
-    def start(self, plc_bytes: bytes, machine, target: str, speed: float | None = None) -> dict:
+    def start(self, plc_bytes: bytes, machine, target: str, speed: float | None = None, again: bool = False) -> dict:
         """Send to ``target``: 'simulator' (a built-in PLC simulator, ``speed`` x real time;
-        None = as fast as it can) or 'HOST:PORT' of a PLC."""
+        None = as fast as it can) or 'HOST:PORT' of a PLC. ``again``: run a job the PLC has
+        already finished once more (``doodlecam send --again``)."""
         from doodlecam.link.plc.sender import UdpSender, parse_target, planned_time_left
         from doodlecam.link.plc.simulator import PlcConfig, PlcSimulator
 
@@ -101,7 +107,8 @@ class Sender:
             self._update(executed=executed, total=total, position_mm=pos,
                          time_left_s=float(left[min(executed, len(left) - 1)]))
 
-        sender = UdpSender(host, port, plc_bytes, "studio.plc", progress=progress)
+        sender = UdpSender(host, port, plc_bytes, "studio.plc", progress=progress, again=again,
+                           state_file=Path(self._records.name) / "send-record.json")
         header = sender.plc_header
         left = planned_time_left(sender.records, header)
         self._sender = sender

@@ -437,6 +437,7 @@ $("export").onclick = async () => {
 };
 $("target").onchange = () => { $("target-host").hidden = $("target").value !== "host"; };
 
+let sendAgain = false; // the PLC refuses a finished job unless asked to draw it again
 function showSend(s) {
   $("send-progress").value = s.percent;
   const pos = s.position_mm ? ` at (${s.position_mm[0].toFixed(1)}, ${s.position_mm[1].toFixed(1)}) mm` : "";
@@ -445,7 +446,8 @@ function showSend(s) {
     : `${s.state}${s.message ? ": " + s.message : ""}`;
   $("send-status").dataset.state = s.state;
   $("send").disabled = s.state === "sending"; $("stop").disabled = s.state !== "sending";
-  $("send").textContent = s.state === "stopped" ? "Resume" : "Send"; // the PLC holds a stopped job
+  sendAgain = s.state === "done" || (s.state === "failed" && /again/.test(s.message || ""));
+  $("send").textContent = s.state === "stopped" ? "Resume" : sendAgain ? "Send again" : "Send"; // the PLC holds a stopped job
 }
 function follow() {
   const es = new EventSource(withToken("/api/send/events"));
@@ -455,7 +457,7 @@ function follow() {
 $("send").onclick = async () => {
   const target = $("target").value === "host" ? $("target-host").value : "simulator";
   const speed = $("send-speed").value ? Number($("send-speed").value) : null;
-  showSend(await api("/api/send", { method: "POST", json: { target, speed } }));
+  showSend(await api("/api/send", { method: "POST", json: { target, speed, again: sendAgain } }));
   follow();
 };
 $("stop").onclick = async () => { showSend(await api("/api/send/stop", { method: "POST" })); };
