@@ -341,6 +341,18 @@ def _dxf_entities(entities, skipped: dict[str, int], layer: str | None = None, d
             yield e, here
 
 
+def _dxf_colours(doc, layers) -> dict[str, str]:
+    """Each layer's colour (its ACI number) as #rrggbb; ACI 7, white on a black CAD screen, is black on paper."""
+    from ezdxf import colors
+
+    out = {}
+    for name in layers:
+        aci = abs(int(doc.layers.get(name).dxf.color)) if doc.layers.has_entry(name) else 7
+        r, g, b = (0, 0, 0) if aci in (0, 7, 256) else colors.aci2rgb(aci)
+        out[name] = f"#{r:02x}{g:02x}{b:02x}"
+    return out
+
+
 def _dxf(path: Path, opt) -> Drawing:
     import logging
 
@@ -385,7 +397,7 @@ def _dxf(path: Path, opt) -> Drawing:
     if opt["layers"] == "none":
         layers = ["0"] * len(polys)
     meta = {"tracer": "vector", "format": "dxf", "units": unit or "millimeters (assumed)",
-            "skipped_entities": skipped, "polylines": len(polys)}
+            "skipped_entities": skipped, "polylines": len(polys), "layer_colours": _dxf_colours(doc, by_layer)}
     if skipped:
         meta["warnings"] = ["not drawn: " + ", ".join(f"{n} {k}" for k, n in sorted(skipped.items()))]
     return Drawing(tuple(polys), units="mm", y_down=False, source=str(path), meta=meta, layers=tuple(layers))

@@ -192,7 +192,7 @@ def test_dxf_spline_against_its_exact_curve(tmp_path):
 
 def test_dxf_blocks_bulges_layers_and_inches(tmp_path):
     def build(doc, msp):
-        doc.layers.add("CUT")
+        doc.layers.add("CUT", color=1)  # ACI red
         blk = doc.blocks.new("HOLE")
         blk.add_circle((0, 0), 0.25)
         msp.add_blockref("HOLE", (1, 1), dxfattribs={"xscale": 2, "yscale": 2, "layer": "CUT"})
@@ -208,6 +208,7 @@ def test_dxf_blocks_bulges_layers_and_inches(tmp_path):
     big = [p for p in d.polylines if on_circle(p, (inch, inch), 0.5 * inch) < TOL]
     assert len(big) == 1  # the scaled block copy, in place
     assert sorted(set(d.layers)) == ["0", "CUT"]
+    assert d.meta["layer_colours"] == {"CUT": "#ff0000", "0": "#000000"}
     assert d.meta["units"] == "inches"
     assert d.meta["warnings"] == ["not drawn: 1 MTEXT, 1 TEXT"]
 
