@@ -64,8 +64,9 @@ def convert(input, outdir, as_json, **options):
                    "to keep within it, docs/sampling.md)")
     if s["layers"]:
         click.echo(f"  layers             {len(s['layers'])}: {', '.join(s['layers'])}"
-                   + (f" ({s['pen_changes']} pen change{'s' if s['pen_changes'] != 1 else ''}: the job pauses, pen up)"
-                      if s["pen_changes"] else ""))
+                   + (f" (plotted one after another; {s['pen_changes']} pen change{'s' if s['pen_changes'] != 1 else ''}"
+                      ": the PLC and G-code posts do not pause for them yet, so convert one layer at a time with "
+                      "--layer NAME to change pens)" if s["pen_changes"] else ""))
     click.echo("  wrote              " + ", ".join(s["outputs"]))
     for w in s["warnings"]:
         click.echo(f"  warning: {w}", err=True)
