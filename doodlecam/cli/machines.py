@@ -116,10 +116,16 @@ def explain(machine, origin: str = "") -> list[str]:
     for section, opts in sorted(m.plugin_options.items()):
         lines.append(f"  [{section}]" + " " * max(1, 13 - len(section)) + ", ".join(f"{k} = {v!r}" for k, v in opts.items()))
     if m.kinematics == "cartesian":
-        lines.append("  GRBL settings  $100=%g $101=%g (steps/mm)  $110=%g $111=%g (mm/min)  $120=%g $121=%g (mm/s^2)  "
-                     "$130=%g $131=%g (mm, max travel)" % (m.x.steps_per_mm, m.y.steps_per_mm, m.x.max_velocity * 60,
-                                                           m.y.max_velocity * 60, m.x.max_acceleration,
-                                                           m.y.max_acceleration, m.width, m.height))
+        from doodlecam.link.grbl.timing import grbl_settings_for
+
+        dollar = grbl_settings_for(m)  # the settings the G-code post's header assumes
+
+        def group(keys, unit):
+            return " ".join(f"{k}={dollar[k]:g}" for k in keys) + f" ({unit})"
+
+        lines.append("  GRBL settings  " + "  ".join([
+            group(("$100", "$101"), "steps/mm"), group(("$110", "$111"), "mm/min"), group(("$120", "$121"), "mm/s^2"),
+            group(("$130", "$131"), "mm, max travel"), group(("$11", "$1"), "junction deviation mm, step idle ms")]))
         rate = max(ax.max_velocity * ax.steps_per_mm for ax in m.axes)
         if rate > GRBL_MAX_STEP_RATE:
             lines.append(f"  note           {rate / 1000:.0f} kHz of steps is more than GRBL 1.1 on an Arduino Uno gives "
