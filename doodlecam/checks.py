@@ -130,8 +130,8 @@ def check_settings(options: ConvertOptions, machine: Machine, inputs: Iterable[P
         tracers[""] = registry.get("tracer", options.tracer, dirs)
     for cls in {c.name: c for c in tracers.values()}.values():
         cls.resolve_options(machine.plugin_options.get(f"trace.{cls.name}", {}), options.tracer_options)
-    for post in options.posts:
-        cls = registry.get("postprocessor", post, dirs)
+    posts = {post: registry.get("postprocessor", post, dirs) for post in options.posts}
+    for post, cls in posts.items():
         cls.resolve_options(machine.plugin_options.get(f"post.{post}", {}), options.post_options.get(post, {}))
     unused = set(options.post_options) - set(options.posts)
     if unused:
@@ -145,9 +145,8 @@ def check_settings(options: ConvertOptions, machine: Machine, inputs: Iterable[P
     if outdir is not None:
         check_output_dir(outdir)
         for path in inputs:  # `x.svg -o .` with the svg post would write over the input
-            for post in options.posts:
-                ext = registry.get("postprocessor", post, dirs).extension
-                if (Path(outdir) / f"{Path(path).stem}{ext}").resolve() == Path(path).resolve():
+            for post, cls in posts.items():
+                if (Path(outdir) / f"{Path(path).stem}{cls.extension}").resolve() == Path(path).resolve():
                     raise InputError(f"{path}: the {post} post would replace the input with {Path(path).name}; "
                                      "choose another output folder with -o")
     return tracers

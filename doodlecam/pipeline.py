@@ -64,7 +64,7 @@ def trace(path: Path, settings: Settings) -> Drawing:
 
         size = picture_size(path)
         if size is not None:
-            tracer.mm_per_px = picture_scale(*size, settings.machine, settings.layout)
+            tracer.mm_per_px = picture_scale(*size, settings.machine, settings.layout, str(path))
             tracer.pen_mm = settings.machine.pen.width
     drawing = _guarded(f"tracer '{cls.name}' on {path}", tracer.trace, path, opts)
     if not isinstance(drawing, Drawing):
@@ -86,7 +86,7 @@ def plan_job(drawing: Drawing, machine: Machine, solver: str = "reach", plugin_d
              smoothing: float | None = None, fitted: list[Stroke] | None = None) -> Job:
     """Order, fit, plan and sample a drawing already in machine millimetres.
 
-    ``order`` overrides the profile's [order] options (doodlecam.trace.layout.ORDER_DEFAULTS).
+    ``order`` overrides the profile's [order] options (doodlecam.options.ORDER_DEFAULTS).
     ``fitted``: strokes already ordered and fitted (an edited job, e.g. from the
     studio): planned as given, without ordering or fitting ``drawing`` again.
     """

@@ -6,7 +6,8 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from doodlecam.errors import InputError, MachineError
-from doodlecam.trace.layout import fit_to_work_area, layout_options, order_options
+from doodlecam.options import layout_options, order_options
+from doodlecam.trace.layout import fit_to_work_area
 from doodlecam.machine import parse_machine
 from doodlecam.model import Drawing
 
@@ -174,6 +175,11 @@ def test_a_page_is_centred_and_checked_against_the_work_area(machine):
     assert (x0 + x1) / 2 == pytest.approx(machine.width / 2, abs=0.5)
     assert (y0 + y1) / 2 == pytest.approx(machine.height / 2, abs=0.5)
     assert y1 - y0 == pytest.approx((148 - 20) * 99 / 100, rel=1e-3)  # the page's short side, less the margins
+    # the scale a picture is traced for (before tracing) is the one it is laid out at: on the page
+    from doodlecam.trace.layout import picture_scale
+
+    assert picture_scale(100, 100, machine, {"page": "a5", "orientation": "landscape", "margin": 10}) == \
+        pytest.approx((148 - 20) / 100)
     with pytest.raises(InputError, match="page does not fit.*other orientation"):
         fit_to_work_area(d, machine, {"page": "a5", "orientation": "portrait"})
     with pytest.raises(InputError, match="page does not fit"):

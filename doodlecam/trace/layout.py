@@ -24,7 +24,7 @@ import numpy as np
 
 from doodlecam.errors import InputError
 from doodlecam.model import Drawing
-from doodlecam.options import LAYOUT_DEFAULTS, ORDER_DEFAULTS, layout_options, order_options  # noqa: F401  (checked here before)
+from doodlecam.options import layout_options
 
 def _canvas(drawing: Drawing, pts: np.ndarray, fit: str) -> tuple[float, float, float, float]:
     """(x0, y0, x1, y1) in drawing units: the frame to fit."""
@@ -41,25 +41,52 @@ def _canvas(drawing: Drawing, pts: np.ndarray, fit: str) -> tuple[float, float, 
     return (min(frame[0], ink[0]), min(frame[1], ink[1]), max(frame[2], ink[2]), max(frame[3], ink[3]))
 
 
-def picture_scale(width_px: float, height_px: float, machine, options: dict[str, Any] | None = None) -> float | None:
+def _area(machine, opt: dict[str, Any], src: str) -> tuple[float, float]:
+    """(width, height) mm the drawing fits into: the work area, or the page centred on it,
+    less the margin. Raises InputError when the page or the margin leaves no room."""
+    margin = machine.margin if opt["margin"] is None else opt["margin"]
+    pw, ph = machine.width, machine.height
+    if opt["page"] is not None:
+        pw, ph = opt["page"]
+        if opt["orientation"] is not None and (pw > ph) != (opt["orientation"] == "landscape"):
+            pw, ph = ph, pw
+        if pw > machine.width * (1 + 1e-9) or ph > machine.height * (1 + 1e-9):
+            turn = " (try the other orientation)" if ph <= machine.width and pw <= machine.height else ""
+            raise InputError(f"{src}: a {pw:g} x {ph:g} mm page does not fit the {machine.width:g} x {machine.height:g} mm "
+                             f"work area of machine '{machine.name}'; choose a smaller page{turn}")
+    aw, ah = pw - 2 * margin, ph - 2 * margin
+    if aw <= 0 or ah <= 0:
+        raise InputError(f"{src}: margin {margin:g} mm leaves no room on the {pw:g} x {ph:g} mm "
+                         f"{'page' if opt['page'] else 'work area'}; use a smaller margin")
+    return aw, ah
+
+
+def _scale(w: float, h: float, aw: float, ah: float, opt: dict[str, Any]) -> tuple[int, float]:
+    """(quarter turns, mm per drawing unit) of a w x h frame in an aw x ah mm area."""
+
+    def fill(turns: int) -> float:  # the scale that fills the area
+        cw, ch = (w, h) if turns % 2 == 0 else (h, w)
+        return min(aw / cw, ah / ch)
+
+    # auto: the quarter turn only when it makes the drawing larger (squarish pictures stay upright)
+    turns = (1 if fill(1) > fill(0) * (1 + 1e-9) else 0) if opt["rotate"] == "auto" else int(opt["rotate"]) // 90
+    cw, ch = (w, h) if turns % 2 == 0 else (h, w)
+    if opt["scale"] is not None:
+        return turns, float(opt["scale"])
+    if opt["width"] is not None or opt["height"] is not None:
+        return turns, float(min(opt["width"] / cw if opt["width"] is not None else np.inf,
+                                opt["height"] / ch if opt["height"] is not None else np.inf))
+    return turns, fill(turns)
+
+
+def picture_scale(width_px: float, height_px: float, machine, options: dict[str, Any] | None = None,
+                  src: str = "picture") -> float | None:
     """mm per pixel a width x height px picture will be drawn at (laid out by its
     canvas), known before tracing; None when the layout fits the ink instead."""
     opt = layout_options({**getattr(machine, "layout", {}), **(options or {})})
-    if opt["fit"] == "ink":
+    if opt["fit"] == "ink" or width_px <= 0 or height_px <= 0:
         return None
-    margin = machine.margin if opt["margin"] is None else opt["margin"]
-    aw, ah = machine.width - 2 * margin, machine.height - 2 * margin
-    if aw <= 0 or ah <= 0 or width_px <= 0 or height_px <= 0:
-        return None
-    fill = [min(aw / cw, ah / ch) for cw, ch in ((width_px, height_px), (height_px, width_px))]
-    turns = (1 if fill[1] > fill[0] * (1 + 1e-9) else 0) if opt["rotate"] == "auto" else int(opt["rotate"]) // 90
-    cw, ch = (width_px, height_px) if turns % 2 == 0 else (height_px, width_px)
-    if opt["scale"] is not None:
-        return float(opt["scale"])
-    if opt["width"] is not None or opt["height"] is not None:
-        return float(min(opt["width"] / cw if opt["width"] is not None else np.inf,
-                         opt["height"] / ch if opt["height"] is not None else np.inf))
-    return float(fill[turns % 2])
+    return _scale(width_px, height_px, *_area(machine, opt, src), opt)[1]
 
 
 def fit_to_work_area(drawing: Drawing, machine, options: dict[str, Any] | None = None) -> Drawing:
@@ -80,36 +107,10 @@ def fit_to_work_area(drawing: Drawing, machine, options: dict[str, Any] | None =
     if drawing.y_down:  # to y up: flip about the canvas
         y0, y1 = -y1, -y0
     flip_y = -1.0 if drawing.y_down else 1.0
-    margin = machine.margin if opt["margin"] is None else opt["margin"]
-    pw, ph = machine.width, machine.height  # what the drawing goes on: the work area, or a page centred on it
-    if opt["page"] is not None:
-        pw, ph = opt["page"]
-        if opt["orientation"] is not None and (pw > ph) != (opt["orientation"] == "landscape"):
-            pw, ph = ph, pw
-        if pw > machine.width * (1 + 1e-9) or ph > machine.height * (1 + 1e-9):
-            turn = " (try the other orientation)" if ph <= machine.width and pw <= machine.height else ""
-            raise InputError(f"{src}: a {pw:g} x {ph:g} mm page does not fit the {machine.width:g} x {machine.height:g} mm "
-                             f"work area of machine '{machine.name}'; choose a smaller page{turn}")
-    aw, ah = pw - 2 * margin, ph - 2 * margin
-    if aw <= 0 or ah <= 0:
-        raise InputError(f"{src}: margin {margin:g} mm leaves no room on the {pw:g} x {ph:g} mm "
-                         f"{'page' if opt['page'] else 'work area'}; use a smaller margin")
+    aw, ah = _area(machine, opt, src)
     w, h = max(x1 - x0, 1e-9), max(y1 - y0, 1e-9)
-
-    def fill(turns: int) -> float:  # the scale that fills the area
-        cw, ch = (w, h) if turns % 2 == 0 else (h, w)
-        return min(aw / cw, ah / ch)
-
-    # auto: the quarter turn only when it makes the drawing larger (squarish pictures stay upright)
-    turns = (1 if fill(1) > fill(0) * (1 + 1e-9) else 0) if opt["rotate"] == "auto" else int(opt["rotate"]) // 90
+    turns, scale = _scale(w, h, aw, ah, opt)
     cw, ch = (w, h) if turns % 2 == 0 else (h, w)
-    if opt["scale"] is not None:
-        scale = opt["scale"]
-    elif opt["width"] is not None or opt["height"] is not None:
-        scale = min(opt["width"] / cw if opt["width"] is not None else np.inf,
-                    opt["height"] / ch if opt["height"] is not None else np.inf)
-    else:
-        scale = fill(turns)
     if cw * scale > aw * (1 + 1e-9) or ch * scale > ah * (1 + 1e-9):
         raise InputError(
             f"{src}: at {cw * scale:.1f} x {ch * scale:.1f} mm the drawing does not fit the "
