@@ -110,6 +110,19 @@ def check_scheduler(address: str, timeout: float = 3.0) -> None:
                                   f"within {timeout:g} s; check the address and port") from None
 
 
+def check_pens(machine: Machine, kin) -> None:
+    """A pen's max_accel caps the paper's x and y accelerations: only a machine whose axes are
+    the paper's axes (a diagonal linear map) can keep it exactly."""
+    import numpy as np
+
+    if not any(p.max_accel is not None for p in (machine.pens or (machine.pen,))):
+        return
+    M = None if kin.linear_map is None else np.asarray(kin.linear_map, float)
+    if M is None or np.count_nonzero(M - np.diag(np.diag(M))):
+        raise MachineError(f"{machine.source or machine.name}: a pen's max_accel needs a machine whose axes are the "
+                           f"paper's x and y; the {machine.kinematics} machine cannot keep it: use max_speed for that pen")
+
+
 def check_settings(options: ConvertOptions, machine: Machine, inputs: Iterable[Path] = (),
                    outdir: Path | None = None) -> dict[str, type]:
     """Check everything a conversion will use, cheaply, before any work.
@@ -138,7 +151,7 @@ def check_settings(options: ConvertOptions, machine: Machine, inputs: Iterable[P
         name = sorted(unused)[0]
         raise PluginError(f"options given for post '{name}'{did_you_mean(name, options.posts)}, which is not among the "
                           f"posts {', '.join(options.posts)}")
-    registry.kinematics_for(machine, dirs)
+    check_pens(machine, registry.kinematics_for(machine, dirs))
     check_solver(options.solver or machine.solver)
     layout_options({**machine.layout, **options.layout})
     order_options({**machine.order, **options.order})

@@ -35,6 +35,16 @@ class Pen:
     up_delay: float = 0.1  # s to lift and settle
     down_delay: float = 0.1  # s to lower and settle
     max_speed: float | None = None  # mm/s pen-speed cap while drawing
+    # [[pen]] entries: a machine with several pens (or one pen changed by hand)
+    name: str = ""
+    colour: str = ""  # CSS colour, for the preview and the pen-change message
+    max_accel: float | None = None  # mm/s^2 cap on each paper axis' acceleration (a brush is drawn gently)
+    layers: tuple[str, ...] = ()  # the drawing's layers this pen draws (else matched by name or colour, then in order)
+
+    def describe(self, number: int) -> str:
+        """'pen 2 (red)', 'pen 2 "fineliner" (red)': how the operator is told which pen to fit."""
+        what = f" {self.name!r}" if self.name and self.name.lower() != self.colour.lower() else ""
+        return f"pen {number}{what}" + (f" ({self.colour})" if self.colour else f" ({self.name})" if self.name and not what else "")
 
 
 @dataclass(frozen=True)
@@ -45,7 +55,8 @@ class Machine:
     axes: tuple[Axis, Axis]
     margin: float = 10.0
     home: tuple[float, float] = (0.0, 0.0)
-    pen: Pen = Pen()
+    pen: Pen = Pen()  # the first pen: the one a single-pen job draws with
+    pens: tuple[Pen, ...] = ()  # every [[pen]] of the profile (empty: one [pen] table)
     travel_speed: float | None = None  # mm/s per axis for pen-up moves
     travel_law: str = "trapezoid"  # pen-up move profile, see doodlecam.plan.travel
     delta_time: float = 0.04  # s, velocity sample period
@@ -77,6 +88,50 @@ class Machine:
             return (self.x.max_velocity, self.y.max_velocity)
         return (min(self.travel_speed, self.x.max_velocity), min(self.travel_speed, self.y.max_velocity))
 
+    def pen_assignment(self, layers, colours: dict[str, str] | None = None) -> dict[str, int]:
+        """Layer name -> pen number (1-based), for the layers in plotting order.
+
+        A pen takes the layers it lists (``layers = [...]``); then a layer goes to
+        the pen of its name or colour; the rest take the unused pens in order
+        (again from the first once all are used). Without [[pen]] entries the
+        operator fits one pen per layer: the number is the layer's place.
+        """
+        layers = list(dict.fromkeys(layers))
+        if not self.pens:
+            return {name: k for k, name in enumerate(layers, 1)}
+        colours = {k: _colour_key(v) for k, v in (colours or {}).items()}
+        out: dict[str, int] = {}
+        for name in layers:
+            key = name.lower()
+            for k, p in enumerate(self.pens, 1):
+                if name in p.layers:
+                    out[name] = k
+                    break
+            else:
+                for k, p in enumerate(self.pens, 1):
+                    if key and key in (p.name.lower(), p.colour.lower()) or (
+                            p.colour and colours.get(name) == _colour_key(p.colour)):
+                        out[name] = k
+                        break
+        free = [k for k in range(1, len(self.pens) + 1) if k not in out.values()] or list(range(1, len(self.pens) + 1))
+        for i, name in enumerate(n for n in layers if n not in out):
+            out[name] = free[i % len(free)]
+        return out
+
+    def pen_number(self, number: int) -> Pen:
+        """The Pen of a pen number from :meth:`pen_assignment` (the [pen] table when there are no [[pen]]s)."""
+        return self.pens[number - 1] if self.pens else self.pen
+
+
+def _colour_key(text: str) -> str:
+    """A colour in one spelling ('red', '#F00', 'rgb(255,0,0)' -> '#ff0000'), for matching pens to layers."""
+    from svgelements import Color
+
+    try:
+        return Color(str(text)).hex.lower()
+    except (ValueError, TypeError):
+        return str(text).lower()
+
 
 # ---------------------------------------------------------------- loading
 
@@ -87,7 +142,8 @@ _SCHEMA: dict[str, dict[str, tuple[type, bool]]] = {
     "work_area": {"width": (float, True), "height": (float, True), "margin": (float, False), "home": (list, False)},
     "axes.x": {"steps_per_mm": (float, True), "max_velocity": (float, True), "max_acceleration": (float, True)},
     "axes.y": {"steps_per_mm": (float, True), "max_velocity": (float, True), "max_acceleration": (float, True)},
-    "pen": {"width": (float, False), "up_delay": (float, False), "down_delay": (float, False), "max_speed": (float, False)},
+    "pen": {"width": (float, False), "up_delay": (float, False), "down_delay": (float, False), "max_speed": (float, False),
+            "max_accel": (float, False)},
     "travel": {"speed": (float, False), "law": (str, False)},
     "sampling": {"delta_time": (float, False), "path_tolerance": (float, False)},
     "fit": {"degree": (int, False), "tolerance": (float, False)},
@@ -95,6 +151,9 @@ _SCHEMA: dict[str, dict[str, tuple[type, bool]]] = {
     "layout": {k: (object, False) for k in LAYOUT_DEFAULTS},
     "order": {k: (object, False) for k in ORDER_DEFAULTS},
 }
+_PENS_KEYS = {"name": (str, False), "colour": (str, False), "color": (str, False), "width": (float, False),
+              "up_delay": (float, False), "down_delay": (float, False), "max_speed": (float, False),
+              "max_accel": (float, False), "layers": (list, False)}
 _FREE_TABLES = ("kinematics", "trace", "post", "transport")  # plugin-defined contents
 _NON_NEGATIVE = {"work_area.margin", "pen.up_delay", "pen.down_delay", "sampling.path_tolerance"}
 
@@ -214,6 +273,9 @@ def parse_machine(data: dict[str, Any], path: str = "<profile>") -> Machine:
         for key in axes:
             if key not in ("x", "y"):
                 raise MachineError(f"{path}: unknown axis [axes.{key}]; a plotter profile has [axes.x] and [axes.y]")
+    pen_list = data.get("pen") if isinstance(data.get("pen"), list) else None
+    if pen_list is not None:
+        data = {k: v for k, v in data.items() if k != "pen"}
     vals: dict[str, dict[str, Any]] = {}
     for table, keys in _SCHEMA.items():
         t = _table(data, table)
@@ -248,7 +310,11 @@ def parse_machine(data: dict[str, Any], path: str = "<profile>") -> Machine:
         up_delay=pen_v.get("up_delay", 0.1),
         down_delay=pen_v.get("down_delay", 0.1),
         max_speed=pen_v.get("max_speed"),
+        max_accel=pen_v.get("max_accel"),
     )
+    pens = _parse_pens(path, pen_list) if pen_list is not None else ()
+    if pens:
+        pen = pens[0]
     fit = vals["fit"]
     degree = fit.get("degree", 3)
     tolerance = fit.get("tolerance", 0.1)
@@ -276,6 +342,7 @@ def parse_machine(data: dict[str, Any], path: str = "<profile>") -> Machine:
         home=(float(home[0]), float(home[1])),
         axes=axes_t,  # type: ignore[arg-type]
         pen=pen,
+        pens=pens,
         travel_speed=vals["travel"].get("speed"),
         travel_law=_travel_law(path, vals["travel"].get("law")),
         delta_time=vals["sampling"].get("delta_time", 0.04),
@@ -288,6 +355,35 @@ def parse_machine(data: dict[str, Any], path: str = "<profile>") -> Machine:
         layout=layout_options(vals["layout"], f"{path}: [layout]", MachineError),
         order=order_options(vals["order"], f"{path}: [order]", MachineError),
     )
+
+
+def _parse_pens(path: str, entries: list) -> tuple[Pen, ...]:
+    """[[pen]] entries: the same keys as [pen] plus name, colour, max_accel and layers."""
+    if not entries:
+        raise MachineError(f"{path}: [[pen]] is empty; give at least one pen, or use a single [pen] table")
+    pens, seen = [], set()
+    for k, e in enumerate(entries, 1):
+        where = f"[[pen]] number {k}"
+        if not isinstance(e, dict):
+            raise MachineError(f"{path}: {where} must be a table; fix the profile")
+        for key in e:
+            if key not in _PENS_KEYS:
+                raise MachineError(f"{path}: unknown key '{key}' in {where}{did_you_mean(key, _PENS_KEYS)}; fix the profile")
+        try:
+            v = {key: _check(path, "pen", key, e[key], typ) for key, (typ, _) in _PENS_KEYS.items() if key in e}
+        except MachineError as err:
+            raise MachineError(str(err).replace("[pen]", where, 1)) from None
+        layers = v.get("layers", [])
+        if not all(isinstance(n, str) for n in layers):
+            raise MachineError(f"{path}: {where} layers must be a list of layer names (strings); fix the profile")
+        name = v.get("name", "")
+        if name and name.lower() in seen:
+            raise MachineError(f"{path}: two [[pen]] entries are named {name!r}; give each pen its own name")
+        seen.add(name.lower())
+        pens.append(Pen(width=v.get("width", 0.5), up_delay=v.get("up_delay", 0.1), down_delay=v.get("down_delay", 0.1),
+                        max_speed=v.get("max_speed"), name=name, colour=v.get("colour", v.get("color", "")),
+                        max_accel=v.get("max_accel"), layers=tuple(layers)))
+    return tuple(pens)
 
 
 def load_machine(spec: str | os.PathLike) -> Machine:

@@ -262,10 +262,20 @@ class Job:
         return tuple(dict.fromkeys(s.layer for s in self.strokes))
 
     @property
+    def pen_numbers(self) -> tuple[int, ...]:
+        """The pen (1-based number) of every stroke: the machine's assignment of layers
+        to its [[pen]]s, or one pen per layer in plotting order."""
+        assign = getattr(self.machine, "pen_assignment", None)
+        table = (assign(self.layers, self.meta.get("layer_colours")) if assign
+                 else {n: k for k, n in enumerate(self.layers, 1)})
+        return tuple(table[s.layer] for s in self.strokes)
+
+    @property
     def pen_changes(self) -> tuple[int, ...]:
-        """Indices i of the strokes before which the pen is changed: the first stroke of
-        each layer after the first (the job pauses there, pen up, for the operator)."""
-        return tuple(i for i in range(1, len(self.strokes)) if self.strokes[i].layer != self.strokes[i - 1].layer)
+        """Indices i of the strokes before which the pen is changed: where the pen number
+        changes, at a layer boundary (the job pauses there, pen up, for the operator)."""
+        p = self.pen_numbers
+        return tuple(i for i in range(1, len(p)) if p[i] != p[i - 1])
 
     @property
     def travel_length(self) -> float:

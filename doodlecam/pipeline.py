@@ -93,7 +93,7 @@ def plan_job(drawing: Drawing, machine: Machine, solver: str = "reach", plugin_d
     from doodlecam.geometry.fit import fit_pieces
     from doodlecam.geometry.order import order_strokes
     from doodlecam.plan.follow import JerkBound, jerk_limit, path_deviation, ramp_ratios
-    from doodlecam.plan.planner import Limits, check_profile, check_solver, plan_stroke
+    from doodlecam.plan.planner import check_profile, check_solver, plan_stroke
     from doodlecam.plan.sample import sample_stroke, whole_step_limits, written_samples
     from doodlecam.plan.travel import machine_law, make_travel, travel_time_by_law
     from doodlecam.options import order_options
@@ -102,7 +102,6 @@ def plan_job(drawing: Drawing, machine: Machine, solver: str = "reach", plugin_d
     smoothing = machine.smoothing if smoothing is None else smoothing
     kin = registry.kinematics_for(machine, plugin_dirs)
     kin.check_reachable(np.concatenate(drawing.polylines))
-    limits = Limits.from_machine(machine, kin)
     timings: dict[str, float] = {}
 
     t0 = time.perf_counter()
@@ -132,9 +131,14 @@ def plan_job(drawing: Drawing, machine: Machine, solver: str = "reach", plugin_d
     path_tol = machine.path_tolerance
     jerk = JerkBound(jerk_limit(path_tol, machine.delta_time)) if path_tol > 0 else None
     steps = (machine.x.steps_per_mm, machine.y.steps_per_mm)
+    # Each layer is drawn with its pen, which may cap speed and acceleration below the machine's.
+    pen_of = machine.pen_assignment([s.layer for s in strokes], drawing.meta.get("layer_colours"))
+    by_pen = {k: pen_limits(machine, machine.pen_number(k), kin) for k in sorted(set(pen_of.values()))}
     # planned within what whole-step rounding leaves, so the samples (which keep
     # that, sample.whole_step_limits) need no extra periods to follow the plan
-    plan_limits = whole_step_limits(limits, steps, machine.delta_time)
+    by_pen = {k: (lim, whole_step_limits(lim, steps, machine.delta_time)) for k, lim in by_pen.items()}
+    stroke_limits = [by_pen[pen_of[s.layer]] for s in strokes]  # (limits, plan limits) per stroke
+    nonlinear = kin.linear_map is None
 
     # Nonlinear kinematics: the samples are pen motion, and the cranks follow its
     # constant-acceleration periods with varying acceleration. The sampler keeps the
@@ -144,11 +148,11 @@ def plan_job(drawing: Drawing, machine: Machine, solver: str = "reach", plugin_d
     # by RAMP_GAIN e and the stroke is planned within the same shares: the variation
     # is bounded by the kinematics' second derivatives times the motion, which only
     # slows, so the new peak is at most share - RAMP_GAIN e + (1 + e - share) < 1.
-    nonlinear = limits.M is None
     scale = [(1.0, 1.0)] * len(strokes)  # per stroke: shares (velocity, acceleration) of the actuator limits
     ramps = [0.0] * len(strokes)  # per stroke: worst actuator ratio along the sampled ramps (nonlinear)
 
     def plan_one(n: int, s: Stroke, jerk_max, grid=None):
+        limits, plan_limits = stroke_limits[n - 1]
         sv, sa = scale[n - 1]
         lim = plan_limits if sv == sa == 1.0 else replace(plan_limits, vmax=plan_limits.vmax * sv,
                                                           amax=plan_limits.amax * sa)
@@ -160,7 +164,7 @@ def plan_job(drawing: Drawing, machine: Machine, solver: str = "reach", plugin_d
         return replace(s, profile=prof), check_profile(s.spline, prof, limits)
 
     def sample(s: Stroke, n: int):
-        return sample_stroke(s, machine.delta_time, limits, steps, follow=jerk is not None,
+        return sample_stroke(s, machine.delta_time, stroke_limits[n - 1][0], steps, follow=jerk is not None,
                              crank_share=scale[n - 1] if nonlinear else None)
 
     def sample_one(s: Stroke, n: int, jerk_max):
@@ -168,6 +172,7 @@ def plan_job(drawing: Drawing, machine: Machine, solver: str = "reach", plugin_d
         for nonlinear kinematics re-plans it (into planned[n - 1]) until the
         actuators keep their limits along the sampled ramps."""
         smp = sample(s, n)
+        limits = stroke_limits[n - 1][0]
         for attempt in range(RAMP_REPLANS + 1 if nonlinear else 0):
             ra, rv = ramp_ratios(written_samples(smp, steps), kin, limits.vmax, limits.amax)
             ramps[n - 1] = max(ra, rv)
@@ -234,6 +239,18 @@ def plan_job(drawing: Drawing, machine: Machine, solver: str = "reach", plugin_d
     }
     return Job(machine=machine, strokes=tuple(planned), travels=travels, samples=samples,
                source=drawing.source, meta=meta)
+
+
+def pen_limits(machine: Machine, pen, kin):
+    """The planner's limits for drawing with ``pen``: its speed cap, and its acceleration cap
+    on each paper axis (for machines whose axes are the paper's x and y)."""
+    from doodlecam.plan.planner import Limits
+
+    lim = Limits.from_machine(replace(machine, pen=pen), kin)
+    if pen.max_accel is not None:
+        checks.check_pens(machine, kin)
+        lim = replace(lim, amax=np.minimum(lim.amax, pen.max_accel * np.abs(np.diag(lim.M))))
+    return lim
 
 
 def run_posts(job: Job, settings: Settings) -> list[tuple[str, str, bytes]]:
@@ -348,6 +365,8 @@ class Result:
             "timings_s": {k: round(v, 3) for k, v in self.timings.items()},
             "layers": [n for n in j.layers if n] or [],
             "pen_changes": len(j.pen_changes),
+            "pens": {n: j.machine.pen_number(k).describe(k) for n, k in zip((s.layer for s in j.strokes), j.pen_numbers)
+                     if n},
         }
 
 

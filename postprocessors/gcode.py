@@ -229,6 +229,29 @@ def _one_step_apart(p: np.ndarray, steps_per_mm: np.ndarray) -> np.ndarray:
     return keep
 
 
+def pause_lines(d: Dialect, message: str) -> list[str]:
+    """A program pause (M0) that tells the operator ``message``: in a comment on GRBL's line (the
+    streamer shows it: doodlecam.link.grbl.streamer.pen_change_message), as M0's text on Marlin
+    (its display), as a (MSG, ...) line before M0 on LinuxCNC. Parentheses become brackets:
+    a G-code comment cannot hold them."""
+    text = "".join(c if c.isascii() and c.isprintable() else "?" for c in message)
+    text = text.replace("(", "[").replace(")", "]").replace(";", ",")
+    if d.name == "marlin":
+        return [f"M0 {text}"[:d.max_line]]
+    if d.name == "linuxcnc":
+        return [f"(MSG, {text})"[:d.max_line - 1].rstrip(")") + ")", "M0"]
+    return [f"M0 ({text[:d.max_line - 6]})"]
+
+
+def _pen_cap(machine, number: int, max_feed: float) -> float:
+    """The feed cap (mm/min) for pen ``number`` of the machine (its own max_speed when [[pen]] gives one)."""
+    from dataclasses import replace
+
+    pen = machine.pen_number(number)
+    cap = pen_feed_cap(replace(machine, pen=pen), max_feed)
+    return min(cap, 60.0 * pen.max_speed) if machine.pens and pen.max_speed else cap
+
+
 def pen_feed_cap(machine, max_feed: float = 0.0) -> float:
     """The fastest pen-down feed (mm/min): ``max_feed`` if given, else the pen-speed cap, else the slower axis."""
     v = min(machine.x.max_velocity, machine.y.max_velocity)
@@ -449,8 +472,13 @@ class GcodePost(PostProcessor):
         from doodlecam.link.grbl.timing import GrblSettings
 
         grbl = GrblSettings.from_machine(m, float(options["junction_deviation"]), int(options["idle_delay"]))
-        paths = [self._stroke_points(s, dts[i] if dts else m.delta_time, tol, min_feed, options["feeds"], cap, m,
-                                     grbl, int(options["baud"]), bool(options["arcs"])) for i, s in enumerate(job.strokes)]
+        # Each stroke is drawn with its layer's pen: its delays, and its speed cap on the feed.
+        pen_no = job.pen_numbers
+        changes = set(job.pen_changes)
+        caps = {k: _pen_cap(m, k, float(options["max_feed"])) for k in set(pen_no)}
+        paths = [self._stroke_points(s, dts[i] if dts else m.delta_time, tol, min_feed, options["feeds"],
+                                     caps[pen_no[i]], m, grbl, int(options["baud"]), bool(options["arcs"]))
+                 for i, s in enumerate(job.strokes)]
         home = job.travels[-1].end if job.travels else np.asarray(m.home, float)
 
         from doodlecam.link.grbl.timing import parse_gcode
@@ -472,10 +500,14 @@ class GcodePost(PostProcessor):
                 line(f"G4 P{int(round(delay * 1000.0))}" if d.dwell_ms else f"G4 P{_num(delay)}")
 
         pen(options["pen_up"], m.pen.up_delay)
-        for p, feed, arc in paths:
+        for i, (p, feed, arc) in enumerate(paths):
+            tool = m.pen_number(pen_no[i])
+            if i in changes:  # pen up already: the operator fits the next pen, then resumes
+                for text in pause_lines(d, f"change to {tool.describe(pen_no[i])}"):
+                    line(text)
             body.append(f"G0 X{_num(p[0, 0])} Y{_num(p[0, 1])}")
             program.append(("G0", p[0, 0], p[0, 1], None, None))
-            pen(options["pen_down"], m.pen.down_delay)
+            pen(options["pen_down"], tool.down_delay)
             last_f = ""
             for k, ((x, y), f) in enumerate(zip(p[1:].tolist(), feed.tolist())):
                 fs = _num(max(f, 0.1), 1)  # never print F0
@@ -488,7 +520,7 @@ class GcodePost(PostProcessor):
                     body.append(f"G1 X{_num(x)} Y{_num(y)}" + fword)
                     program.append(("G1", x, y, None, float(fs) if fword else None))
                 last_f = fs
-            pen(options["pen_up"], m.pen.up_delay)
+            pen(options["pen_up"], tool.up_delay)
         body.append(f"G0 X{_num(home[0])} Y{_num(home[1])}")
         program.append(("G0", float(np.round(home[0], 3)), float(np.round(home[1], 3)), None, None))
         line(options["program_end"])
@@ -500,6 +532,8 @@ class GcodePost(PostProcessor):
             f"; doodlecam G-code for machine '{name}'",
             f"; planned time {job.duration:.1f} s, {len(job.strokes)} strokes",
             f"; pen-down {job.pen_down_length:.1f} mm, travel {job.travel_length:.1f} mm",
+            *([f"; {len(changes)} pen change{'s' if len(changes) != 1 else ''}: the program pauses (M0) for each"]
+              if changes else []),
             f"; bounds X {_num(lo[0])}..{_num(hi[0])} Y {_num(lo[1])}..{_num(hi[1])} mm",
         ]
         if d.name != "grbl" or options["pen"] != "servo":

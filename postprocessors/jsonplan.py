@@ -59,10 +59,11 @@ class JsonPost(PostProcessor):
             raise PluginError(f"postprocessor 'json': 'decimals' must be -1..15 and 'indent' >= 0, got {dec}, {options['indent']}")
         d = None if dec < 0 else dec
         strokes = []
-        for s in job.strokes:
+        pens = job.pen_numbers
+        for s, pen in zip(job.strokes, pens):
             item = {"degree": s.spline.degree, "control": _plain(s.spline.control, d),
                     "length_mm": _plain(s.spline.length, d), "fit_error_mm": _plain(s.fit_error, d),
-                    "source_index": s.source_index, "profile": None}
+                    "source_index": s.source_index, "layer": s.layer, "pen": pen, "profile": None}
             if s.profile is not None:
                 p = s.profile
                 item["profile"] = {"solver": p.solver, "duration_s": _plain(p.duration, d),
@@ -74,7 +75,7 @@ class JsonPost(PostProcessor):
             "machine": _plain(job.machine, d),
             "figures": {"strokes": len(job.strokes), "pen_down_mm": _plain(job.pen_down_length, d),
                         "travel_mm": _plain(job.travel_length, d), "draw_time_s": _plain(job.draw_time, d),
-                        "job_time_s": _plain(job.duration, d)},
+                        "job_time_s": _plain(job.duration, d), "pen_changes": list(job.pen_changes)},
             "strokes": strokes,
             "travels": [{"start": _plain(t.start, d), "end": _plain(t.end, d), "duration_s": _plain(t.duration, d)}
                         for t in job.travels],

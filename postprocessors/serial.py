@@ -25,10 +25,13 @@ class SerialTransport(Transport):
 
     def send(self, path: Path, target: str, options: dict[str, Any], *, restart: bool = False, check: bool = False,
              from_line: int | None = None, progress: Callable | None = None,
-             log: Callable[[str], None] | None = None, controls: Callable[[], str | None] | None = None) -> dict:
+             log: Callable[[str], None] | None = None, controls: Callable[[], str | None] | None = None,
+             pen_change: Callable[[int | None, str], None] | None = None) -> dict:
         """Stream the G-code file at ``path`` to the serial port ``target``; return a summary dict.
 
         ``controls()`` (optional) returns pause, resume, hold, feed+, feed-, feed= or stop while streaming.
+        ``pen_change(pen, what)`` is called where GRBL holds at a pen change (M0, pen up) and returns once
+        the operator has fitted the pen; without it the send stops there (resumable).
         """
         from doodlecam.link.grbl.streamer import send_gcode
         from doodlecam.link.session import state_file_for
@@ -36,4 +39,4 @@ class SerialTransport(Transport):
         return send_gcode(target, Path(path), baud=options["baud"], check=check, restart=restart,
                           from_line=from_line, timeout=options["timeout"],
                           connect_timeout=options["connect_timeout"], state_file=state_file_for(Path(path)),
-                          progress=progress, log=log, controls=controls)
+                          progress=progress, log=log, controls=controls, pen_change=pen_change)

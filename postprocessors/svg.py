@@ -60,12 +60,18 @@ class SvgPost(PostProcessor):
         """The pen-down strokes: one Inkscape layer per pen layer of the job, in its colour."""
         names = job.layers or ("",)
         colours = job.meta.get("layer_colours", {})
+        m = job.machine
+        # With [[pen]]s in the profile each layer is drawn in its pen's colour and width: what will come out.
+        pens = m.pen_assignment(names, colours) if getattr(m, "pens", ()) else {}
         out = []
         for k, name in enumerate(names):
             ident = "pen-down" if len(names) == 1 else f"pen-down-{k + 1}"
-            label = "pen down" + (f": {name}" if name else "")
+            pen = m.pen_number(pens[name]) if pens else None
+            label = "pen down" + (f": {name}" if name else "") + (f" ({pen.describe(pens[name])})" if pen else "")
+            colour = (pen.colour if pen is not None and pen.colour else colours.get(name, "#000"))
+            w = pen.width if pen is not None and width == m.pen.width else width
             out += [f'<g id="{ident}" inkscape:groupmode="layer" inkscape:label={quoteattr(label)} fill="none" '
-                    f'stroke={quoteattr(colours.get(name, "#000"))} stroke-width="{width:g}" stroke-linecap="round" '
+                    f'stroke={quoteattr(colour)} stroke-width="{w:g}" stroke-linecap="round" '
                     'stroke-linejoin="round">',
                     *(f'<path d="{d}"/>' for d, s in zip(strokes, job.strokes) if s.layer == name),
                     "</g>"]

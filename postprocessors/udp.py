@@ -25,8 +25,13 @@ class UdpTransport(Transport):
     )
 
     def send(self, path: Path, target: str, options: dict[str, Any], *, restart: bool = False, cancel: bool = False,
-             again: bool = False, progress: Callable | None = None, log: Callable[[str], None] | None = None) -> dict:
-        """Send (or cancel) the job at ``path`` to ``target`` = HOST:PORT; return a summary dict."""
+             again: bool = False, progress: Callable | None = None, log: Callable[[str], None] | None = None,
+             pen_change: Callable[[int, str], None] | None = None) -> dict:
+        """Send (or cancel) the job at ``path`` to ``target`` = HOST:PORT; return a summary dict.
+
+        ``pen_change(pen, what)`` is called where the job pauses for a pen change (the PLC holds it,
+        pen up) and returns once the operator has fitted the pen; without it the send stops there.
+        """
         from doodlecam.errors import InputError
         from doodlecam.link.plc.sender import UdpSender, parse_target
         from doodlecam.link.session import state_file_for
@@ -38,10 +43,11 @@ class UdpTransport(Transport):
             raise InputError(f"{path}: cannot read ({e.strerror}); check the path") from None
         sender = UdpSender(host, port, data, str(path), state_file=state_file_for(Path(path)),
                            timeout=options["timeout"], rto=options["rto"], restart=restart, again=again,
-                           key=options["key"].encode() or None, progress=progress, log=log)
+                           key=options["key"].encode() or None, progress=progress, log=log, pen_change=pen_change)
         if cancel:
             return {"cancelled_job": sender.cancel(), "plc": f"{host}:{port}"}
         r = sender.run()
         return {"plc": f"{host}:{port}", "job_id": r.job_id, "commands": r.commands, "start_at": r.start_at,
                 "resumed": r.resumed, "already_done": r.already_done, "underruns": r.underruns,
+                "pen_changes": sender.pen_changes,
                 "elapsed_s": r.elapsed, **r.stats}

@@ -39,21 +39,29 @@ RATIO = 1 + 1e-9
 
 def read_plc_file(data: bytes):
     """(header dict, list of strokes): each stroke a start (steps) and its DRAW
-    targets (steps/s), straight from the byte layout of docs/formats.md."""
+    targets (steps/s), straight from the byte layout of docs/formats.md
+    (version 1, or version 2 with draw_accel and PAUSE commands)."""
     assert data[:8] == b"\x89DCPLC\r\n"
     version, record_size, n, dt, sx, sy, ax, ay, mx, my = struct.unpack_from("<HHIdddiiii", data, 8)
-    assert (version, record_size) == (1, 16) and len(data) == 56 + 16 * n + 4
-    assert struct.unpack_from("<I", data, 56 + 16 * n)[0] == zlib.crc32(data[:56 + 16 * n])
+    size = {1: 56, 2: 64}[version]
+    assert record_size == 16 and len(data) == size + 16 * n + 4
+    assert struct.unpack_from("<I", data, size + 16 * n)[0] == zlib.crc32(data[:size + 16 * n])
     header = dict(delta_time=dt, steps_per_mm=np.array([sx, sy]), max_accel=np.array([ax, ay], float),
-                  move_speed=np.array([mx, my], float))
+                  move_speed=np.array([mx, my], float), pauses=[])
+    if version == 2:
+        header["draw_accel"] = np.array(struct.unpack_from("<ii", data, 56), float)
     strokes, cur = [], None
     for i in range(n):
-        no, kind, _, x, y = struct.unpack_from("<IHHii", data, 56 + 16 * i)
+        no, kind, _, x, y = struct.unpack_from("<IHHii", data, size + 16 * i)
         assert no == i + 1
         if kind == 1:  # MOVE: absolute position in steps, pen up
             cur = {"start": np.array([x, y], float), "v": []}
             strokes.append(cur)
+        elif kind == 2:  # PAUSE (version 2): pen change to pen x, before the next stroke
+            assert version == 2 and y == 0 and x >= 1
+            header["pauses"].append((len(strokes), x))  # (strokes before it, pen number)
         else:  # DRAW: velocity target in steps/s, pen down
+            assert kind == 0
             cur["v"].append((x, y))
     return header, [(s["start"], np.array(s["v"], float)) for s in strokes if s["v"]]
 
@@ -85,6 +93,8 @@ def executed_ratios(data: bytes, job, path_tol: float):
             out["acc"] = max(out["acc"], float((acc / amax).max()))
             out["vel"] = max(out["vel"], float((np.abs(v) / vmax).max()))
             out["header_acc"] = max(out["header_acc"], float((acc / header["max_accel"]).max()))
+        # version 2's draw_accel: what the DRAW ramps ask of the drives, on every machine
+        out["draw_header_acc"] = max(out.get("draw_header_acc", 0.0), float((acc / header["draw_accel"]).max()))
         if m.pen.max_speed:
             out["pen"] = max(out["pen"], float(np.linalg.norm(v / k, axis=1).max() / m.pen.max_speed))
         aim = stroke.spline(smp.sample_u) * k
@@ -107,7 +117,7 @@ def executed_ratios(data: bytes, job, path_tol: float):
 
 
 def _check(r, path_tol):
-    for key in ("acc", "vel", "header_acc", "pen", "crank_acc", "crank_vel"):
+    for key in ("acc", "vel", "header_acc", "draw_header_acc", "pen", "crank_acc", "crank_vel"):
         assert r[key] <= RATIO, (key, r)
     assert r["instant_steps"] <= 0.5 + 1e-9, r  # the ends: the nearest whole step
     if path_tol > 0:

@@ -6,6 +6,7 @@ import math
 import re
 import xml.etree.ElementTree as ET
 import zlib
+from dataclasses import replace
 
 import numpy as np
 import pytest
@@ -135,7 +136,7 @@ def test_commands_from_job_structure(job):
 def test_plc_round_trip(job):
     header, cmds = commands_from_job(job)
     data = write_plc(header, cmds)
-    assert len(data) == 56 + 16 * len(cmds) + 4
+    assert len(data) == 64 + 16 * len(cmds) + 4
     h2, c2 = read_plc(data, "x.plc")
     assert h2 == header and c2 == cmds
     # The post writes the same bytes through the array fast path.
@@ -146,10 +147,13 @@ def test_plc_layout_is_little_endian_and_documented(job):
     header, cmds = commands_from_job(job)
     data = write_plc(header, cmds)
     assert data[:8] == b"\x89DCPLC\r\n"
-    assert int.from_bytes(data[8:10], "little") == 1  # version
+    assert int.from_bytes(data[8:10], "little") == 2  # version
     assert int.from_bytes(data[12:16], "little") == len(cmds)
     assert np.frombuffer(data[16:24], "<f8")[0] == 0.04
-    rec = data[56:72]  # first command: MOVE to the first stroke's start
+    # version 2: the DRAW ramps' largest acceleration, within the profile's on a Cartesian machine
+    ax, ay = np.frombuffer(data[56:64], "<i4")
+    assert (ax, ay) == (header.draw_accel_x, header.draw_accel_y) and 0 < ax <= header.max_accel_x
+    rec = data[64:80]  # first command: MOVE to the first stroke's start
     assert int.from_bytes(rec[0:4], "little") == 1 and int.from_bytes(rec[4:6], "little") == MOVE
     assert int.from_bytes(rec[8:12], "little", signed=True) == cmds[0].x
     assert int.from_bytes(data[-4:], "little") == zlib.crc32(data[:-4])
@@ -158,7 +162,8 @@ def test_plc_layout_is_little_endian_and_documented(job):
 def test_plc_negative_values_round_trip():
     h = PlcHeader(0.1, 3, 1000, 2000, 300, 400, 12.5, 40.0)
     cmds = [PlcCommand(1, MOVE, -5, 7), PlcCommand(2, DRAW, -2**31, 2**31 - 1), PlcCommand(3, DRAW, 0, 0)]
-    assert read_plc(write_plc(h, cmds)) == (h, cmds)
+    h2, c2 = read_plc(write_plc(h, cmds))
+    assert c2 == cmds and h2 == replace(h, draw_accel_x=2**31 - 1, draw_accel_y=2**31 - 1)  # clamped to int32
 
 
 def test_plc_large_file_round_trip():
@@ -170,7 +175,7 @@ def test_plc_large_file_round_trip():
     arr["x"], arr["y"] = rng.integers(-50000, 50000, (2, n))
     h = PlcHeader(0.04, n, 1, 1, 1, 1, 80.0, 80.0)
     h2, back = plcfile.read_plc_array(write_plc(h, arr))
-    assert h2 == h and np.array_equal(back, arr)
+    assert h2 == replace(h, draw_accel_x=h2.draw_accel_x, draw_accel_y=h2.draw_accel_y) and np.array_equal(back, arr)
 
 
 def _one_line_error(data, name="job.plc") -> str:
@@ -194,7 +199,7 @@ def test_plc_every_corrupted_byte_is_rejected(machine):
 
 def test_plc_corrupt_command_reports_crc(job):
     data = bytearray(write_plc(*commands_from_job(job)))
-    data[56 + 16 * 5 + 9] ^= 0xFF  # inside a command's x
+    data[64 + 16 * 5 + 9] ^= 0xFF  # inside a command's x
     assert "corrupt" in _one_line_error(bytes(data)) and "CRC" in _one_line_error(bytes(data))
 
 
@@ -209,10 +214,43 @@ def test_plc_bad_magic_and_version(job):
     data = write_plc(*commands_from_job(job))
     assert "bad magic" in _one_line_error(b"GIF89a" + data[6:], "pic.gif")
     assert "bad magic" in _one_line_error(data.replace(b"\r\n", b"\n", 1))  # text-mode mangled
-    v2 = bytearray(data)
-    v2[8] = 2
-    v2[-4:] = zlib.crc32(bytes(v2[:-4])).to_bytes(4, "little")
-    assert "version 2" in _one_line_error(bytes(v2))
+    v3 = bytearray(data)
+    v3[8] = 3
+    v3[-4:] = zlib.crc32(bytes(v3[:-4])).to_bytes(4, "little")
+    assert "version 3" in _one_line_error(bytes(v3))
+
+
+def _as_version_1(data: bytes) -> bytes:
+    """The same commands in a version 1 file: 56-byte header, no draw_accel."""
+    body = bytearray(data[:56] + data[64:-4])
+    body[8:10] = (1).to_bytes(2, "little")
+    return bytes(body) + zlib.crc32(bytes(body)).to_bytes(4, "little")
+
+
+def test_plc_version_1_files_are_still_read(job):
+    header, cmds = commands_from_job(job)
+    h1, c1 = read_plc(_as_version_1(write_plc(header, cmds)), "old.plc")
+    assert c1 == cmds and h1.version == 1 and (h1.draw_accel_x, h1.draw_accel_y) == (0, 0)
+    assert replace(h1, version=2, draw_accel_x=header.draw_accel_x, draw_accel_y=header.draw_accel_y) == header
+    # a PAUSE needs version 2
+    arr = plcfile.to_array(cmds).copy()
+    arr["type"][-2], arr["x"][-2], arr["y"][-2] = plcfile.PAUSE, 1, 0  # (the stroke's last DRAW is at rest)
+    assert "PAUSE needs version 2" in _one_line_error(_as_version_1(write_plc(header, arr)))
+
+
+def test_plc_pause_and_draw_accel_are_checked(job):
+    header, cmds = commands_from_job(job)
+    arr = plcfile.to_array(cmds).copy()
+    arr["type"][5], arr["x"][5], arr["y"][5] = plcfile.PAUSE, 2, 0  # in the middle of a stroke
+    assert "while the machine moves" in _one_line_error(write_plc(header, arr))
+    arr = plcfile.to_array(cmds).copy()
+    arr["type"][-2], arr["x"][-2], arr["y"][-2] = plcfile.PAUSE, 0, 0
+    assert "pen number" in _one_line_error(write_plc(header, arr))
+    # a header that understates the DRAW ramps (written by something else than write_plc)
+    data = bytearray(write_plc(header, cmds))
+    data[56:60] = (header.draw_accel_x - 1).to_bytes(4, "little", signed=True)
+    data[-4:] = zlib.crc32(bytes(data[:-4])).to_bytes(4, "little")
+    assert "above its header's draw_accel" in _one_line_error(bytes(data))
 
 
 def test_plc_bad_numbering_and_type_with_valid_crc(job):
@@ -404,7 +442,7 @@ def test_docs_worked_example_is_a_valid_file():
     doc = (Path(__file__).resolve().parent.parent / "docs" / "formats.md").read_text()
     block = doc.split("### Worked example")[1].split("```")[1]
     data = bytes.fromhex("".join(line[6:] for line in block.strip().splitlines()))
-    header, cmds = read_plc(data, "formats.md")
-    assert header == PlcHeader(0.04, 4, 160000, 160000, 12000, 12000, 80.0, 80.0)
+    header, cmds = read_plc(data, "formats.md")  # a version 1 file: still read
+    assert header == PlcHeader(0.04, 4, 160000, 160000, 12000, 12000, 80.0, 80.0, version=1)
     assert cmds == [PlcCommand(1, MOVE, 800, 1600), PlcCommand(2, DRAW, 1600, -800),
                     PlcCommand(3, DRAW, 0, 0), PlcCommand(4, MOVE, 0, 0)]

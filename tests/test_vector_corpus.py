@@ -257,8 +257,8 @@ def test_a_multi_layer_file_plots_layer_after_layer(tmp_path, capsys):
     out = tmp_path / "out"
     assert main(["convert", str(path), "-o", str(out), "--post", "svg", "--post", "json", "--scale", "1"]) == 0
     text = capsys.readouterr().out
-    assert "layers             3: Black, Red, Blue (plotted one after another; 2 pen changes" in text
-    assert "--layer NAME" in text  # the posts do not pause yet: the summary says how to change pens
+    assert "layers             3, plotted one after another: Black with pen 1, Red with pen 2, Blue with pen 3" in text
+    assert "pen changes        2: the job pauses for each" in text
     import json
 
     plan = json.loads((out / "three.json").read_text())

@@ -63,10 +63,11 @@ def convert(input, outdir, as_json, **options):
         click.echo("                     (the PLC's linear ramps; set [sampling] path_tolerance in the machine profile "
                    "to keep within it, docs/sampling.md)")
     if s["layers"]:
-        click.echo(f"  layers             {len(s['layers'])}: {', '.join(s['layers'])}"
-                   + (f" (plotted one after another; {s['pen_changes']} pen change{'s' if s['pen_changes'] != 1 else ''}"
-                      ": the PLC and G-code posts do not pause for them yet, so convert one layer at a time with "
-                      "--layer NAME to change pens)" if s["pen_changes"] else ""))
+        click.echo(f"  layers             {len(s['layers'])}, plotted one after another: "
+                   + ", ".join(f"{n} with {s['pens'][n]}" for n in s["layers"]))
+        if s["pen_changes"]:
+            click.echo(f"  pen changes        {s['pen_changes']}: the job pauses for each, pen up (G-code M0, PLC "
+                       "PAUSE); 'doodlecam send' asks the operator")
     click.echo("  wrote              " + ", ".join(s["outputs"]))
     for w in s["warnings"]:
         click.echo(f"  warning: {w}", err=True)

@@ -26,10 +26,16 @@ def inspect(file, as_csv, limit):
         click.echo(to_csv(header, commands), nl=False)
         return
     for key, val in vars(header).items():
+        if key.startswith("draw_accel") and header.version < 2:
+            continue  # a version 1 file does not say
         click.echo(f"{key:<16} {val}")
+    pauses = sum(c.type == 2 for c in commands)
+    if pauses:
+        click.echo(f"{'pen changes':<16} {pauses} (PAUSE commands)")
     shown = commands if limit == 0 else commands[:limit]
     click.echo(f"{'command_no':>10} {'type':>5} {'x':>10} {'y':>10}")
     for c in shown:
-        click.echo(f"{c.command_no:>10} {('DRAW', 'MOVE')[c.type]:>5} {c.x:>10} {c.y:>10}")
+        click.echo(f"{c.command_no:>10} {('DRAW', 'MOVE', 'PAUSE')[c.type]:>5} {c.x:>10} {c.y:>10}"
+                   + (f"   pen change: fit pen {c.x}" if c.type == 2 else ""))
     if len(shown) < len(commands):
         click.echo(f"... {len(commands) - len(shown)} more (--limit 0 shows all)")

@@ -122,10 +122,12 @@ def send(job, udp, serial_port, baud, check, restart, cancel, again, machine, fr
     if baud is not None:
         cli_opts["baud"] = baud
     profile_opts = {}
+    profile = None
     if machine:
         from doodlecam.machine import load_machine
 
-        profile_opts = load_machine(machine).plugin_options.get(f"transport.{kind}", {})
+        profile = load_machine(machine)
+        profile_opts = profile.plugin_options.get(f"transport.{kind}", {})
     options = cls.resolve_options(profile_opts, cli_opts)
     transport = cls()
 
@@ -139,12 +141,14 @@ def send(job, udp, serial_port, baud, check, restart, cancel, again, machine, fr
 
     try:
         if kind == "udp":
+            extra = _pen_changes(transport, profile, bar, None)
             result = transport.send(job, udp, options, restart=restart, cancel=cancel, again=again, progress=bar,
-                                    log=bar.log)
+                                    log=bar.log, **extra)
         else:
             with _grbl_keys(transport, check, bar.log) as keys:
+                extra = _pen_changes(transport, profile, bar, keys.pop("getch", None))
                 result = transport.send(job, serial_port, options, restart=restart, check=check, from_line=from_line,
-                                        progress=bar, log=bar.log, **keys)
+                                        progress=bar, log=bar.log, **keys, **extra)
     except Paused as e:
         bar.close()
         click.echo(f"doodlecam: {e}", err=True)
@@ -170,7 +174,31 @@ def _grbl_keys(transport, check: bool, log):
 
     log("keys: p pause (pen up) | r resume | ! hold | ~ cycle start | + - = feed override | s stop")
     with raw_keys() as getch:
-        yield {"controls": lambda: GRBL_KEYS.get(getch() or "")}
+        yield {"controls": lambda: GRBL_KEYS.get(getch() or ""), "getch": getch}
+
+
+def _pen_changes(transport, profile, bar, getch) -> dict:
+    """``pen_change=`` for a transport that pauses for pen changes: tell the operator which pen
+    (named from the machine profile's [[pen]] when -m is given) and wait for Enter."""
+    import inspect
+
+    if "pen_change" not in inspect.signature(transport.send).parameters:
+        return {}
+
+    def ask(pen, what: str) -> None:
+        from doodlecam.link.session import Paused
+
+        if profile is not None and pen and (not profile.pens or pen <= len(profile.pens)):
+            what = profile.pen_number(pen).describe(pen)
+        bar.log(f"change to {what}, then press Enter (Ctrl-C stops here, pen up)")
+        if getch is not None:  # the terminal is in raw mode for the control keys
+            while (getch() or "") not in ("\r", "\n"):
+                time.sleep(0.02)
+            return
+        if not sys.stdin.readline():
+            raise Paused(f"nobody answered the pen change (standard input is closed): change to {what}")
+
+    return {"pen_change": ask}
 
 
 def _plc_plan(job: Path):

@@ -19,6 +19,8 @@ hardware and to test the streamer over real serial I/O:
   delay each time motion stops (GRBL's ``st_go_idle``);
 * a pen change (``M3``/``M5``/``S``) and ``G10`` synchronise: they wait until
   the planner is empty, as the firmware does outside laser mode;
+* ``M0`` program pause: once the planner is empty GRBL holds (``Hold:0``) and
+  answers the line only after a cycle start ``~`` (gcode.c: a feed hold);
 * soft limits as GRBL 1.1 checks them (without ``HOMING_FORCE_SET_ORIGIN``):
   machine travel is ``-$130 <= x <= 0``, ``-$131 <= y <= 0``; a G-code target
   outside raises ``ALARM:2``, a jog target outside is refused with
@@ -98,6 +100,7 @@ class GrblEmulator:
         self.received: list[str] = []  # every complete line, as received
         self.executed: list[int] = []  # received-line numbers whose motion completed
         self.overruns = 0
+        self.pauses = 0  # M0 program pauses held
         self.max_rx = 0
         self.status_queries: list[float] = []  # wall times of '?'
         self.resets = 0
@@ -154,6 +157,7 @@ class GrblEmulator:
         self.pending: tuple | None = None  # a parsed line waiting for planner room / sync
         self.critical = False  # alarm that needs a reset
         self.hold = None  # None, or simulated s left until Hold:0
+        self.m0_hold = False  # holding at an M0 line until a cycle start
         self.check = False
         self.modal = {"motion": 0, "abs": True, "feed": None, "spindle": 5, "s": 0.0, "inch": False}
         self._rx.clear()
@@ -558,6 +562,9 @@ class GrblEmulator:
                 elif v in (2, 30):
                     sync = True
                     m["end"] = True
+                elif v == 0:
+                    sync = True
+                    m["pause"] = True
                 else:
                     raise _GcodeError(20)
             elif letter in "XYZIJ":
@@ -633,11 +640,14 @@ class GrblEmulator:
         elif offset:
             raise _GcodeError(36)  # I/J without an arc
         end_prog = m.pop("end", False)
+        pause = m.pop("pause", False)
         if end_prog:
             m.update(motion=1 if m["motion"] else 0, abs=True, spindle=5)
         self.modal = m
         if n in self.cfg.alarm_at:
             return ("alarm", self.cfg.alarm_at[n])
+        if pause:
+            return ("pause", n)
         return ("exec", block, sync or dwell is not None or end_prog, dwell, end_prog, n)
 
     @property
@@ -660,6 +670,23 @@ class GrblEmulator:
         if kind == "alarm":
             self.pending = None
             self._alarm(rest[0])
+            return True
+        if kind == "pause":  # M0: wait for the planner, hold, answer after the cycle start
+            if self.check:
+                self.pending = None
+                self._reply("ok")
+                return True
+            if not self.m0_hold:
+                if self.planner or self.idle_left > 0 or self.hold is not None:
+                    return False  # protocol_buffer_synchronize()
+                self.state, self.hold, self.m0_hold = "Hold", 0.0, True
+                self.pauses += 1
+                return False
+            if self.state == "Hold":
+                return False
+            self.m0_hold = False
+            self.pending = None
+            self._reply("ok")
             return True
         if kind == "homing":  # $H answers when the cycle is over
             if self.planner:

@@ -22,6 +22,14 @@ was (``resume_prefix``) and goes on, so every file line is still sent once;
 immediate stop, the pen stays as it is); ``feed+``, ``feed-``, ``feed=``
 the feed override bytes 0x91, 0x92, 0x90; ``stop`` is Ctrl-C's clean stop.
 
+Pen changes: the G-code post writes ``M0 (change to pen 2 [red])`` between
+layers, with the pen up. GRBL finishes every move before it, holds
+(``Hold:0``) and answers the M0 line only after a cycle start. The streamer
+then calls ``pen_change(pen, what)`` ("change to pen 2 (red), then press
+Enter") and sends ``~`` when it returns. Without an answer (no callback, or
+it raises Paused) GRBL is reset where it stands (Hold:0 keeps the position)
+and the resume point is the M0 line, so sending the job again asks again.
+
 The code tables are GRBL 1.1's (doc/csv/error_codes_en_US.csv and
 alarm_codes_en_US.csv in the gnea/grbl repository).
 """
@@ -30,6 +38,7 @@ from __future__ import annotations
 
 import json
 import os
+import re
 import time
 import zlib
 from collections import deque
@@ -53,6 +62,25 @@ from doodlecam.link.grbl.protocol import (
 )
 from doodlecam.link.session import LinkError, Paused, clear_state, save_state
 
+_PROGRAM_PAUSE = re.compile(r"(?<![A-Z\d.])M0*0(?![\d.])")
+_PEN_IN_MESSAGE = re.compile(r"\bpen (\d+)\b", re.I)
+
+
+def is_program_pause(line: GcodeLine) -> bool:
+    """An M0 (program pause) line: GRBL holds there until a cycle start."""
+    return bool(_PROGRAM_PAUSE.search(line.text.upper()))
+
+
+def pen_change_message(line: GcodeLine) -> tuple[int | None, str]:
+    """(pen number or None, what to fit) from an M0 line's comment, e.g.
+    'M0 (change to pen 2 [red])' -> (2, 'pen 2 (red)'); brackets stand for the
+    parentheses a G-code comment cannot hold."""
+    m = re.search(r"\(([^)]*)\)", line.source) or re.search(r"M0*0\s+(.+)$", line.source, re.I)
+    text = (m.group(1).strip() if m else "").replace("[", "(").replace("]", ")")
+    text = re.sub(r"^(?:MSG,\s*)?(?:change to\s+)?", "", text, flags=re.I) or "the next pen"
+    pen = _PEN_IN_MESSAGE.search(text)
+    return (int(pen.group(1)) if pen else None), text
+
 # ---------------------------------------------------------------- streaming
 
 class Streamer:
@@ -66,8 +94,11 @@ class Streamer:
     def __init__(self, link: GrblLink, lines: list[GcodeLine], *, name: str = "G-code",
                  before_write: Callable[[int], None] | None = None,
                  progress: Callable[[int, int, GrblStatus | None], None] | None = None,
-                 controls: Callable[[], str | None] | None = None):
+                 controls: Callable[[], str | None] | None = None,
+                 pen_change: Callable[[int | None, str], None] | None = None):
         self.link, self.lines, self.name = link, lines, name
+        self.pen_change = pen_change
+        self.pen_changes = 0  # M0 pauses the operator answered
         self.controls = controls or (lambda: None)
         self.paused = False  # no new lines go out
         self.lifted = False  # the pause lifted the pen: resume lowers it again
@@ -258,8 +289,33 @@ class Streamer:
                                 "home it, then send again with --from-line")
             elif kind == "status":
                 self.progress(self.acked, len(self.lines), ev[1])
+                st = ev[1]
+                if (st.state == "Hold" and st.substate == 0 and not self.held and self.inflight
+                        and is_program_pause(self.lines[self.inflight[0][0]])):
+                    self._program_pause(self.inflight[0][0])
         if not check and not self.stopping:
             self.link.wait_idle()  # every line answered: wait for the motion to finish
+
+    def _program_pause(self, i: int) -> None:
+        """GRBL holds at the M0 of line i (pen up, every move before it done): ask the operator, then go on."""
+        pen, what = pen_change_message(self.lines[i])
+        try:
+            if self.pen_change is None:
+                raise Paused(f"the job waits for a pen change at {self.where(i)}")
+            self.link.log(f"pen change at {self.where(i)}: change to {what}")
+            self.pen_change(pen, what)
+        except (Paused, KeyboardInterrupt) as e:
+            # Nobody to answer: reset where it stands (Hold:0 keeps the position); what GRBL queued after
+            # the M0 is lost, so the resume point is the M0 line itself, which asks again.
+            self._halt()
+            self.sent = i
+            self.inflight.clear()
+            raise Paused(f"{e or 'stopped'}; GRBL was reset before {self.where(i)} with the pen up: fit "
+                         f"{what}, then send the same job again to resume there") from None
+        self.link.fresh_status()  # the wait was silent: hear GRBL again before judging it
+        self.link.realtime(b"~")
+        self.pen_changes += 1
+        self.link.log(f"pen {pen or ''} fitted, going on".replace("  ", " "))
 
     def _finish_queued(self) -> None:
         """After Ctrl-C: let GRBL finish what it has, then lift the pen."""
@@ -357,7 +413,7 @@ def settle_doubt(lines: list[GcodeLine], k: int, status: GrblStatus | None, name
 
 def send_gcode(port: str, path: Path, *, baud: int = 115200, check: bool = False, restart: bool = False,
                from_line: int | None = None, timeout: float = 5.0, connect_timeout: float = 3.0,
-               state_file: Path | None = None, progress=None, log=None, controls=None) -> dict:
+               state_file: Path | None = None, progress=None, log=None, controls=None, pen_change=None) -> dict:
     """Stream a G-code file (resuming a paused run unless ``restart``); return a summary dict."""
     path = Path(path)
     try:
@@ -412,7 +468,7 @@ def send_gcode(port: str, path: Path, *, baud: int = 115200, check: bool = False
                 raise GrblError(f"GRBL on {port} refused check mode ($C): error:{code} {error_text(code)}")
         # Written before each line goes out: lines [0, k) reached GRBL, line k may have (see settle_doubt).
         s = Streamer(link, stream, name=str(path), before_write=lambda k: record(k, True), progress=prog,
-                     controls=controls)
+                     controls=controls, pen_change=pen_change)
         try:
             result = s.run(check=check)
         except Paused:
@@ -438,4 +494,5 @@ def send_gcode(port: str, path: Path, *, baud: int = 115200, check: bool = False
     return {"lines": len(lines), "start_line": lines[start].lineno if start < len(lines) else None,
             "resumed": start > 0, "errors": [(ln.lineno, ln.source.strip(), code, error_text(code))
                                              for ln, code in result.errors],
-            "elapsed_s": time.monotonic() - t0, "max_outstanding_bytes": result.max_outstanding}
+            "elapsed_s": time.monotonic() - t0, "max_outstanding_bytes": result.max_outstanding,
+            "pen_changes": s.pen_changes}

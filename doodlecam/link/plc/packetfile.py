@@ -10,6 +10,9 @@ numbered command list. Each command is
 * type 1, MOVE: x, y are an absolute *position* in steps from the machine
   origin, reached with the PLC's own move profile (move_speed, max_accel),
   from rest to rest. MOVE commands are executed pen-up.
+* type 2, PAUSE (format version 2): a pen change. The PLC lifts the pen,
+  stops and holds the job until the operator has fitted pen number x and
+  resumes it; y is 0. It comes between strokes, with the machine at rest.
 
 The report's machine has no separate pen command, so the pen follows the
 command type: the PLC lowers the pen (and waits its down delay) before a DRAW
@@ -31,10 +34,10 @@ import numpy as np
 from doodlecam.errors import InputError, OutputError
 
 MAGIC = b"\x89DCPLC\r\n"  # high bit + CRLF catch 7-bit and text-mode mangling, as PNG does
-VERSION = 1
-DRAW, MOVE = 0, 1
+VERSION = 2  # written; version 1 files (no PAUSE, 56-byte header) are still read
+DRAW, MOVE, PAUSE = 0, 1, 2
 
-HEADER_DTYPE = np.dtype([
+HEADER_V1_DTYPE = np.dtype([
     ("magic", "S8"),
     ("version", "<u2"),
     ("record_size", "<u2"),
@@ -47,6 +50,11 @@ HEADER_DTYPE = np.dtype([
     ("move_speed_x", "<i4"),
     ("move_speed_y", "<i4"),
 ])
+# Version 2 adds the most any DRAW ramp of the file accelerates each axis: for a Cartesian
+# machine at most max_accel; for a five-bar the pen's, which the crank limits allow to exceed
+# the MOVE limits. A PLC can refuse a job its drives cannot follow before it starts.
+HEADER_DTYPE = np.dtype(HEADER_V1_DTYPE.descr + [("draw_accel_x", "<i4"), ("draw_accel_y", "<i4")])
+HEADER_SIZES = {1: HEADER_V1_DTYPE.itemsize, 2: HEADER_DTYPE.itemsize}
 RECORD_DTYPE = np.dtype([
     ("command_no", "<u4"),
     ("type", "<u2"),
@@ -55,7 +63,7 @@ RECORD_DTYPE = np.dtype([
     ("y", "<i4"),
 ])
 TRAILER_SIZE = 4  # CRC-32 (zlib) of every byte before it, little-endian uint32
-assert HEADER_DTYPE.itemsize == 56 and RECORD_DTYPE.itemsize == 16
+assert HEADER_V1_DTYPE.itemsize == 56 and HEADER_DTYPE.itemsize == 64 and RECORD_DTYPE.itemsize == 16
 
 _I32 = np.iinfo(np.int32)
 
@@ -72,6 +80,11 @@ class PlcHeader:
     move_speed_y: int  # steps/s
     steps_per_mm_x: float
     steps_per_mm_y: float
+    # version 2: the largest DRAW ramp acceleration in the file, steps/s^2 (write_plc
+    # computes them from the commands; 0 in a version 1 file, which does not say)
+    draw_accel_x: int = 0
+    draw_accel_y: int = 0
+    version: int = VERSION  # of the file read; write_plc always writes VERSION
 
 
 @dataclass(frozen=True, slots=True)
@@ -79,7 +92,7 @@ class PlcCommand:
     """One command: DRAW (type 0) velocity in steps/s, MOVE (type 1) position in steps."""
 
     command_no: int  # 1..no_commands
-    type: int  # DRAW = 0 (pen down), MOVE = 1 (pen up)
+    type: int  # DRAW = 0 (pen down), MOVE = 1 (pen up), PAUSE = 2 (pen change: x = the pen number)
     x: int
     y: int
 
@@ -89,6 +102,22 @@ class PlcCommand:
 
 
 # ---------------------------------------------------------------- from a job
+
+def _ceil_rate(value: float) -> int:
+    # Round what the file asks of the drives up: the header never understates it.
+    return max(0, min(int(_I32.max), int(math.ceil(value * (1 - 1e-12)))))
+
+
+def draw_accelerations(arr: np.ndarray, delta_time: float) -> tuple[float, float]:
+    """The largest |change of DRAW target| / delta_time per axis (steps/s^2): the PLC's
+    ramps. A run of DRAWs starts from rest (after a MOVE, a PAUSE or the file's start)."""
+    if not len(arr):
+        return 0.0, 0.0
+    draw = (arr["type"] == DRAW)[:, None]
+    v = np.where(draw, np.column_stack([arr["x"], arr["y"]]).astype(np.float64), 0.0)
+    dv = np.abs(np.diff(np.vstack([np.zeros((1, 2)), v]), axis=0))[draw[:, 0]]
+    return tuple(float(a) / delta_time for a in dv.max(axis=0, initial=0.0))  # type: ignore[return-value]
+
 
 def _floor_rate(value: float) -> int:
     # Round limits down: the PLC must never be told it may exceed the profile.
@@ -121,15 +150,20 @@ def commands_array(job) -> tuple[PlcHeader, np.ndarray]:
     home = job.travels[-1].end if job.travels else np.asarray(m.home, dtype=float)
 
     blocks = []
-    for s in job.samples:
+    changes = set(job.pen_changes)
+    pens = job.pen_numbers if changes else ()
+    for k, s in enumerate(job.samples):
         move = np.round(np.asarray(s.start) * spm)[None]
-        blocks.append((move, whole_step_targets(s.velocity, spm)))
-    n = sum(1 + len(d) for _, d in blocks) + 1
+        blocks.append((pens[k] if k in changes else 0, move, whole_step_targets(s.velocity, spm)))
+    n = sum(1 + len(d) for _, _, d in blocks) + len(changes) + 1
     out = np.zeros(n, RECORD_DTYPE)
     xy = np.empty((n, 2))
     types = np.full(n, DRAW, dtype=np.uint16)
     i = 0
-    for move, draws in blocks:
+    for pen, move, draws in blocks:
+        if pen:  # a pen change before this stroke: at rest, the pen lifts, the operator fits pen `pen`
+            types[i], xy[i] = PAUSE, (pen, 0)
+            i += 1
         types[i], xy[i] = MOVE, move[0]
         xy[i + 1:i + 1 + len(draws)] = draws
         i += 1 + len(draws)
@@ -140,12 +174,14 @@ def commands_array(job) -> tuple[PlcHeader, np.ndarray]:
     out["type"] = types
     out["x"], out["y"] = xy[:, 0], xy[:, 1]
     vx, vy = (v * k for v, k in zip(m.move_speed, spm))
+    ax, ay = draw_accelerations(out, float(dt))
     header = PlcHeader(
         delta_time=float(dt), no_commands=n,
         max_accel_x=_floor_rate(m.x.max_acceleration * spm[0]),
         max_accel_y=_floor_rate(m.y.max_acceleration * spm[1]),
         move_speed_x=_floor_rate(vx), move_speed_y=_floor_rate(vy),
         steps_per_mm_x=float(spm[0]), steps_per_mm_y=float(spm[1]),
+        draw_accel_x=_ceil_rate(ax), draw_accel_y=_ceil_rate(ay),
     )
     return header, out
 
@@ -153,8 +189,9 @@ def commands_array(job) -> tuple[PlcHeader, np.ndarray]:
 def commands_from_job(job) -> tuple[PlcHeader, list[PlcCommand]]:
     """Header and commands for a planned, sampled Job.
 
-    Per stroke: a MOVE to its start (rounded to steps), then one DRAW per
-    velocity sample (steps/s); finally a MOVE home. Numbered 1..N.
+    Per stroke: a PAUSE first where the pen changes (job.pen_changes), a MOVE
+    to its start (rounded to steps), then one DRAW per velocity sample
+    (steps/s); finally a MOVE home. Numbered 1..N.
     """
     header, arr = commands_array(job)
     return header, to_commands(arr)
@@ -185,7 +222,10 @@ def write_plc(header: PlcHeader, commands) -> bytes:
     h = np.zeros(1, HEADER_DTYPE)
     h["magic"], h["version"], h["record_size"] = MAGIC, VERSION, RECORD_DTYPE.itemsize
     for name in PlcHeader.__dataclass_fields__:
-        h[name] = getattr(header, name)
+        if name != "version":
+            h[name] = getattr(header, name)
+    ax, ay = draw_accelerations(arr, header.delta_time)
+    h["draw_accel_x"], h["draw_accel_y"] = _ceil_rate(ax), _ceil_rate(ay)
     body = h.tobytes() + arr.tobytes()
     return body + np.array([zlib.crc32(body)], "<u4").tobytes()
 
@@ -204,16 +244,20 @@ def read_plc_array(data: bytes, name: str = "PLC data") -> tuple[PlcHeader, np.n
     data = bytes(data)
     if data[:len(MAGIC)] != MAGIC[:len(data)]:  # a short prefix of MAGIC is truncated, below
         raise fail("not a doodlecam PLC file (bad magic)", "give a .plc file written by doodlecam")
-    if len(data) < HEADER_DTYPE.itemsize + TRAILER_SIZE:
-        raise fail(f"truncated PLC file ({len(data)} bytes, shorter than the {HEADER_DTYPE.itemsize + TRAILER_SIZE}-byte header and checksum)")
-    h = np.frombuffer(data, HEADER_DTYPE, count=1)[0]
-    if int(h["version"]) != VERSION:
-        raise fail(f"PLC file format version {int(h['version'])} is not supported (this doodlecam reads version {VERSION})",
-                   "use the doodlecam version that wrote it or re-export it")
+    if len(data) < HEADER_V1_DTYPE.itemsize + TRAILER_SIZE:
+        raise fail(f"truncated PLC file ({len(data)} bytes, shorter than the {HEADER_V1_DTYPE.itemsize + TRAILER_SIZE}-byte header and checksum)")
+    version = int(np.frombuffer(data, "<u2", count=1, offset=8)[0])
+    if version not in HEADER_SIZES:
+        raise fail(f"PLC file format version {version} is not supported (this doodlecam reads versions "
+                   f"{', '.join(map(str, HEADER_SIZES))})", "use the doodlecam version that wrote it or re-export it")
+    hsize = HEADER_SIZES[version]
+    if len(data) < hsize + TRAILER_SIZE:
+        raise fail(f"truncated PLC file ({len(data)} bytes, shorter than the {hsize + TRAILER_SIZE}-byte header and checksum)")
+    h = np.frombuffer(data, HEADER_DTYPE if version == 2 else HEADER_V1_DTYPE, count=1)[0]
     if int(h["record_size"]) != RECORD_DTYPE.itemsize:
-        raise fail(f"PLC file has {int(h['record_size'])}-byte command records, version {VERSION} uses {RECORD_DTYPE.itemsize}")
+        raise fail(f"PLC file has {int(h['record_size'])}-byte command records, version {version} uses {RECORD_DTYPE.itemsize}")
     n = int(h["no_commands"])
-    expected = HEADER_DTYPE.itemsize + n * RECORD_DTYPE.itemsize + TRAILER_SIZE
+    expected = hsize + n * RECORD_DTYPE.itemsize + TRAILER_SIZE
     if len(data) != expected:
         what = "truncated" if len(data) < expected else "has trailing bytes"
         raise fail(f"PLC file {what}: header says {n} commands ({expected} bytes) but it has {len(data)} bytes")
@@ -221,7 +265,7 @@ def read_plc_array(data: bytes, name: str = "PLC data") -> tuple[PlcHeader, np.n
     actual = zlib.crc32(data[:expected - TRAILER_SIZE])
     if stored != actual:
         raise fail(f"PLC file is corrupt (CRC-32 {actual:08x} does not match the stored {stored:08x})")
-    arr = np.frombuffer(data, RECORD_DTYPE, count=n, offset=HEADER_DTYPE.itemsize)
+    arr = np.frombuffer(data, RECORD_DTYPE, count=n, offset=hsize)
     # A valid checksum only proves the bytes are intact; check they make sense.
     dt, sx, sy = float(h["delta_time"]), float(h["steps_per_mm_x"]), float(h["steps_per_mm_y"])
     if not all(math.isfinite(v) and v > 0 for v in (dt, sx, sy)):
@@ -229,14 +273,34 @@ def read_plc_array(data: bytes, name: str = "PLC data") -> tuple[PlcHeader, np.n
     if n and not np.array_equal(arr["command_no"], np.arange(1, n + 1)):
         k = int(np.argmax(arr["command_no"] != np.arange(1, n + 1)))
         raise fail(f"PLC command {k + 1} is numbered {int(arr['command_no'][k])}; commands must run 1..{n}")
-    bad = np.flatnonzero(arr["type"] > MOVE)
+    top = PAUSE if version >= 2 else MOVE
+    bad = np.flatnonzero(arr["type"] > top)
     if len(bad):
-        raise fail(f"PLC command {bad[0] + 1} has unknown type {int(arr['type'][bad[0]])} (0 = DRAW, 1 = MOVE)")
+        known = "0 = DRAW, 1 = MOVE, 2 = PAUSE" if version >= 2 else "0 = DRAW, 1 = MOVE; PAUSE needs version 2"
+        raise fail(f"PLC command {bad[0] + 1} has unknown type {int(arr['type'][bad[0]])} ({known})")
+    pauses = np.flatnonzero(arr["type"] == PAUSE)
+    if len(pauses):
+        if np.any(arr["x"][pauses] < 1) or np.any(arr["y"][pauses] != 0):
+            k = int(pauses[np.argmax((arr["x"][pauses] < 1) | (arr["y"][pauses] != 0))])
+            raise fail(f"PLC command {k + 1} is a PAUSE for pen {int(arr['x'][k])}, {int(arr['y'][k])}; "
+                       "a PAUSE names a pen number >= 1 and 0")
+        before = pauses[pauses > 0] - 1
+        moving = before[(arr["type"][before] == DRAW) & ((arr["x"][before] != 0) | (arr["y"][before] != 0))]
+        if len(moving):
+            raise fail(f"PLC command {int(moving[0]) + 2} is a PAUSE while the machine moves; a pen change comes "
+                       "between strokes, at rest")
+    extra = {}
+    if version >= 2:
+        extra = {"draw_accel_x": int(h["draw_accel_x"]), "draw_accel_y": int(h["draw_accel_y"])}
+        ax, ay = draw_accelerations(arr, dt)
+        if _ceil_rate(ax) > extra["draw_accel_x"] or _ceil_rate(ay) > extra["draw_accel_y"]:
+            raise fail(f"PLC file's DRAW ramps accelerate up to ({ax:.0f}, {ay:.0f}) steps/s^2, above its header's "
+                       f"draw_accel ({extra['draw_accel_x']}, {extra['draw_accel_y']})")
     header = PlcHeader(
         delta_time=dt, no_commands=n,
         max_accel_x=int(h["max_accel_x"]), max_accel_y=int(h["max_accel_y"]),
         move_speed_x=int(h["move_speed_x"]), move_speed_y=int(h["move_speed_y"]),
-        steps_per_mm_x=sx, steps_per_mm_y=sy,
+        steps_per_mm_x=sx, steps_per_mm_y=sy, version=version, **extra,
     )
     return header, arr
 
@@ -250,7 +314,7 @@ def to_csv(header: PlcHeader, commands) -> str:
     """
     arr = to_array(commands)
     buf = io.StringIO()
-    buf.write(f"# doodlecam PLC commands, format version {VERSION}\n")
+    buf.write(f"# doodlecam PLC commands, format version {header.version}\n")
     for key, value in vars(header).items():
         buf.write(f"# {key}={value}\n")
     buf.write("command_no,type,x,y\n")

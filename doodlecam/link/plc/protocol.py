@@ -42,7 +42,7 @@ from enum import IntEnum
 
 import numpy as np
 
-from doodlecam.link.plc.packetfile import DRAW, MOVE, RECORD_DTYPE, PlcHeader
+from doodlecam.link.plc.packetfile import DRAW, MOVE, PAUSE, RECORD_DTYPE, PlcHeader
 
 MAGIC = b"DP"
 VERSION = 2
@@ -94,6 +94,7 @@ class Fault(IntEnum):
     CANCELLED = 5  # the PC cancelled the job
     BAD_COMMAND = 6  # a command the PLC cannot execute (unknown type)
     POWER_LOST = 7  # the PLC restarted during the job: held, resumes at its next command
+    PEN_CHANGE = 8  # a PAUSE command ran: pen up, job held until the operator has fitted the pen and resumes
 
 
 class Nak(IntEnum):
@@ -115,6 +116,7 @@ FAULT_TEXT = {
     Fault.CANCELLED: "job cancelled",
     Fault.BAD_COMMAND: "a command has an unknown type",
     Fault.POWER_LOST: "the PLC restarted during the job",
+    Fault.PEN_CHANGE: "waiting for a pen change",
 }
 
 # flags in the status block
@@ -433,8 +435,8 @@ def decode(datagram: bytes, key: bytes | None = None) -> Message:
         # The records must be exactly first, first+1, ...: a sender bug must not reorder commands.
         if not np.array_equal(recs["command_no"], np.arange(first, first + count, dtype=np.int64)):
             raise ProtocolError("DATA records are not numbered consecutively from 'first'")
-        if np.any(recs["type"] > MOVE):
-            raise ProtocolError("DATA record type is neither DRAW (0) nor MOVE (1)")
+        if np.any(recs["type"] > PAUSE):
+            raise ProtocolError("DATA record type is not DRAW (0), MOVE (1) or PAUSE (2)")
         return Message(**base, first=first, records=recs)
     # REQUEST
     if len(body) < _STATUS.size + _NREQ.size:
@@ -467,9 +469,10 @@ def planned_states(records: np.ndarray, delta_time: float, home=(0.0, 0.0)) -> t
     n = len(records)
     xy = np.column_stack([records["x"], records["y"]]).astype(float)
     is_move = records["type"] == MOVE
-    vel = np.where(is_move[:, None], 0.0, xy)
+    still = (records["type"] != DRAW)[:, None]  # MOVE and PAUSE end at rest; a PAUSE does not move
+    vel = np.where(still, 0.0, xy)
     prev_v = np.vstack([np.zeros((1, 2)), vel[:-1]])
-    incr = np.where(is_move[:, None], 0.0, 0.5 * delta_time * (prev_v + vel))
+    incr = np.where(still, 0.0, 0.5 * delta_time * (prev_v + vel))
     csum = np.cumsum(incr, axis=0)
     # Position = target of the last MOVE at or before i (home if none) + DRAW increments since it.
     idx = np.where(is_move, np.arange(n), -1)
@@ -495,7 +498,8 @@ def command_durations(records: np.ndarray, header: PlcHeader, home=(0.0, 0.0)) -
     """Planned execution time (s) of every command (pen delays excluded).
 
     DRAW: one ``delta_time``; MOVE: the slower axis' trapezoid (or triangle)
-    profile at move_speed / max_accel from the previous planned position.
+    profile at move_speed / max_accel from the previous planned position;
+    PAUSE: 0 (the operator's time is not planned).
     """
     pos, _ = planned_states(records, header.delta_time, home)
     prev = np.vstack([np.asarray(home, float)[None], pos[:-1]])
@@ -503,12 +507,12 @@ def command_durations(records: np.ndarray, header: PlcHeader, home=(0.0, 0.0)) -
     vmax = np.array([header.move_speed_x, header.move_speed_y], float)
     acc = np.array([header.max_accel_x, header.max_accel_y], float)
     t = np.where(d >= vmax * vmax / acc, d / vmax + vmax / acc, 2.0 * np.sqrt(d / acc))
-    return np.where(records["type"] == MOVE, t.max(axis=1), header.delta_time)
+    return np.where(records["type"] == MOVE, t.max(axis=1), np.where(records["type"] == PAUSE, 0.0, header.delta_time))
 
 
 __all__ = [
     "MAGIC", "VERSION", "OLD_VERSIONS", "MAX_PER_DATA", "MAX_RANGES", "MAX_COMMAND", "AGAIN", "AUTH", "Msg", "State",
     "Fault", "Nak", "FAULT_TEXT", "HELD", "JobHeader", "Status", "Message", "ProtocolError", "OldVersion", "AuthError",
     "ReplayWindow", "frame", "hello", "header", "data", "stop", "cancel",
-    "plc_message", "decode", "job_crc", "planned_states", "resume_state", "command_durations", "DRAW", "MOVE",
+    "plc_message", "decode", "job_crc", "planned_states", "resume_state", "command_durations", "DRAW", "MOVE", "PAUSE",
 ]

@@ -13,7 +13,10 @@ restarted sender re-attaches to a job the PLC is still running, resumes one
 the PLC holds (after Ctrl-C, an underrun, a killed sender or a power cycle),
 and only falls back on its own record when the PLC no longer remembers the
 job. Each run has its own random session nonce; with a key every datagram is
-HMAC-tagged. Silence is judged against the PLC's buffer: the sender waits
+HMAC-tagged. A PAUSE command (a pen change) makes the PLC hold the job with the
+pen up; the sender asks the operator (``pen_change``) and resumes after it, and
+so does any run that resumes right after a PAUSE, so a pen change is never
+skipped. Silence is judged against the PLC's buffer: the sender waits
 ``timeout`` plus the planned time of the commands the PLC still holds.
 """
 
@@ -29,7 +32,7 @@ from typing import Callable
 import numpy as np
 
 from doodlecam.link.plc import protocol as P
-from doodlecam.link.plc.packetfile import read_plc_array
+from doodlecam.link.plc.packetfile import PAUSE, read_plc_array
 from doodlecam.link.plc.protocol import Fault, Msg, Nak, State
 from doodlecam.link.session import (
     Interrupts,
@@ -79,7 +82,8 @@ class UdpSender:
                  state_file: Path | None = None, timeout: float = 5.0, rto: float = 0.1,
                  restart: bool = False, again: bool = False, key: bytes | None = None,
                  progress: Callable[[int, int, P.Status | None], None] | None = None,
-                 log: Callable[[str], None] | None = None):
+                 log: Callable[[str], None] | None = None,
+                 pen_change: Callable[[int, str], None] | None = None):
         if timeout <= 0 or rto <= 0:
             raise ValueError("timeout and rto must be positive")
         self.key = key or None
@@ -94,6 +98,9 @@ class UdpSender:
         self.restart = restart
         self.progress = progress or (lambda executed, total, status: None)
         self.log = log or (lambda msg: None)
+        self.pen_change = pen_change  # (pen number, what to fit): returns once the operator has fitted it
+        self._pen_fitted = 0  # the resume point whose pen change the operator answered
+        self.pen_changes = 0
         # This run's session nonce: the PLC takes DATA / STOP only from this address with this nonce.
         self.session = secrets.randbits(64) | 1
         self.seq = 0
@@ -287,6 +294,7 @@ class UdpSender:
             self.start_at = start_at
             self.executed = max(start_at - 1, 0)
             self._save(force=True)  # the job id is on disk before the PLC can start it
+            self._ask_for_pen(start_at)
             resume = P.resume_state(self.records, self.plc_header.delta_time, start_at)
             hdr = P.JobHeader.from_plc(self.plc_header, self.crc, start_at, resume, token=self.token,
                                        flags=P.AGAIN if self.again else 0)
@@ -328,6 +336,20 @@ class UdpSender:
                     self._on_message(m)
                     return
         raise LinkError(f"the PLC at {self.where} keeps changing its resume point; cancel the job with --cancel")
+
+    def _ask_for_pen(self, start_at: int) -> None:
+        """Resuming right after a PAUSE: the operator fits the pen first (once per pause)."""
+        if start_at < 2 or self.records["type"][start_at - 2] != PAUSE or self._pen_fitted == start_at:
+            return
+        pen = int(self.records["x"][start_at - 2])
+        if self.pen_change is None:
+            raise Paused(f"the job waits for a pen change before command {start_at} of {self.n}, pen up: fit pen "
+                         f"{pen}, then send the same job again to resume")
+        self.log(f"pen change before command {start_at} of {self.n}: fit pen {pen}")
+        self.pen_change(pen, f"pen {pen}")
+        self._pen_fitted = start_at
+        self.pen_changes += 1
+        self.last_heard = time.monotonic()  # the operator's time is not the PLC's silence
 
     def _send_range(self, first: int, count: int) -> None:
         lo, hi = max(first, 1), min(first + count - 1, self.n)
@@ -393,6 +415,11 @@ class UdpSender:
                 s = m.status
                 if stopping or s.fault == Fault.STOPPED:
                     return "held"
+                if s.fault == Fault.PEN_CHANGE:  # a PAUSE ran: the operator changes the pen, then it goes on
+                    self._start(s.executed + 1)
+                    moved_at, mark = time.monotonic(), None
+                    self._save()
+                    continue
                 # The PLC ran dry (this computer or the network was too slow): resume where it stopped.
                 self.underruns += 1
                 self.log(f"the PLC ran out of commands before command {s.executed + 1} and stopped; resuming")

@@ -13,7 +13,8 @@ It runs the report's programs (section 3.4) against the wire format of
   timeout, idempotent handling of duplicates and late datagrams.
 * motorControl: DRAW ramps the velocity linearly to its target over
   delta_time; MOVE is a rest-to-rest trapezoid per axis at move_speed /
-  max_accel; the pen follows the command type with its delays.
+  max_accel; the pen follows the command type with its delays. PAUSE (a pen
+  change) lifts the pen and holds the job until its sender resumes it.
 * checkLimitSwitch: commands — and the re-entry move of a resumed job — that
   would leave the work area stop the machine before they run (soft
   boundaries); limit switches just outside it stop it at once if anything
@@ -52,7 +53,7 @@ import numpy as np
 from doodlecam.link.plc import protocol as P
 from doodlecam.link.plc.network import Impairments, LossyNetwork
 from doodlecam.link.plc.nvram import NvRam
-from doodlecam.link.plc.packetfile import DRAW, MOVE, RECORD_DTYPE
+from doodlecam.link.plc.packetfile import DRAW, MOVE, PAUSE, RECORD_DTYPE
 from doodlecam.link.plc.protocol import Fault, Msg, Nak, State
 
 TRACE_DTYPE = np.dtype([("command_no", "<u4"), ("type", "<i2"), ("t", "<f8"), ("x", "<f8"), ("y", "<f8"),
@@ -613,11 +614,16 @@ class PlcSimulator:
             if self.realtime and not moving and self.t < self.sim_now(now):
                 self.t = self.sim_now(now)  # at rest the clock ran on while waiting
             rec = job.slot_rec[slot]
-            if not self._execute(job, c, int(rec["type"]), float(rec["x"]), float(rec["y"]), now):
+            kind = int(rec["type"])
+            if not self._execute(job, c, kind, float(rec["x"]), float(rec["y"]), now):
                 return
             job.executed = c
             self.nv.progress(job.id, c)  # retentive, as the command counter of a real PLC
             self.executed_log.append((job.id, c))
+            if kind == PAUSE:  # a pen change: hold the job, pen up, until the operator resumes it
+                self.log(f"pen change: fit pen {int(rec['x'])}, then resume the job")
+                self._suspend(Fault.PEN_CHANGE, now)
+                return
 
     def _next_is_move_or_rest(self, job: _Job, c: int) -> bool:
         """A stop at the end of a stroke may happen here: pen up already, or a MOVE comes next."""
@@ -647,9 +653,13 @@ class PlcSimulator:
 
     def _execute(self, job: _Job, c: int, kind: int, x: float, y: float, now: float) -> bool:
         h = job.h
-        if kind not in (DRAW, MOVE):
-            self._abort(Fault.BAD_COMMAND, c, now)
+        if kind not in (DRAW, MOVE, PAUSE) or (kind == PAUSE and (np.any(self.vel != 0) or x < 1)):
+            self._abort(Fault.BAD_COMMAND, c, now)  # unknown, or a pen change while moving
             return False
+        if kind == PAUSE:
+            self._pen_to(False)
+            self._record(c, kind)
+            return True
         if job.reentry:
             job.reentry = False
             if kind == DRAW:  # resume mid-stroke: see docs/protocol.md, "Resuming"

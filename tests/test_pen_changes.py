@@ -1,0 +1,303 @@
+"""Pens and pen changes: [[pen]] profiles, layers to pens, and the pause every post and link makes.
+
+The written files are read back independently (the .plc reader of test_executed, written
+from docs/formats.md; the G-code as text) and sent to the real simulators: the PLC over UDP
+on loopback, GRBL over a pseudo-terminal. At each pen change the machine must be holding,
+pen up, until the operator answers; every command must run exactly once.
+"""
+
+from __future__ import annotations
+
+import re
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from doodlecam.errors import MachineError
+from doodlecam.link.grbl.emulator import GrblConfig, GrblEmulator
+from doodlecam.link.grbl.protocol import prepare
+from doodlecam.link.grbl.streamer import send_gcode
+from doodlecam.link.plc.packetfile import read_plc_array
+from doodlecam.link.plc.protocol import Fault
+from doodlecam.link.plc.sender import UdpSender
+from doodlecam.link.plc.simulator import PlcConfig, PlcSimulator
+from doodlecam.link.session import Paused
+from doodlecam.machine import load_machine, parse_machine
+from doodlecam.pipeline import Settings, convert
+
+from test_executed import execute, read_plc_file
+from test_udp import bounded
+
+ROOT = Path(__file__).resolve().parent.parent
+LAYERS_SVG = ROOT / "samples" / "vectors" / "layers.svg"
+
+PROFILE = """
+[machine]
+name = "twopens"
+[work_area]
+width = 400.0
+height = 300.0
+[axes.x]
+steps_per_mm = 80.0
+max_velocity = 150.0
+max_acceleration = 2000.0
+[axes.y]
+steps_per_mm = 80.0
+max_velocity = 150.0
+max_acceleration = 2000.0
+[sampling]
+delta_time = 0.04
+[[pen]]
+name = "fineliner"
+colour = "black"
+width = 0.3
+[[pen]]
+name = "brush"
+colour = "#d01010"
+width = 1.0
+max_speed = 40.0
+max_accel = 400.0
+up_delay = 0.3
+"""
+
+
+@pytest.fixture(scope="module")
+def machine(tmp_path_factory):
+    p = tmp_path_factory.mktemp("m") / "twopens.toml"
+    p.write_text(PROFILE)
+    return load_machine(p)
+
+
+@pytest.fixture(scope="module")
+def written(machine, tmp_path_factory):
+    out = tmp_path_factory.mktemp("out")
+    res = convert(LAYERS_SVG, out, Settings(machine=machine, posts=("plc", "gcode", "svg")))
+    return res.job, {p.suffix: p for p in res.outputs}
+
+
+def _toml(text: str):
+    import tomllib
+
+    return tomllib.loads(text)
+
+
+# ---------------------------------------------------------------- profiles
+
+def test_pens_from_the_profile(machine):
+    assert [p.name for p in machine.pens] == ["fineliner", "brush"] and machine.pen is machine.pens[0]
+    brush = machine.pens[1]
+    assert (brush.max_speed, brush.max_accel, brush.up_delay, brush.width) == (40.0, 400.0, 0.3, 1.0)
+    assert brush.describe(2) == "pen 2 'brush' (#d01010)"
+    # layers go to the pen of their name or colour (any spelling), the rest to the unused pens in order
+    assert machine.pen_assignment(["red", "black", "blue"], {"red": "rgb(208,16,16)"}) == {
+        "red": 2, "black": 1, "blue": 1}
+    assert machine.pen_assignment(["a", "b", "c"]) == {"a": 1, "b": 2, "c": 1}
+
+
+def test_a_pen_lists_its_layers(machine):
+    data = _toml(PROFILE.replace('name = "brush"', 'name = "brush"\nlayers = ["sky", "sea"]'))
+    m = parse_machine(data, "p.toml")
+    assert m.pen_assignment(["sea", "ground", "sky"]) == {"sea": 2, "ground": 1, "sky": 2}
+
+
+@pytest.mark.parametrize("change, message", [
+    ('max_speed = 40.0', "max_speed = -4.0"),
+    ('width = 1.0', 'widht = 1.0'),
+    ('name = "brush"', 'name = "Fineliner"'),
+    ("", ""),
+])
+def test_bad_pen_entries_are_one_line_errors(change, message):
+    if not message:
+        data = {**_toml(PROFILE.split("[[pen]]")[0]), "pen": []}
+        expect = "[[pen]] is empty"
+    else:
+        data = _toml(PROFILE.replace(change, message))
+        expect = {"max_speed = -4.0": "[[pen]] number 2 max_speed must be positive",
+                  "widht = 1.0": "unknown key 'widht' in [[pen]] number 2",
+                  'name = "Fineliner"': "two [[pen]] entries are named"}[message]
+    with pytest.raises(MachineError) as e:
+        parse_machine(data, "p.toml")
+    assert expect in str(e.value) and "\n" not in str(e.value)
+
+
+def test_pen_accel_cap_needs_paper_axes(tmp_path):
+    text = (ROOT / "doodlecam" / "machines" / "fivebar.toml").read_text()
+    text = re.sub(r"\[pen\][^\[]*", "[[pen]]\nname = \"a\"\n[[pen]]\nname = \"b\"\nmax_accel = 300.0\n\n", text)
+    p = tmp_path / "fb.toml"
+    p.write_text(text)
+    r = subprocess.run([sys.executable, "-m", "doodlecam", "convert", str(LAYERS_SVG), "-o", str(tmp_path / "o"),
+                        "-m", str(p)], capture_output=True, text=True, timeout=120)
+    assert r.returncode != 0 and "max_accel needs a machine whose axes are the paper's x and y" in r.stderr
+    assert "Traceback" not in r.stderr
+
+
+# ---------------------------------------------------------------- the job and its files
+
+def test_layers_are_plotted_pen_by_pen(written):
+    job, _ = written
+    assert job.layers == ("black", "red", "blue")
+    pens = job.pen_numbers
+    assert set(pens) == {1, 2}
+    changes = job.pen_changes
+    assert len(changes) == 2 and all(pens[i] != pens[i - 1] for i in changes)
+    assert all(job.strokes[i].layer != job.strokes[i - 1].layer for i in changes)
+
+
+def test_gcode_pauses_once_between_layers_with_the_pen_up(written, machine):
+    job, files = written
+    text = files[".gcode"].read_text()
+    lines = text.splitlines()
+    pauses = [k for k, ln in enumerate(lines) if re.match(r"M0\b", ln)]
+    assert len(pauses) == len(job.pen_changes) == 2
+    assert lines[pauses[0]] == "M0 (change to pen 2 'brush' [#d01010])"
+    assert lines[pauses[1]] == "M0 (change to pen 1 'fineliner' [black])"
+    # the strokes between pauses: each pause sits after a stroke's pen-up and before the next travel
+    g0 = [k for k, ln in enumerate(lines) if ln.startswith("G0 ")]
+    starts = g0[:-1]  # the last G0 goes home
+    assert len(starts) == len(job.strokes)
+    for k, i in zip(pauses, job.pen_changes):
+        assert starts[i - 1] < k < starts[i]
+        pen_cmds = [ln for ln in lines[starts[i - 1]:k] if ln.startswith("M3")]
+        assert pen_cmds[-1] == "M3 S0"  # lifted before the pause
+    # the brush's slower lift: its G4 after the pen-up
+    first_red = starts[job.pen_changes[0]]
+    seg = lines[first_red:starts[job.pen_changes[1]]]
+    assert "G4 P0.3" in seg
+
+
+def test_plc_file_pauses_where_the_pen_changes(written):
+    job, files = written
+    header, strokes = read_plc_file(files[".plc"].read_bytes())
+    pens = job.pen_numbers
+    assert header["pauses"] == [(i, pens[i]) for i in job.pen_changes]
+    assert len(strokes) == len(job.strokes)
+
+
+def test_each_pen_keeps_its_own_caps_as_executed(written, machine):
+    job, files = written
+    header, strokes = read_plc_file(files[".plc"].read_bytes())
+    dt, k = header["delta_time"], header["steps_per_mm"]
+    worst = {1: [0.0, 0.0], 2: [0.0, 0.0]}
+    ramps = np.zeros(2)  # steps/s^2 per axis, every pen
+    for (start, targets), pen in zip(strokes, job.pen_numbers):
+        _, v = execute(start, targets, dt)
+        speed = np.linalg.norm(v / k, axis=1).max()
+        acc = np.abs(np.diff(v, axis=0)) / dt
+        ramps = np.maximum(ramps, acc.max(axis=0))
+        worst[pen] = [max(worst[pen][0], speed), max(worst[pen][1], (acc / k).max())]
+    assert worst[2][0] <= 40.0 * (1 + 1e-9) and worst[2][1] <= 400.0 * (1 + 1e-9)
+    assert worst[1][0] > 40.0 and worst[1][1] > 400.0  # the fineliner is not slowed by the brush
+    assert (ramps <= header["draw_accel"]).all() and (header["draw_accel"] < ramps + 1).all()  # the header says it
+
+
+# ---------------------------------------------------------------- the links wait for the operator
+
+def test_plc_simulator_holds_at_each_pen_change(written, machine):
+    job, files = written
+    data = files[".plc"].read_bytes()
+    sim = PlcSimulator(PlcConfig.from_machine(machine)).start()
+    asked = []
+
+    def operator(pen, what):
+        # the PLC holds the job, pen up, at rest, until the operator answers
+        assert sim.held is not None and sim.held.reason == Fault.PEN_CHANGE and not sim.pen
+        assert not np.any(sim.vel)
+        asked.append((pen, what))
+
+    try:
+        sender = UdpSender(*sim.address, data, timeout=5.0, rto=0.03, pen_change=operator)
+        r = bounded(sender.run)
+        _, arr = read_plc_array(data)
+        assert asked == [(2, "pen 2"), (1, "pen 1")] and sender.pen_changes == 2
+        assert r.executed == len(arr)
+        np.testing.assert_array_equal(sim.executed(r.job_id), np.arange(1, len(arr) + 1))  # each once, in order
+        tr = sim.trajectory()
+        paused = tr[tr["type"] == 2]
+        assert len(paused) == 2 and not paused["pen"].any()
+    finally:
+        sim.stop()
+
+
+def test_plc_send_without_an_operator_stops_and_asks_again(written, machine, tmp_path):
+    job, files = written
+    data = files[".plc"].read_bytes()
+    sim = PlcSimulator(PlcConfig.from_machine(machine)).start()
+    state = tmp_path / "job.plc.send.json"
+    try:
+        with pytest.raises(Paused, match="waits for a pen change"):
+            bounded(UdpSender(*sim.address, data, state_file=state, timeout=5.0, rto=0.03).run)
+        assert sim.held is not None and sim.held.reason == Fault.PEN_CHANGE and not sim.pen
+        before = len(sim.executed())
+        asked = []
+        r = bounded(UdpSender(*sim.address, data, state_file=state, timeout=5.0, rto=0.03,
+                              pen_change=lambda pen, what: asked.append(pen)).run)
+        assert r.resumed and asked == [2, 1]  # the interrupted pen change is asked again first
+        _, arr = read_plc_array(data)
+        np.testing.assert_array_equal(sim.executed(r.job_id), np.arange(1, len(arr) + 1))
+        assert before < len(arr)
+    finally:
+        sim.stop()
+
+
+def test_grbl_emulator_holds_at_each_m0(written, tmp_path):
+    job, files = written
+    gcode = files[".gcode"]
+    emu = GrblEmulator(GrblConfig(speed=200.0)).start()
+    asked = []
+
+    def operator(pen, what):
+        assert emu.state == "Hold" and emu.m0_hold and emu.modal["s"] == 0  # held, pen up (M3 S0)
+        asked.append((pen, what))
+
+    try:
+        r = bounded(lambda: send_gcode(emu.port, gcode, state_file=tmp_path / "s.json", pen_change=operator), 120)
+        assert asked == [(2, "pen 2 'brush' (#d01010)"), (1, "pen 1 'fineliner' (black)")]
+        assert r["pen_changes"] == 2 and emu.pauses == 2
+        assert emu.received == [ln.text.upper() for ln in prepare(gcode.read_text())]  # every line once
+        assert emu.overruns == 0 and emu.state == "Idle"
+    finally:
+        emu.stop()
+
+
+def test_grbl_send_without_an_operator_resumes_at_the_pause(written, tmp_path):
+    job, files = written
+    gcode = files[".gcode"]
+    lines = prepare(gcode.read_text())
+    emu = GrblEmulator(GrblConfig(speed=200.0)).start()
+    state = tmp_path / "s.json"
+    try:
+        with pytest.raises(Paused, match="pen change"):
+            bounded(lambda: send_gcode(emu.port, gcode, state_file=state), 120)
+        import json
+
+        nxt = json.loads(state.read_text())["next"]
+        assert lines[nxt].text == "M0"  # the resume point is the pause itself
+        asked = []
+        r = bounded(lambda: send_gcode(emu.port, gcode, state_file=state, pen_change=lambda p, w: asked.append(p)), 120)
+        assert r["resumed"] and asked == [2, 1] and not state.exists()
+    finally:
+        emu.stop()
+
+
+def test_send_command_prompts_the_operator(written, machine, tmp_path):
+    job, files = written
+    sim = PlcSimulator(PlcConfig.from_machine(machine)).start()
+    prof = tmp_path / "twopens.toml"
+    prof.write_text(PROFILE)
+    try:
+        r = subprocess.run([sys.executable, "-m", "doodlecam", "send", str(files[".plc"]), "--udp",
+                            f"127.0.0.1:{sim.address[1]}", "--no-progress", "-m", str(prof)],
+                           input="\n\n", capture_output=True, text=True, cwd=ROOT, timeout=120)
+        assert r.returncode == 0, r.stderr
+        assert "change to pen 2 'brush' (#d01010), then press Enter" in r.stderr
+        assert "change to pen 1 'fineliner' (black), then press Enter" in r.stderr
+        # no answer (standard input closed): stops at the pause with a one-line message, resumable
+        r = subprocess.run([sys.executable, "-m", "doodlecam", "send", str(files[".plc"]), "--udp",
+                            f"127.0.0.1:{sim.address[1]}", "--no-progress", "--again"],
+                           input="", capture_output=True, text=True, cwd=ROOT, timeout=120)
+        assert r.returncode == 130 and "nobody answered the pen change" in r.stderr and "Traceback" not in r.stderr
+    finally:
+        sim.stop()
