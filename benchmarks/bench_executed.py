@@ -27,7 +27,7 @@ from doodlecam.machine import load_machine  # noqa: E402
 from doodlecam.pipeline import Settings, convert  # noqa: E402
 from test_executed import IMAGES, executed_ratios  # noqa: E402
 
-KEYS = ("acc", "vel", "header_acc", "pen", "crank_acc", "crank_vel", "instant_steps", "between_mm")
+KEYS = ("acc", "vel", "header_acc", "draw_header_acc", "pen", "crank_acc", "crank_vel", "instant_steps", "between_mm")
 
 
 def machine_for(case: str):

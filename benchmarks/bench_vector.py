@@ -49,6 +49,7 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--vpype-python", type=Path, default=DEFAULT_VPYPE)
     ap.add_argument("--no-vpype", action="store_true")
+    ap.add_argument("--repeat", type=int, default=3, help="best of this many conversions for the layer timing")
     args = ap.parse_args()
 
     from svg_corpus import write_corpus
@@ -84,6 +85,34 @@ def main() -> None:
         print(row)
     worst = max(abs(ours[p]["length_mm"] / e - 1) for p, e in files.items())
     print(f"\ndoodlecam: worst error {100 * worst:.3f} % (target 0.1 %)")
+    layers_vs_one(args.repeat)
+
+
+def layers_vs_one(repeat: int) -> None:
+    """The multi-layer sample against the same strokes read as one layer: conversion CPU time
+    (best of ``repeat``) and the planned job (the pen changes add the operator's pauses only)."""
+    from doodlecam.machine import load_machine
+    from doodlecam.pipeline import Settings, convert
+
+    svg = ROOT / "samples" / "vectors" / "layers.svg"
+    machine = load_machine("doodlebot")
+    rows = {}
+    for label, opts in (("3 layers", {}), ("one layer", {"layers": "none"})):
+        best, job = float("inf"), None
+        for _ in range(repeat):
+            out = Path(tempfile.mkdtemp(prefix="layers-"))
+            t = time.process_time()
+            job = convert(svg, out, Settings(machine=machine, tracer_options=opts, posts=("plc", "gcode"))).job
+            best = min(best, time.process_time() - t)
+        rows[label] = (best, job)
+    print("\n| samples/vectors/layers.svg | convert CPU s | pen changes | draw s | travel mm | job s |")
+    print("|---|---|---|---|---|---|")
+    for label, (cpu, job) in rows.items():
+        print(f"| {label} | {cpu:.3f} | {len(job.pen_changes)} | {job.draw_time:.1f} | {job.travel_length:.0f} | "
+              f"{job.duration:.1f} |")
+    (c3, j3), (c1, j1) = rows["3 layers"], rows["one layer"]
+    print(f"\nlayers / one layer: convert CPU {c3 / c1:.2f}x, job time {j3.duration / j1.duration:.3f}x "
+          f"(+{len(j3.pen_changes)} operator pauses)")
 
 
 if __name__ == "__main__":

@@ -110,11 +110,15 @@ def plan_job(drawing: Drawing, machine: Machine, solver: str = "reach", plugin_d
         # One layer after another (a pen each, in the drawing's order); strokes ordered within it.
         names = drawing.layers or ("",) * len(drawing.polylines)
         ordered = []  # (source index, polyline, layer)
+        here = np.asarray(machine.home, float)
         for layer in dict.fromkeys(names):
             mine = [i for i, n in enumerate(names) if n == layer]
-            o = order_strokes([drawing.polylines[i] for i in mine], machine.home, allow_reverse=oo["reverse"],
+            # each layer starts where the previous one ended (the pen is changed there)
+            o = order_strokes([drawing.polylines[i] for i in mine], here, allow_reverse=oo["reverse"],
                               merge=oo["merge"], budget=oo["budget"], moves=oo["moves"])
             ordered += [(mine[k], p, layer) for k, p in zip(o.source, o.polylines)]
+            if o.polylines:
+                here = np.asarray(o.polylines[-1][-1], float)
     timings["order"] = time.perf_counter() - t0
 
     t0 = time.perf_counter()

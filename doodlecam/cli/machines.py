@@ -101,8 +101,12 @@ def explain(machine, origin: str = "") -> list[str]:
                      f"{ax.steps_per_mm:g} steps/mm ({1000 / ax.steps_per_mm:.1f} um a step, "
                      f"{ax.max_velocity * ax.steps_per_mm / 1000:.1f} kHz at full speed)")
     pen = m.pen
-    lines.append(f"  pen            {pen.width:g} mm wide; lifts in {pen.up_delay:g} s, lowers in {pen.down_delay:g} s; "
-                 + (f"draws at most {pen.max_speed:g} mm/s" if pen.max_speed else "draws as fast as the axes allow"))
+    for k, p in enumerate(m.pens or (pen,), 1):
+        caps = [f"at most {p.max_speed:g} mm/s"] if p.max_speed else []
+        caps += [f"{p.max_accel:g} mm/s^2 per axis"] if p.max_accel else []
+        lines.append(f"  {p.describe(k) if m.pens else 'pen':<14} {p.width:g} mm wide; lifts in {p.up_delay:g} s, lowers "
+                     f"in {p.down_delay:g} s; " + (f"draws {' and '.join(caps)}" if caps else "draws as fast as the axes allow")
+                     + (f"; draws layers {', '.join(p.layers)}" if p.layers else ""))
     corner = make_travel(np.zeros(2), np.array([m.width, m.height]), m).duration
     lines.append(f"  pen up         corner to corner ({np.hypot(m.width, m.height):.0f} mm) in {_t(corner)} "
                  f"({law} travel law, {m.move_speed[0]:g} mm/s per axis)")

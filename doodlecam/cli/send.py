@@ -242,7 +242,8 @@ def _report(job: Path, kind: str, r: dict, check: bool, cancel: bool) -> None:
             return
         how = f"resumed at command {r['start_at']}" if r["resumed"] else "all"
         click.echo(f"{job} -> PLC {r['plc']}: {r['commands']} commands executed ({how}), job {r['job_id']}, "
-                   f"{r['elapsed_s']:.1f} s" + (f", {r['underruns']} underrun(s) recovered" if r["underruns"] else ""))
+                   f"{r['elapsed_s']:.1f} s" + (f", {r['underruns']} underrun(s) recovered" if r["underruns"] else "")
+                   + _pens_said(r))
         return
     if check:
         if r["errors"]:
@@ -253,7 +254,12 @@ def _report(job: Path, kind: str, r: dict, check: bool, cancel: bool) -> None:
         return
     how = f"resumed at line {r['start_line']}" if r["resumed"] else "all"
     click.echo(f"{job} -> GRBL: {r['lines']} lines done ({how}), {r['elapsed_s']:.1f} s, "
-               f"at most {r['max_outstanding_bytes']} bytes outstanding")
+               f"at most {r['max_outstanding_bytes']} bytes outstanding" + _pens_said(r))
+
+
+def _pens_said(r: dict) -> str:
+    n = r.get("pen_changes", 0)
+    return f", {n} pen change{'s' if n != 1 else ''}" if n else ""
 
 
 class CheckFailed(DoodleError):

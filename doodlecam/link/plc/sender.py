@@ -345,7 +345,6 @@ class UdpSender:
         if self.pen_change is None:
             raise Paused(f"the job waits for a pen change before command {start_at} of {self.n}, pen up: fit pen "
                          f"{pen}, then send the same job again to resume")
-        self.log(f"pen change before command {start_at} of {self.n}: fit pen {pen}")
         self.pen_change(pen, f"pen {pen}")
         self._pen_fitted = start_at
         self.pen_changes += 1
@@ -488,6 +487,7 @@ class UdpSender:
         first = self._hello()
         start_at = self._decide(first, saved)
         already = start_at is None
+        initial = start_at or self.executed + 1  # pen changes restart the job later on: report this run's start
         if not already:
             try:
                 if start_at:
@@ -502,8 +502,8 @@ class UdpSender:
         clear_state(self.state_file)
         self.executed = self.n
         self.progress(self.n, self.n, self.last_status)
-        return SendResult(self.job_id or 0, self.n, self.start_at, self.n, time.monotonic() - t0,
-                          resumed=self.start_at > 1, already_done=already, underruns=self.underruns,
+        return SendResult(self.job_id or 0, self.n, initial, self.n, time.monotonic() - t0,
+                          resumed=initial > 1, already_done=already, underruns=self.underruns,
                           stats=dict(self.stats))
 
     def cancel(self) -> int | None:
