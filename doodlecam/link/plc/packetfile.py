@@ -13,7 +13,9 @@ numbered command list. Each command is
 
 The report's machine has no separate pen command, so the pen follows the
 command type: the PLC lowers the pen (and waits its down delay) before a DRAW
-that follows a MOVE, and lifts it before a MOVE that follows a DRAW.
+that follows a MOVE, and lifts it before a MOVE that follows a DRAW. A DRAW
+after a DRAW keeps the pen down, so two strokes that meet (the pieces of a
+split outline) are written as one run of DRAWs without a MOVE between.
 
 The byte layout is documented in docs/formats.md; this module is the one
 reader and writer (the UDP transport and ``doodlecam inspect`` use it too).
@@ -121,18 +123,20 @@ def commands_array(job) -> tuple[PlcHeader, np.ndarray]:
     home = job.travels[-1].end if job.travels else np.asarray(m.home, dtype=float)
 
     blocks = []
-    for s in job.samples:
-        move = np.round(np.asarray(s.start) * spm)[None]
+    for s, lift in zip(job.samples, job.lifts):
+        # no MOVE before a stroke that goes on from the last one's end: the pen stays down
+        move = np.round(np.asarray(s.start) * spm)[None] if lift else np.zeros((0, 2))
         blocks.append((move, whole_step_targets(s.velocity, spm)))
-    n = sum(1 + len(d) for _, d in blocks) + 1
+    n = sum(len(mv) + len(d) for mv, d in blocks) + 1
     out = np.zeros(n, RECORD_DTYPE)
     xy = np.empty((n, 2))
     types = np.full(n, DRAW, dtype=np.uint16)
     i = 0
     for move, draws in blocks:
-        types[i], xy[i] = MOVE, move[0]
-        xy[i + 1:i + 1 + len(draws)] = draws
-        i += 1 + len(draws)
+        if len(move):
+            types[i], xy[i] = MOVE, move[0]
+        xy[i + len(move):i + len(move) + len(draws)] = draws
+        i += len(move) + len(draws)
     types[i], xy[i] = MOVE, np.round(np.asarray(home) * spm)
     if np.abs(xy).max(initial=0) > _I32.max:
         raise OutputError("a PLC command exceeds the int32 range; check steps_per_mm and the work area in the machine profile")
@@ -154,7 +158,9 @@ def commands_from_job(job) -> tuple[PlcHeader, list[PlcCommand]]:
     """Header and commands for a planned, sampled Job.
 
     Per stroke: a MOVE to its start (rounded to steps), then one DRAW per
-    velocity sample (steps/s); finally a MOVE home. Numbered 1..N.
+    velocity sample (steps/s); finally a MOVE home. Numbered 1..N. A stroke
+    that starts where the one before ended (``job.lifts``) gets no MOVE: its
+    DRAWs follow the last ones, so the pen stays down between them.
     """
     header, arr = commands_array(job)
     return header, to_commands(arr)
