@@ -146,3 +146,97 @@ def test_lifts_are_a_property_of_the_job():
     assert job.lifts == (True, False, True, True)  # joined; pen change; 1 um apart
     assert job.pen_lifts == 3
     assert job.duration == pytest.approx(3 * (m.pen.up_delay + m.pen.down_delay))
+
+
+# --- hatching: the pen goes on along short moves in the dark instead of lifting
+
+
+def _ink_map(d, cell=16):
+    """Drawn length (px) in each cell x cell square of the picture."""
+    from doodlecam.geometry.fit import densify
+
+    pts = np.vstack([densify(p, 0.25) for p in d.polylines])
+    w, h = d.extent
+    bins = (int(np.ceil(w / cell)), int(np.ceil(h / cell)))
+    return np.histogram2d(pts[:, 0], pts[:, 1], bins=bins, range=((-0.5, w - 0.5), (-0.5, h - 0.5)))[0] * 0.25
+
+
+@pytest.mark.parametrize("name", ["horse"])  # all sample photos: benchmarks/bench_trace.py --lifts
+def test_joined_hatching_is_a_third_faster_at_the_same_look(tmp_path, name):
+    from doodlecam.plugins.hatch import HatchTracer
+
+    machine = load_machine("doodlebot")
+    jobs = {}
+    for join in (False, True):
+        res = convert(IMAGES / f"{name}.png", tmp_path / str(join), Settings(
+            machine=machine, tracer="hatch", tracer_options={"join": join}, posts=("gcode",)))
+        jobs[join] = res.job
+        downs, ups = gcode_pen_downs((tmp_path / str(join) / f"{name}.gcode").read_text())
+        assert len(downs) == res.job.pen_lifts
+        assert all(u is None or np.hypot(*(d - u)) > 1e-3 for d, u in zip(downs, ups))
+    assert jobs[True].duration <= 0.7 * jobs[False].duration
+    assert jobs[True].pen_lifts <= 0.25 * jobs[False].pen_lifts
+    # the same look: the same ink, cell by cell, plus the connecting moves (< 10 %)
+    tr = HatchTracer()
+    plain, joined = (_ink_map(tr.trace(IMAGES / f"{name}.png", {"join": j})) for j in (False, True))
+    assert np.corrcoef(plain.ravel(), joined.ravel())[0, 1] > 0.97
+    assert 1.0 < joined.sum() / plain.sum() < 1.10
+
+
+def test_joined_hatching_stays_in_the_dark_region(tmp_path):
+    """Every move of a joined hatch (lines and the moves between them) runs on or
+    within a pixel of the region it hatches."""
+    from scipy import ndimage as ndi
+
+    from doodlecam.plugins.hatch import hatch_mask
+    from doodlecam.geometry.fit import densify
+
+    rng = np.random.default_rng(7)
+    mask = ndi.gaussian_filter(rng.random((160, 200)), 6) > 0.5
+    out = ndi.distance_transform_edt(~mask)
+    lines = hatch_mask(mask, 3.0, 30.0, join=True)
+    assert len(lines) < 0.2 * len(hatch_mask(mask, 3.0, 30.0))
+    for p in lines:
+        q = densify(p, 0.25)
+        xi = np.clip(np.rint(q[:, 0]).astype(int), 0, 199)
+        yi = np.clip(np.rint(q[:, 1]).astype(int), 0, 159)
+        assert out[yi, xi].max() <= 1.5
+
+
+def test_hatch_tone_layers_plot_one_after_another(tmp_path):
+    from doodlecam.plugins.hatch import darkness
+    from doodlecam.trace.raster import load_gray
+
+    machine = load_machine("doodlebot")
+    res = convert(IMAGES / "camera.png", tmp_path, Settings(  # drawn 80 mm wide: fewer lines, a quicker test
+        machine=machine, tracer="hatch", tracer_options={"layers": "tone", "levels": 4}, posts=("gcode",),
+        layout={"width": 80.0}))
+    job = res.job
+    assert job.layers == ("tone 4", "tone 3", "tone 2", "tone 1")  # lightest first, as traced
+    assert len(job.pen_changes) == 3
+    assert [job.strokes[i].layer for i in job.pen_changes] == ["tone 3", "tone 2", "tone 1"]
+    assert all(job.lifts[i] for i in job.pen_changes)  # a pen change always lifts
+    downs, _ = gcode_pen_downs((tmp_path / "camera.gcode").read_text())
+    assert len(downs) == job.pen_lifts
+    # tone 1 is the darkest level: its lines lie on (or within a pixel of) the darkest pixels
+    from doodlecam.pipeline import trace as trace_picture
+    from scipy import ndimage as ndi
+
+    d = trace_picture(IMAGES / "camera.png", Settings(machine=machine, tracer="hatch",
+                                                      tracer_options={"layers": "tone", "levels": 4}))
+    dark = darkness(load_gray(IMAGES / "camera.png"), 1.0) > 4 / 5
+    out = ndi.distance_transform_edt(~dark)
+    from doodlecam.geometry.fit import densify
+
+    ones = [densify(p, 0.5) for p, n in zip(d.polylines, d.layers) if n == "tone 1"]
+    assert ones and len(ones) < len(d.polylines)
+    q = np.vstack(ones)
+    assert out[np.clip(np.rint(q[:, 1]).astype(int), 0, 511), np.clip(np.rint(q[:, 0]).astype(int), 0, 511)].max() <= 1.5
+
+
+def test_hatch_layers_option_is_checked():
+    from doodlecam.errors import PluginError
+    from doodlecam.plugins.hatch import HatchTracer
+
+    with pytest.raises(PluginError, match="layers must be 'one' or 'tone'"):
+        HatchTracer().trace(IMAGES / "camera.png", {"layers": "colour"})
