@@ -26,8 +26,9 @@ Tables (Markdown):
    pen stays down between the pieces of a split outline; before, every
    stroke was a lift), traced outlines (closed rings: a region's boundary or
    a hole's) and connected dark regions at the traced threshold
-   (skimage.measure.label, 8-neighbours, on the blurred picture: all of
-   them, and those of at least min_area px). Then `hatch` with join=false
+   (skimage.measure.label, 8-neighbours, on the blurred picture) plus the
+   light holes in them (4-neighbours, not touching the frame): all of them,
+   and those of at least min_area px. Then `hatch` with join=false
    (each line its own pen-down, the old default) and join=true (the
    default): job time, pen lifts, ink and the CPU time of tracing + planning.
 4. Spline size: every sample traced, laid out on the `doodlebot` profile and
@@ -237,18 +238,22 @@ def pen_lifts() -> None:
 
     m = load_machine("doodlebot")
     photos = [p for p in IMAGES if p.stem != "text"]
-    print("| contours | strokes | pen lifts before | pen lifts now | outlines | dark regions (all) | dark regions >= min_area |")
+    print("| contours | strokes | pen lifts before | pen lifts now | outlines | dark regions + holes (all) | "
+          "dark regions + holes >= min_area |")
     print("|---|---|---|---|---|---|---|")
     for img in photos:
         d = trace(img, Settings(machine=m, tracer="contours"))
         job = plan_job(fit_to_work_area(d, m), m)
         opt = d.meta["options"]
         gray, _ = load_working(img, ContoursTracer(), opt["pixel_mm"])
-        dark = ndi.gaussian_filter(gray.astype(np.float32), opt["blur"], mode="nearest") < d.meta["threshold"]
+        dark = ndi.gaussian_filter(gray.astype(np.float32), d.meta["blur_px"], mode="nearest") < d.meta["threshold"]
         regions = measure.label(dark, connectivity=2).max()
-        big = measure.label(morphology.remove_small_objects(dark, max_size=int(opt["min_area"])), connectivity=2).max()
+        holes = measure.label(np.pad(~dark, 1, constant_values=True), connectivity=1).max() - 1
+        big = morphology.remove_small_objects(dark, max_size=int(d.meta["min_area_px"]))
+        big_holes = morphology.remove_small_objects(np.pad(~big, 1, constant_values=True), max_size=int(d.meta["min_area_px"]))
         print(f"| {img.name} | {len(job.strokes)} | {len(job.strokes)} | {job.pen_lifts} | {d.meta['outlines']} | "
-              f"{regions} | {big} |", flush=True)
+              f"{regions} + {holes} | {measure.label(big, connectivity=2).max()} + "
+              f"{measure.label(big_holes, connectivity=1).max() - 1} |", flush=True)
     print()
     print("| hatch | join | strokes | pen lifts | ink m | job min | shorter | trace + plan CPU s |")
     print("|---|---|---|---|---|---|---|---|")

@@ -14,7 +14,7 @@ from doodlecam.pipeline import Settings, convert, trace
 CAMERA = Path(__file__).resolve().parents[1] / "samples" / "images" / "camera.png"
 
 
-@pytest.mark.parametrize("tracer", ["edges", "hatch"])
+@pytest.mark.parametrize("tracer", ["edges", "hatch", "contours"])
 def test_the_same_photo_at_three_resolutions_gives_the_same_job(tmp_path, tracer):
     m = load_machine("doodlebot")
     src = Image.open(CAMERA).convert("L")
