@@ -20,7 +20,10 @@ Tables (Markdown):
    centre lines (tests/lineart.py) traced by `centerline`, `edges` and
    `contours`: drawn length against the true centre-line length (target:
    within 3 % for centerline), the farthest drawn point from the centre line
-   in line widths (target <= 0.5), strokes, and which tracer `auto` picks.
+   in line widths (target <= 0.5), strokes, and which tracer `auto` picks;
+   then sharp corners: a V of 20-60 degrees and bold lettering (12 line
+   widths tall) by centerline: drawn length, how far the stroke stays from
+   the V's apex, the farthest drawn point.
 6. Pen lifts (`--lifts` for this table only): every photo traced by
    `contours` and planned on `doodlebot`: strokes, pen lifts (Job.lifts: the
    pen stays down between the pieces of a split outline; before, every
@@ -175,6 +178,34 @@ def line_art() -> None:
                     far = lineart.distance_to(polys, pts).max() / width
                     print(f"| {shape} | {width} | {true:.0f} | {tracer.name} | {len(d.polylines)} | {drawn / true:.3f} "
                           f"| {far:.2f} | {picked} |", flush=True)
+        # Sharp corners: a V of a round pen (its arms' centre lines meet at the apex) and bold
+        # lettering (12 line widths tall) by centerline.
+        print()
+        print("| sharp corner (centerline) | width px | strokes | drawn / true | apex missed by, widths | farthest / width |")
+        print("|---|---|---|---|---|---|")
+        for angle in (20, 30, 40, 60):
+            for width in (5, 7, 9):
+                a, apex = np.radians(angle), np.array([150.0, 40.0])
+                polys = [np.array([apex + 120 * np.array([np.sin(a / 2), np.cos(a / 2)]), apex,
+                                   apex + 120 * np.array([-np.sin(a / 2), np.cos(a / 2)])])]
+                path = Path(tmp) / f"v{angle}_{width}.png"
+                Image.fromarray(lineart.render(polys, (200, 300), width)).save(path)
+                d = CenterlineTracer().trace(path, {})
+                pts = np.vstack([lineart._dense(np.asarray(p), 0.2) for p in d.polylines])
+                drawn = lineart.polyline_length([np.asarray(p) for p in d.polylines]) / lineart.polyline_length(polys)
+                miss = np.hypot(*(pts - apex).T).min() / width
+                print(f"| V {angle}° | {width} | {len(d.polylines)} | {drawn:.3f} | {miss:.2f} | "
+                      f"{lineart.distance_to(polys, pts).max() / width:.2f} |", flush=True)
+        for word in ("ZN", "VZNV", "HELTVN"):
+            for width in (5, 7, 9):
+                polys, size = lineart.text(word, size=2.0 * width)
+                path = Path(tmp) / f"bold_{word}_{width}.png"
+                Image.fromarray(lineart.render(polys, size, width)).save(path)
+                d = CenterlineTracer().trace(path, {})
+                pts = np.vstack([lineart._dense(np.asarray(p), 0.2) for p in d.polylines])
+                drawn = lineart.polyline_length([np.asarray(p) for p in d.polylines]) / lineart.polyline_length(polys)
+                print(f"| bold {word} | {width} | {len(d.polylines)} | {drawn:.3f} | | "
+                      f"{lineart.distance_to(polys, pts).max() / width:.2f} |", flush=True)
 
 
 def _fit_at(rev: str):
