@@ -3,6 +3,7 @@
     .venv/bin/python benchmarks/bench_trace.py            # all tables
     .venv/bin/python benchmarks/bench_trace.py --quick    # skip the 4000 x 3000 photo and the fits
     .venv/bin/python benchmarks/bench_trace.py --fits     # only the spline sizes (table 4)
+    .venv/bin/python benchmarks/bench_trace.py --lifts    # only the pen lifts (table 6)
     .venv/bin/python benchmarks/bench_trace.py --fits --against REV   # ... and doodlecam/geometry/fit.py at git REV, same run
 
 Tables (Markdown):
@@ -19,7 +20,20 @@ Tables (Markdown):
    centre lines (tests/lineart.py) traced by `centerline`, `edges` and
    `contours`: drawn length against the true centre-line length (target:
    within 3 % for centerline), the farthest drawn point from the centre line
-   in line widths (target <= 0.5), strokes, and which tracer `auto` picks.
+   in line widths (target <= 0.5), strokes, and which tracer `auto` picks;
+   then sharp corners: a V of 20-60 degrees and bold lettering (12 line
+   widths tall) by centerline: drawn length, how far the stroke stays from
+   the V's apex, the farthest drawn point.
+6. Pen lifts (`--lifts` for this table only): every photo traced by
+   `contours` and planned on `doodlebot`: strokes, pen lifts (Job.lifts: the
+   pen stays down between the pieces of a split outline; before, every
+   stroke was a lift), traced outlines (closed rings: a region's boundary or
+   a hole's) and connected dark regions at the traced threshold
+   (skimage.measure.label, 8-neighbours, on the blurred picture) plus the
+   light holes in them (4-neighbours, not touching the frame): all of them,
+   and those of at least min_area px. Then `hatch` with join=false
+   (each line its own pen-down, the old default) and join=true (the
+   default): job time, pen lifts, ink and the CPU time of tracing + planning.
 4. Spline size: every sample traced, laid out on the `doodlebot` profile and
    fitted at its default tolerance: control points per mm of stroke against
    polyline vertices per mm.
@@ -83,8 +97,8 @@ def hatch_speed() -> None:
     tr = HatchTracer()
     cam = ROOT / "samples" / "images" / "camera.png"
     tr.trace(cam, {})  # imports outside the timing
-    settings = [{}, {"cross": False}, {"join": True}, {"spacing": 1, "levels": 8},
-                {"spacing": 0.5, "levels": 8, "blur": 0}, {"spacing": 0.5, "levels": 8, "blur": 0, "join": True},
+    settings = [{}, {"cross": False}, {"join": False}, {"spacing": 1, "levels": 8},
+                {"spacing": 0.5, "levels": 8, "blur": 0}, {"spacing": 0.5, "levels": 8, "blur": 0, "join": False},
                 {"equalize": True, "blur": 3}]
     print("| hatch settings (camera.png) | strokes | pen-down px | best of 3, s |")
     print("|---|---|---|---|")
@@ -127,7 +141,7 @@ def big_photo() -> None:
         print("| tracer on a 4000 x 3000 px JPEG | strokes | trace s | process CPU s | process wall s | peak memory MB |")
         print("|---|---|---|---|---|---|")
         for name, opts in (("auto", {}), ("edges", {}), ("centerline", {}), ("contours", {}),
-                           ("contours", {"fill": True}), ("hatch", {}), ("hatch", {"join": True})):
+                           ("contours", {"fill": True}), ("hatch", {}), ("hatch", {"join": False})):
             t = time.perf_counter()
             out = subprocess.run([sys.executable, "-c", _CHILD, name, str(photo), json.dumps(opts)],
                                  capture_output=True, text=True, check=True).stdout
@@ -164,6 +178,34 @@ def line_art() -> None:
                     far = lineart.distance_to(polys, pts).max() / width
                     print(f"| {shape} | {width} | {true:.0f} | {tracer.name} | {len(d.polylines)} | {drawn / true:.3f} "
                           f"| {far:.2f} | {picked} |", flush=True)
+        # Sharp corners: a V of a round pen (its arms' centre lines meet at the apex) and bold
+        # lettering (12 line widths tall) by centerline.
+        print()
+        print("| sharp corner (centerline) | width px | strokes | drawn / true | apex missed by, widths | farthest / width |")
+        print("|---|---|---|---|---|---|")
+        for angle in (20, 30, 40, 60):
+            for width in (5, 7, 9):
+                a, apex = np.radians(angle), np.array([150.0, 40.0])
+                polys = [np.array([apex + 120 * np.array([np.sin(a / 2), np.cos(a / 2)]), apex,
+                                   apex + 120 * np.array([-np.sin(a / 2), np.cos(a / 2)])])]
+                path = Path(tmp) / f"v{angle}_{width}.png"
+                Image.fromarray(lineart.render(polys, (200, 300), width)).save(path)
+                d = CenterlineTracer().trace(path, {})
+                pts = np.vstack([lineart._dense(np.asarray(p), 0.2) for p in d.polylines])
+                drawn = lineart.polyline_length([np.asarray(p) for p in d.polylines]) / lineart.polyline_length(polys)
+                miss = np.hypot(*(pts - apex).T).min() / width
+                print(f"| V {angle}° | {width} | {len(d.polylines)} | {drawn:.3f} | {miss:.2f} | "
+                      f"{lineart.distance_to(polys, pts).max() / width:.2f} |", flush=True)
+        for word in ("ZN", "VZNV", "HELTVN"):
+            for width in (5, 7, 9):
+                polys, size = lineart.text(word, size=2.0 * width)
+                path = Path(tmp) / f"bold_{word}_{width}.png"
+                Image.fromarray(lineart.render(polys, size, width)).save(path)
+                d = CenterlineTracer().trace(path, {})
+                pts = np.vstack([lineart._dense(np.asarray(p), 0.2) for p in d.polylines])
+                drawn = lineart.polyline_length([np.asarray(p) for p in d.polylines]) / lineart.polyline_length(polys)
+                print(f"| bold {word} | {width} | {len(d.polylines)} | {drawn:.3f} | | "
+                      f"{lineart.distance_to(polys, pts).max() / width:.2f} |", flush=True)
 
 
 def _fit_at(rev: str):
@@ -215,11 +257,56 @@ def spline_size(against: str | None = None) -> None:
               flush=True)
 
 
+def pen_lifts() -> None:
+    from scipy import ndimage as ndi
+    from skimage import measure, morphology
+
+    from doodlecam.machine import load_machine
+    from doodlecam.pipeline import Settings, plan_job, trace
+    from doodlecam.plugins.contours import ContoursTracer
+    from doodlecam.trace.layout import fit_to_work_area
+    from doodlecam.trace.raster import load_working
+
+    m = load_machine("doodlebot")
+    photos = [p for p in IMAGES if p.stem != "text"]
+    print("| contours | strokes | pen lifts before | pen lifts now | outlines | dark regions + holes (all) | "
+          "dark regions + holes >= min_area |")
+    print("|---|---|---|---|---|---|---|")
+    for img in photos:
+        d = trace(img, Settings(machine=m, tracer="contours"))
+        job = plan_job(fit_to_work_area(d, m), m)
+        opt = d.meta["options"]
+        gray, _ = load_working(img, ContoursTracer(), opt["pixel_mm"])
+        dark = ndi.gaussian_filter(gray.astype(np.float32), d.meta["blur_px"], mode="nearest") < d.meta["threshold"]
+        regions = measure.label(dark, connectivity=2).max()
+        holes = measure.label(np.pad(~dark, 1, constant_values=True), connectivity=1).max() - 1
+        big = morphology.remove_small_objects(dark, max_size=int(d.meta["min_area_px"]))
+        big_holes = morphology.remove_small_objects(np.pad(~big, 1, constant_values=True), max_size=int(d.meta["min_area_px"]))
+        print(f"| {img.name} | {len(job.strokes)} | {len(job.strokes)} | {job.pen_lifts} | {d.meta['outlines']} | "
+              f"{regions} + {holes} | {measure.label(big, connectivity=2).max()} + "
+              f"{measure.label(big_holes, connectivity=1).max() - 1} |", flush=True)
+    print()
+    print("| hatch | join | strokes | pen lifts | ink m | job min | shorter | trace + plan CPU s |")
+    print("|---|---|---|---|---|---|---|---|")
+    for img in photos:
+        base = None
+        for join in (False, True):
+            t = time.process_time()
+            d = trace(img, Settings(machine=m, tracer="hatch", tracer_options={"join": join}))
+            job = plan_job(fit_to_work_area(d, m), m)
+            cpu = time.process_time() - t
+            base = base or job.duration
+            print(f"| {img.name} | {str(join).lower()} | {len(job.strokes)} | {job.pen_lifts} | "
+                  f"{job.pen_down_length / 1000:.1f} | {job.duration / 60:.2f} | {100 * (1 - job.duration / base):.1f} % | "
+                  f"{cpu:.1f} |", flush=True)
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--quick", action="store_true", help="skip the big photo and the spline fits")
     ap.add_argument("--fits", action="store_true", help="only the spline sizes and fit times")
     ap.add_argument("--lineart", action="store_true", help="only the line-art table")
+    ap.add_argument("--lifts", action="store_true", help="only the pen-lift table")
     ap.add_argument("--against", metavar="REV", help="with --fits: also time doodlecam/geometry/fit.py as at git revision REV")
     args = ap.parse_args()
     warnings.simplefilter("ignore")
@@ -228,6 +315,9 @@ def main() -> None:
         return
     if args.lineart:
         line_art()
+        return
+    if args.lifts:
+        pen_lifts()
         return
     fidelity()
     print()

@@ -28,6 +28,8 @@ def polyline_length(p: np.ndarray) -> float:
     return float(np.hypot(*np.diff(p, axis=0).T).sum())
 
 
+SAME_POINT = 1e-6  # mm: a travel shorter than this joins two strokes pen down (Job.lifts)
+
 _GAUSS8 = np.polynomial.legendre.leggauss(8)  # nodes, weights (computing them costs 0.6 ms)
 
 @dataclass(frozen=True)
@@ -278,6 +280,24 @@ class Job:
         return tuple(i for i in range(1, len(p)) if p[i] != p[i - 1])
 
     @property
+    def lifts(self) -> tuple[bool, ...]:
+        """lifts[i]: the pen travels pen-up to strokes[i] and is lowered there.
+
+        False where strokes[i] starts exactly where strokes[i - 1] ended (its
+        travel is shorter than ``SAME_POINT`` mm, as between the pieces of a
+        split outline) on the same layer: the pen stays down, no up/down delays,
+        no travel move. The first stroke and every pen change always lift. Every
+        post and link that emits pen up/down follows this one predicate.
+        """
+        return tuple(i == 0 or self.strokes[i].layer != self.strokes[i - 1].layer
+                     or self.travels[i].length >= SAME_POINT for i in range(len(self.strokes)))
+
+    @property
+    def pen_lifts(self) -> int:
+        """How many times the pen is lowered (and lifted again) in the job."""
+        return sum(self.lifts)
+
+    @property
     def travel_length(self) -> float:
         return sum(t.length for t in self.travels)
 
@@ -290,7 +310,9 @@ class Job:
 
     @property
     def duration(self) -> float:
-        """Planned job time: strokes, travels and pen up/down delays."""
+        """Planned job time: strokes, travels and pen up/down delays (one pair per lift)."""
         m = self.machine
-        pen = len(self.strokes) * (m.pen.down_delay + m.pen.up_delay)
+        number = getattr(m, "pen_number", None)  # each lift with its pen's delays ([[pen]])
+        pens = [number(k) if number else m.pen for k in self.pen_numbers] if self.strokes else []
+        pen = sum(p.down_delay + p.up_delay for p, lift in zip(pens, self.lifts) if lift)
         return self.draw_time + sum(t.duration for t in self.travels) + pen

@@ -125,7 +125,8 @@ def plan_job(drawing: Drawing, machine: Machine, solver: str = "reach", plugin_d
     strokes = [] if fitted is None else [Stroke(spline=s.spline, source_index=s.source_index, fit_error=s.fit_error,
                                                 layer=s.layer) for s in fitted]
     for i, p, layer in ordered if fitted is None else ():
-        for spline, err in fit_pieces(p, machine.degree, machine.tolerance):
+        # a tracer may ask for its zig-zags to be cut at their corners first (joined hatching)
+        for spline, err in fit_pieces(p, machine.degree, machine.tolerance, corner=float(drawing.meta.get("split_corners_deg", 0.0))):
             strokes.append(Stroke(spline=spline, source_index=i, fit_error=err, layer=layer))
     timings["fit"] = time.perf_counter() - t0
 
@@ -347,6 +348,7 @@ class Result:
             "dropped_strokes": {"shorter_than_pen": d.get("dropped_short", 0)},
             "warnings": warnings_for(j, d),
             "strokes": len(j.strokes),
+            "pen_lifts": j.pen_lifts,
             "pen_down_mm": round(j.pen_down_length, 3),
             "travel_mm": round(j.travel_length, 3),
             "job_time_s": round(j.duration, 3),

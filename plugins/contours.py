@@ -36,7 +36,8 @@ class ContoursTracer(Tracer):
         Option("fill_angle", float, 45.0, "angle of the fill lines in degrees"),
         Option("fill_cross", bool, False, "cross-hatch the fill (a second layer at right angles)"),
         Option("pixel_mm", float, 0.0, "trace finer pictures scaled down to this many mm per pixel as drawn "
-               "(0 = the pen width), so px options mean the same drawn size at any resolution"),
+               "(0 = the pen width), so px options mean the same drawn size at any resolution; on coarser pictures "
+               "min_area, simplify and fill_spacing are scaled to match"),
     )
 
     def trace(self, path: Path, options: dict[str, Any]) -> Drawing:
@@ -50,13 +51,19 @@ class ContoursTracer(Tracer):
         if opt["blur"] < 0 or opt["min_area"] < 0 or opt["simplify"] < 0 or opt["fill_spacing"] < 0.5:
             raise PluginError("tracer 'contours': blur, min_area and simplify must be >= 0 and fill_spacing >= 0.5")
         gray, shape = load_working(path, self, opt["pixel_mm"])
+        # The size options are px of the pen-width grid the picture is traced on: a
+        # picture drawn coarser than that (not resampled) gets them scaled to its own
+        # px, so the specks dropped mean the same drawn size at any resolution. The
+        # blur stays in picture px: it smooths the picture's own pixel steps and noise.
+        k = _grid_px(self, opt["pixel_mm"], shape, gray.shape)
+        blur, min_area, simp = opt["blur"], opt["min_area"] / (k * k), opt["simplify"] / k
         gray = gray.astype(np.float32)
         if opt["invert"]:
             gray = 1.0 - gray
-        if opt["blur"] > 0:
+        if blur > 0:
             from scipy import ndimage as ndi
 
-            gray = ndi.gaussian_filter(gray, opt["blur"], mode="nearest")
+            gray = ndi.gaussian_filter(gray, blur, mode="nearest")
         level = self.level(gray, opt["threshold"], path)
         # A light frame closes regions that touch the picture's edge, along the
         # edge itself: each frame value mirrors its neighbour about the level,
@@ -69,19 +76,19 @@ class ContoursTracer(Tracer):
         rings = [c[:, ::-1] - 1.0 for c in measure.find_contours(padded, level)]  # (row, col) -> (x, y)
         rings = [np.vstack([c, c[:1]]) if not np.array_equal(c[0], c[-1]) else c for c in rings]
         area = _areas(rings)
-        rings = [c for c, a in zip(rings, area) if abs(a) >= max(opt["min_area"], 1e-9)]
-        if opt["simplify"] > 0:
-            rings = simplify(rings, opt["simplify"])
+        rings = [c for c, a in zip(rings, area) if abs(a) >= max(min_area, 1e-9)]
+        if simp > 0:
+            rings = simplify(rings, simp)
         polylines = [c for c in rings if len(c) >= 3]
         n_outlines = len(polylines)
         if opt["fill"]:
             from skimage import morphology
 
             # the same specks the outlines drop are not filled either
-            dark = morphology.remove_small_objects(gray < level, max_size=max(int(opt["min_area"]), 1))
-            polylines += hatch_mask(dark, opt["fill_spacing"], opt["fill_angle"], min_length=1.0)
+            dark = morphology.remove_small_objects(gray < level, max_size=max(int(min_area), 1))
+            polylines += hatch_mask(dark, opt["fill_spacing"] / k, opt["fill_angle"], min_length=1.0)
             if opt["fill_cross"]:
-                polylines += hatch_mask(dark, opt["fill_spacing"], opt["fill_angle"] + 90, min_length=1.0)
+                polylines += hatch_mask(dark, opt["fill_spacing"] / k, opt["fill_angle"] + 90, min_length=1.0)
         if not polylines:
             raise InputError(f"{path}: no dark regions at threshold {level:.3f} (the picture looks blank); "
                              "try --tracer-opt threshold=0.7 or invert=true")
@@ -89,6 +96,7 @@ class ContoursTracer(Tracer):
         return in_picture_px(Drawing(
             tuple(polylines), units="px", y_down=True, source=str(path), extent=(float(w), float(h)),
             meta={"tracer": self.name, "options": opt, "threshold": level, "outlines": n_outlines,
+                  "blur_px": blur, "min_area_px": min_area,  # as used, in the picture's working px
                   "polylines": len(polylines), "vertices": int(sum(len(p) for p in polylines))}), shape)
 
     @staticmethod
@@ -110,6 +118,17 @@ class ContoursTracer(Tracer):
         if not 0.0 < level < 1.0:
             raise PluginError(f"tracer 'contours': threshold must be between 0 and 1, got {level:g}")
         return level
+
+
+def _grid_px(tracer: Tracer, pixel_mm: float, shape: tuple[int, int], working: tuple[int, int]) -> float:
+    """Pen-width grid px per working px: the working px's drawn size over ``pixel_mm``
+    (0 = the pen width) when the picture was not resampled and its drawn size is
+    known; else 1 (a resampled picture is on the grid already)."""
+    pixel = pixel_mm if pixel_mm > 0 else (getattr(tracer, "pen_mm", None) or 0.0)
+    mm = getattr(tracer, "mm_per_px", None)
+    if not mm or pixel <= 0 or tuple(working) != tuple(shape):
+        return 1.0
+    return mm / pixel
 
 
 def _areas(rings: list[np.ndarray]) -> np.ndarray:

@@ -5,10 +5,14 @@ Darker grey levels get more layers of parallel lines: layer ``i`` of
 own angle (cross-hatching) or interleaved with the others at one angle. Each
 layer is found by scanning a rotated grid of lines over the picture: every
 line is sampled at once (NumPy, in blocks of lines so memory stays bounded),
-runs of dark samples become segments. With ``join``, consecutive segments on
-neighbouring lines are linked by smooth U-turns when the link stays on dark
-paper, so a region is drawn in a few long meanders, not hundreds of dashes
-(off by default: the spline fit takes long over such meanders).
+runs of dark samples become segments. With ``join`` (the default), the pen
+goes on from a segment's end to the next line's segment along a short
+straight move that stays on dark paper (it runs along the region's edge or
+through ink), and zig-zags end to end likewise, so a region is drawn in a
+few pen-downs, not hundreds of dashes. The fitter cuts the zig-zags at their
+corners into straight pieces (exact at once) that the pen draws without
+lifting (``Job.lifts``): on the sample photos the job is 32-36 % shorter.
+``turns`` links by smooth U-turns instead (slow to fit and plan, less gain).
 
 ``hatch_mask`` is the reusable part: the ``contours`` tracer fills its dark
 regions with it.
@@ -32,6 +36,8 @@ _BLOCK = 1 << 21  # samples per block: bounds memory on huge pictures
 _UTURN = 6  # points on each U-turn between linked lines
 _PEN_FACTOR = 4.0  # default line spacing in pen widths: each layer inks a quarter of its area
 _SPACING_PX = 4.0  # ... or in px, when the tracer is not told the drawn size (direct calls)
+_REACH = 3.0  # spacings: the longest link through ink between two zig-zags (straight joins)
+_CORNER = 20.0  # degrees: joined hatching is fitted as straight pieces between turns sharper than this
 _CROSS = (0.0, 90.0, 45.0, 135.0)  # layer angles relative to `angle` for the first four layers
 
 
@@ -50,8 +56,12 @@ class HatchTracer(Tracer):
         Option("blur", float, 1.0, "Gaussian blur of the picture in px first (0 = none); softens noise and dither"),
         Option("gamma", float, 1.0, "tone curve: > 1 lightens mid-tones (fewer lines), < 1 darkens them"),
         Option("equalize", bool, False, "stretch the histogram first (CLAHE), for flat, grey photos"),
-        Option("join", bool, False, "link neighbouring lines by U-turns where they stay in the dark: fewer pen "
-               "lifts, but long curvy strokes that are slow to fit and plan"),
+        Option("join", bool, True, "go on pen down from one line to the next along short moves that stay in the "
+               "dark region (the region's edge or through ink), instead of lifting the pen: about a third less job time"),
+        Option("turns", bool, False, "with join: link lines by smooth U-turns instead of straight moves (slow to "
+               "fit and plan, a smaller gain)"),
+        Option("layers", str, "one", "'tone': each tone level's lines on a layer of its own, 'tone 1' (darkest) to "
+               "'tone N' (lightest), plotted one after another, to draw each with its own pen; 'one': a single layer"),
         Option("min_length", float, 2.0, "drop hatch strokes shorter than this, in px"),
         Option("pixel_mm", float, 0.0, "trace finer pictures scaled down to this many mm per pixel as drawn "
                "(0 = the pen width), so px options mean the same drawn size at any resolution"),
@@ -68,10 +78,13 @@ class HatchTracer(Tracer):
             raise PluginError(f"tracer 'hatch': levels must be 1 to 8, got {opt['levels']}")
         if opt["blur"] < 0 or opt["gamma"] <= 0 or opt["min_length"] < 0:
             raise PluginError("tracer 'hatch': blur and min_length must be >= 0 and gamma > 0")
+        if opt["layers"] not in ("one", "tone"):
+            raise PluginError(f"tracer 'hatch': layers must be 'one' or 'tone', got {opt['layers']!r}")
         gray, shape = load_working(path, self, opt["pixel_mm"])
         opt["spacing"] = spacing = _spacing_px(self, opt, gray.shape[1] / shape[1])
         dark = darkness(gray, opt["blur"], opt["gamma"], opt["equalize"])
         polylines: list[np.ndarray] = []
+        layers: list[str] = []  # the tone of each polyline: level i of n is tone n - i (1 = darkest)
         n = opt["levels"]
         for i in range(n):
             mask = dark > (i + 1) / (n + 1)
@@ -82,16 +95,19 @@ class HatchTracer(Tracer):
                 offset = 0.0 if i < 4 else 0.5
             else:
                 angle, offset = opt["angle"], _interleave(i)
-            polylines += hatch_mask(mask, spacing, angle, offset=offset, join=opt["join"],
+            polylines += hatch_mask(mask, spacing, angle, offset=offset, join=opt["join"], turns=opt["turns"],
                                     min_length=opt["min_length"])
+            layers += [f"tone {n - i}"] * (len(polylines) - len(layers))
         if not polylines:
             raise InputError(f"{path}: nothing dark enough to hatch (the picture looks blank); "
                              "try --tracer-opt gamma=0.5 or more levels")
         h, w = gray.shape
         return in_picture_px(Drawing(tuple(polylines), units="px", y_down=True, source=str(path),
-                                     extent=(float(w), float(h)),
+                                     extent=(float(w), float(h)), layers=tuple(layers) if opt["layers"] == "tone" else (),
                                      meta={"tracer": self.name, "options": opt, "polylines": len(polylines),
-                                           "vertices": int(sum(len(p) for p in polylines))}), shape)
+                                           "vertices": int(sum(len(p) for p in polylines)),
+                                           # the fitter cuts the zig-zags at their corners: straight pieces
+                                           **({"split_corners_deg": _CORNER} if opt["join"] and not opt["turns"] else {})}), shape)
 
 
 def _spacing_px(self: HatchTracer, opt: dict[str, Any], k: float) -> float:
@@ -135,14 +151,16 @@ def darkness(gray: np.ndarray, blur: float = 0.0, gamma: float = 1.0, equalize: 
 
 
 def hatch_mask(mask: np.ndarray, spacing: float, angle: float, offset: float = 0.0, join: bool = False,
-               min_length: float = 0.0) -> list[np.ndarray]:
+               min_length: float = 0.0, turns: bool = False) -> list[np.ndarray]:
     """Parallel lines ``spacing`` px apart at ``angle`` degrees, clipped to ``mask``.
 
     ``mask`` is (rows, cols), True where to draw; returns (x, y) polylines in
     pixels (y down, pixel centres at integers). ``offset`` shifts the lines
     by that fraction of the spacing. With ``join``, a line's end is linked
-    to the next line's start by a U-turn when the link is short and stays in
-    (or next to) the mask, giving meanders.
+    to the next line's start when the link is short and stays in (or next
+    to) the mask: by a straight connecting line (a zig-zag, to be fitted as
+    straight pieces the pen draws without lifting), or with ``turns`` by a
+    smooth U-turn (a meander).
     """
     h, w = mask.shape
     a = np.deg2rad(angle)
@@ -210,7 +228,8 @@ def hatch_mask(mask: np.ndarray, spacing: float, angle: float, offset: float = 0
     if not join:
         return list(np.stack([p0[keep], p1[keep]], axis=1))
     nxt = _links(mask, line, a_s, b_s, p0, p1, keep, spacing)
-    return _chains(p0, p1, nxt, keep, (-0.5, -0.5), (w - 0.5, h - 0.5))
+    chains = _chains(p0, p1, nxt, keep, (-0.5, -0.5), (w - 0.5, h - 0.5), turns)
+    return chains if turns else _bridge(chains, mask, _REACH * spacing)
 
 
 def _links(mask, line, a_s, b_s, p0, p1, keep, spacing) -> np.ndarray:
@@ -236,7 +255,7 @@ def _links(mask, line, a_s, b_s, p0, p1, keep, spacing) -> np.ndarray:
         better = d < best_d
         best, best_d = np.where(better, j, best), np.where(better, d, best_d)
     # A link longer than a few spacings would cross paper or draw a visible stripe.
-    ok = best_d <= 2.5 * spacing
+    ok = best_d <= 4.0 * spacing
     src, dst, dist = idx[ok], best[ok], best_d[ok]
     if not len(src):
         return nxt
@@ -244,22 +263,65 @@ def _links(mask, line, a_s, b_s, p0, p1, keep, spacing) -> np.ndarray:
     by = np.lexsort((dist, dst))
     first = np.r_[True, dst[by][1:] != dst[by][:-1]]
     src, dst = src[by][first], dst[by][first]
-    # The link must stay on (or a pixel next to) the dark region: each sample
-    # point or one of its four neighbours is dark (no dilation of a huge mask).
-    h, w = mask.shape
-    f = np.linspace(0, 1, 7)[1:-1]
-    pts = p1[src][:, None, :] + f[None, :, None] * (p0[dst] - p1[src])[:, None, :]
-    xi, yi = np.rint(pts[..., 0]).astype(int), np.rint(pts[..., 1]).astype(int)
-    near = np.zeros(xi.shape, bool)
-    for dx, dy in ((0, 0), (1, 0), (-1, 0), (0, 1), (0, -1)):
-        near |= mask[np.clip(yi + dy, 0, h - 1), np.clip(xi + dx, 0, w - 1)]
-    inside = near.all(axis=1)
+    inside = _in_ink(mask, p1[src], p0[dst], 7)
     nxt[src[inside]] = dst[inside]
     return nxt
 
 
-def _chains(p0, p1, nxt, keep, lo=(-np.inf, -np.inf), hi=(np.inf, np.inf)) -> list[np.ndarray]:
-    """Follow the links: each chain is a zig-zag polyline through its runs' ends.
+def _in_ink(mask: np.ndarray, a: np.ndarray, b: np.ndarray, n: int) -> np.ndarray:
+    """Whether each segment a -> b (px) stays on (or a pixel next to) the dark
+    region: each of its n - 2 inner sample points or one of their four
+    neighbours is dark (no dilation of a huge mask)."""
+    h, w = mask.shape
+    f = np.linspace(0, 1, n)[1:-1]
+    pts = a[:, None, :] + f[None, :, None] * (b - a)[:, None, :]
+    xi, yi = np.rint(pts[..., 0]).astype(int), np.rint(pts[..., 1]).astype(int)
+    near = np.zeros(xi.shape, bool)
+    for dx, dy in ((0, 0), (1, 0), (-1, 0), (0, 1), (0, -1)):
+        near |= mask[np.clip(yi + dy, 0, h - 1), np.clip(xi + dx, 0, w - 1)]
+    return near.all(axis=1)
+
+
+def _bridge(chains: list[np.ndarray], mask: np.ndarray, reach: float) -> list[np.ndarray]:
+    """Join zig-zags end to end through ink: from each chain's end, on to the
+    nearest unused chain end (either way round) within ``reach`` px whose
+    straight link stays in the dark region; the pen draws the link instead of
+    lifting. Greedy, in the chains' (scan) order; deterministic."""
+    n = len(chains)
+    if n < 2:
+        return chains
+    from scipy.spatial import cKDTree
+
+    ends = np.array([c[i] for c in chains for i in (0, -1)])  # 2k: start of chain k, 2k + 1: its end
+    k = min(8, 2 * n)
+    dist, cand = cKDTree(ends).query(ends, k=k, distance_upper_bound=reach)
+    dist, cand = dist.reshape(2 * n, k), cand.reshape(2 * n, k)
+    ok = np.isfinite(dist) & (cand // 2 != np.arange(2 * n)[:, None] // 2)
+    src = np.repeat(np.arange(2 * n), k)[ok.ravel()]
+    dst = cand.ravel()[ok.ravel()]
+    ok[ok] = _in_ink(mask, ends[src], ends[dst], max(3, int(np.ceil(reach)) + 2))
+    used = np.zeros(n, bool)
+    out: list[np.ndarray] = []
+    for first in range(n):
+        if used[first]:
+            continue
+        used[first] = True
+        parts, tip = [chains[first]], 2 * first + 1
+        while True:
+            nxt = next((int(c) for c, good in zip(cand[tip], ok[tip]) if good and not used[c // 2]), -1)
+            if nxt < 0:
+                break
+            used[nxt // 2] = True
+            c = chains[nxt // 2]
+            parts.append(c if nxt % 2 == 0 else c[::-1])  # entered at its start, or at its end
+            tip = nxt ^ 1
+        out.append(np.vstack(parts))
+    return out
+
+
+def _chains(p0, p1, nxt, keep, lo=(-np.inf, -np.inf), hi=(np.inf, np.inf), turns: bool = True) -> list[np.ndarray]:
+    """Follow the links: each chain is a polyline through its runs' ends, linked
+    by U-turns (``turns``) or straight (a zig-zag).
 
     Pointer jumping finds every run's chain head and rank in log(length)
     vectorised steps, so thousands of chains cost no Python loop.
@@ -283,7 +345,7 @@ def _chains(p0, p1, nxt, keep, lo=(-np.inf, -np.inf), hi=(np.inf, np.inf)) -> li
     # A U-turn bulges 3/8 of the gap beyond the line ends; where that would
     # leave the canvas [lo, hi], both lines stop short by the difference.
     src = np.flatnonzero(keep & (nxt >= 0))
-    if len(src):
+    if len(src) and turns:
         dst = nxt[src]
         u = p1[src] - p0[src]
         u /= np.maximum(np.hypot(*u.T), 1e-12)[:, None]
@@ -315,7 +377,7 @@ def _chains(p0, p1, nxt, keep, lo=(-np.inf, -np.inf), hi=(np.inf, np.inf)) -> li
     curve = ((1 - f) ** 3 * b + 3 * (1 - f) ** 2 * f * c1 + 3 * (1 - f) * f ** 2 * c2 + f ** 3 * c).transpose(1, 0, 2)
     block = np.concatenate([a[:, None], b[:, None], curve], axis=1)  # (runs, 2 + _UTURN, 2)
     use = np.ones(block.shape[:2], bool)
-    use[~has, 2:] = False
+    use[~has if turns else slice(None), 2:] = False
     pts = block[use]
     np.clip(pts, lo, hi, out=pts)  # numerical safety: nothing leaves the canvas
     cut = np.flatnonzero(np.diff(root[order])) + 1

@@ -60,17 +60,18 @@ class CsvPost(PostProcessor):
                 p = np.asarray(point, float)
                 pieces.append((duration, lambda t, p=p: np.stack([np.broadcast_to(p, (len(t), 2)), *np.zeros((3, len(t), 2))]), pen))
 
+        lifts = job.lifts + (True,)  # no pen delays (nor a zero travel) where the pen stays down
         for i, tr in enumerate(job.travels):
-            if options["travels"]:
+            if options["travels"] and lifts[i]:
                 pieces.append((tr.duration, lambda t, tr=tr: travel_state(tr, m, t), 0))
             if i < len(job.strokes):
                 st = job.strokes[i]
                 if st.profile is None:
                     raise OutputError("job is not planned (a stroke has no feed profile); plan it before writing the table")
-                if options["travels"]:
+                if options["travels"] and lifts[i]:
                     rest(st.spline.start, m.pen.down_delay, 1)
                 pieces.append((st.profile.duration, lambda t, st=st: stroke_state(st, t), 1))
-                if options["travels"]:
+                if options["travels"] and lifts[i + 1]:
                     rest(st.spline.end, m.pen.up_delay, 0)
         total = sum(p[0] for p in pieces)
         n = int(np.floor(total / step + 1e-9)) + 1

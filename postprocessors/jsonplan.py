@@ -3,7 +3,8 @@
 One UTF-8 JSON object, ``"format": "doodlecam-plan"``, ``"version": 1``:
 the machine profile, every stroke (its clamped uniform B-spline: degree and
 control points, knots implied; its planned profile on the grid: ``u``,
-``b = u̇²`` (1/s²), ``a = ü`` (1/s², per interval), ``t`` (s)), the pen-up
+``b = u̇²`` (1/s²), ``a = ü`` (1/s², per interval), ``t`` (s); ``pen_lift``,
+false where it goes on pen down from the last stroke's end), the pen-up
 travels, the fixed-ΔT velocity samples and the job's figures. Units: mm, s.
 Floats are written with ``repr`` precision by default, so the plan reloads
 exactly; ``decimals`` rounds them for a smaller file.
@@ -60,10 +61,10 @@ class JsonPost(PostProcessor):
         d = None if dec < 0 else dec
         strokes = []
         pens = job.pen_numbers
-        for s, pen in zip(job.strokes, pens):
+        for s, pen, lift in zip(job.strokes, pens, job.lifts):
             item = {"degree": s.spline.degree, "control": _plain(s.spline.control, d),
                     "length_mm": _plain(s.spline.length, d), "fit_error_mm": _plain(s.fit_error, d),
-                    "source_index": s.source_index, "layer": s.layer, "pen": pen, "profile": None}
+                    "source_index": s.source_index, "layer": s.layer, "pen": pen, "pen_lift": lift, "profile": None}
             if s.profile is not None:
                 p = s.profile
                 item["profile"] = {"solver": p.solver, "duration_s": _plain(p.duration, d),
@@ -73,7 +74,7 @@ class JsonPost(PostProcessor):
             "format": FORMAT, "version": VERSION, "plugin_api": API_VERSION,
             "source": job.source,
             "machine": _plain(job.machine, d),
-            "figures": {"strokes": len(job.strokes), "pen_down_mm": _plain(job.pen_down_length, d),
+            "figures": {"strokes": len(job.strokes), "pen_lifts": job.pen_lifts, "pen_down_mm": _plain(job.pen_down_length, d),
                         "travel_mm": _plain(job.travel_length, d), "draw_time_s": _plain(job.draw_time, d),
                         "job_time_s": _plain(job.duration, d), "pen_changes": list(job.pen_changes)},
             "strokes": strokes,

@@ -88,7 +88,8 @@ class SvgPost(PostProcessor):
         thin = max(0.2, width / 3)
 
         strokes = [self._stroke_d(s.spline, step, flip) for s in job.strokes]
-        travels = [_path_d(np.array([t.start, t.end]) * flip[0] + flip[1]) for t in job.travels] if options["show_travels"] else []
+        travels = [_path_d(np.array([t.start, t.end]) * flip[0] + flip[1])
+                   for t, lift in zip(job.travels, job.lifts + (True,)) if lift] if options["show_travels"] else []
 
         vb = f"{-PAD:g} {-PAD:g} {W + 2 * PAD:g} {H + 2 * PAD:g}"
         out = [

@@ -107,3 +107,34 @@ def test_auto_applies_the_profiles_table_of_the_tracer_it_chose(tmp_path):
     m = parse_machine(dict(PROFILE, trace={"centerline": {"simplify": 2.0}, "edges": {"sigma": 5.0}}), "t.toml")
     d = trace(path, Settings(machine=m))
     assert d.meta["tracer"] == "centerline" and d.meta["options"]["simplify"] == 2.0
+
+
+@pytest.mark.parametrize("angle", [30, 40, 60])
+@pytest.mark.parametrize("width", [5, 7, 9])
+def test_a_sharp_corner_of_a_thick_line_is_not_cut(tmp_path, angle, width):
+    """A V of a round pen: its arms' centre lines meet at the apex. The skeleton
+    cuts across the corner there (by up to a line width at 40 degrees before);
+    the drawn stroke must reach the apex."""
+    a = np.radians(angle)
+    apex = np.array([150.0, 40.0])
+    polys = [np.array([apex + 120 * np.array([np.sin(a / 2), np.cos(a / 2)]), apex,
+                       apex + 120 * np.array([-np.sin(a / 2), np.cos(a / 2)])])]
+    path = save(tmp_path, "v.png", lineart.render(polys, (200, 300), width))
+    d = TRACER.trace(path, {})
+    assert len(d.polylines) == 1
+    pts = lineart._dense(np.asarray(d.polylines[0]), 0.2)
+    assert np.hypot(*(pts - apex).T).min() <= width / 2  # it reaches the corner
+    assert lineart.distance_to(polys, pts).max() <= width / 4
+    drawn = lineart.polyline_length([np.asarray(d.polylines[0])])
+    assert drawn == pytest.approx(lineart.polyline_length(polys), rel=0.02)
+
+
+@pytest.mark.parametrize("width", [7, 9])
+def test_bold_lettering_with_sharp_corners_keeps_its_length(tmp_path, width):
+    polys, shape = lineart.text("ZN", size=2.0 * width)  # 12 line widths tall: bold
+    path = save(tmp_path, "zn.png", lineart.render(polys, shape, width))
+    d = TRACER.trace(path, {})
+    drawn = lineart.polyline_length([np.asarray(p) for p in d.polylines])
+    assert drawn == pytest.approx(lineart.polyline_length(polys), rel=0.03)
+    pts = np.vstack([lineart._dense(np.asarray(p), 0.2) for p in d.polylines])
+    assert lineart.distance_to(polys, pts).max() <= width / 4

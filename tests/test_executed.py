@@ -77,8 +77,20 @@ def execute(start, targets, dt):
 def executed_ratios(data: bytes, job, path_tol: float):
     """Worst executed ratios of a written PLC file against the job's machine."""
     m = job.machine
-    header, strokes = read_plc_file(data)
+    header, runs = read_plc_file(data)
     dt, k = header["delta_time"], header["steps_per_mm"]
+    # A run of DRAWs holds the strokes the pen draws without lifting (job.lifts): the
+    # machine goes on from where the last one left it, so integrate the whole run.
+    assert len(runs) == sum(job.lifts)
+    strokes, it = [], iter(job.samples)
+    for start, targets in runs:
+        x0, at = start, 0
+        while at < len(targets):
+            n = len(next(it).velocity)
+            part = targets[at:at + n]
+            strokes.append((x0, part))
+            x0 = execute(x0, part, dt)[0][-1]
+            at += n
     assert len(strokes) == len(job.strokes)
     vmax = np.array([m.x.max_velocity, m.y.max_velocity]) * k
     amax = np.array([m.x.max_acceleration, m.y.max_acceleration]) * k

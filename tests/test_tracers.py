@@ -101,10 +101,14 @@ def test_hatch_lines_are_spaced_and_angled(tmp_path):
         assert np.allclose(np.diff(offs), 5.0)
         ends = np.vstack(segs)
         assert ends.min() >= -0.5 - 1e-9 and ends[:, 0].max() <= 139.5 + 1e-9 and ends[:, 1].max() <= 99.5 + 1e-9
-    zig = hatch_mask(mask, 5.0, 0.0, join=True)
+    zig = hatch_mask(mask, 5.0, 0.0, join=True, turns=True)
     assert len(zig) == 1  # a full rectangle is one meander: each line, then a U-turn of 6 points
     n = len(hatch_mask(mask, 5.0, 0.0))
     assert len(zig[0]) == 2 * n + 6 * (n - 1)
+    straight = hatch_mask(mask, 5.0, 0.0, join=True)  # ... or one zig-zag: line, a 5 px move across, line
+    assert len(straight) == 1 and len(straight[0]) == 2 * n
+    steps = np.diff(straight[0], axis=0)
+    assert np.allclose(np.abs(steps[1::2, 1]), 5.0) and np.allclose(steps[1::2, 0], 0.0)
     turn = np.diff(zig[0], axis=0)
     heading = np.arctan2(turn[:, 1], turn[:, 0])
     assert np.abs(np.angle(np.exp(1j * np.diff(heading)))).max() < np.radians(60)  # no sharp corner
@@ -130,13 +134,14 @@ def test_hatch_density_follows_the_grey_level(tmp_path):
 
 def test_hatch_camera_and_options(tmp_path):
     path = save(tmp_path, "camera.png", data.camera())
-    d = HATCH.trace(path, {})
+    d = HATCH.trace(path, {"join": False})
     assert 100 < len(d.polylines) < 5000 and d.extent == (512.0, 512.0)
     pts = np.vstack(d.polylines)
     assert pts.min() >= -0.5 - 1e-9 and pts.max() <= 511.5 + 1e-9
-    assert all(len(p) == 2 for p in d.polylines)  # straight lines by default
-    joined = HATCH.trace(path, {"join": True})
-    assert 2 * len(joined.polylines) < len(d.polylines)
+    assert all(len(p) == 2 for p in d.polylines)  # straight lines, each its own pen-down
+    joined = HATCH.trace(path, {})  # joined by default
+    assert 4 * len(joined.polylines) < len(d.polylines)
+    assert np.vstack(joined.polylines).min() >= -0.5 - 1e-9 and np.vstack(joined.polylines).max() <= 511.5 + 1e-9
     dense = HATCH.trace(path, {"spacing": 0.5, "levels": 8, "blur": 0})  # the extreme setting
     assert dense.length > 10 * d.length
     for bad in ({"spacing": 0.1}, {"levels": 0}, {"levels": 9}, {"gamma": 0}):

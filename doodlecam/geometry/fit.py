@@ -330,15 +330,37 @@ def _fit(p: np.ndarray, degree: int, tolerance: float, max_control: int) -> tupl
     return Spline(degree, ctrl), err
 
 
-def fit_pieces(points, degree: int = 3, tolerance: float = 0.1, max_control: int = 2000) -> list[tuple[Spline, float]]:
+def fit_pieces(points, degree: int = 3, tolerance: float = 0.1, max_control: int = 2000,
+               corner: float = 0.0) -> list[tuple[Spline, float]]:
     """Like ``fit_polyline``, but never returns a fit outside the tolerance:
     a polyline no spline of up to ``max_control`` points follows (it doubles
     back on itself, say) is split at its sharpest corner and the halves are
-    fitted separately."""
+    fitted separately. With ``corner`` > 0 (degrees) the polyline is first cut
+    at every vertex where it turns by more than that: a zig-zag (joined
+    hatching) becomes straight pieces, each exact at once, where one spline
+    would need a long search to turn corners the pen stops at anyway. The
+    pieces meet exactly, in order (the pen stays down between them, Job.lifts)."""
     p = _dedupe(np.asarray(points, dtype=float))
     if len(p) < 2:
         raise ValueError("a polyline needs two distinct points")
-    return _pieces(p, degree, tolerance, max_control)
+    out: list[tuple[Spline, float]] = []
+    for piece in split_corners(p, corner) if corner > 0 else (p,):
+        out += _pieces(piece, degree, tolerance, max_control)
+    return out
+
+
+def _turns(d: np.ndarray) -> np.ndarray:
+    """The angle (radians, 0..pi) the polyline with segments ``d`` turns at each inner vertex."""
+    cross = d[:-1, 0] * d[1:, 1] - d[:-1, 1] * d[1:, 0]
+    return np.abs(np.arctan2(cross, (d[:-1] * d[1:]).sum(axis=1)))
+
+
+def split_corners(p: np.ndarray, corner: float) -> list[np.ndarray]:
+    """The polyline cut at every vertex turning by more than ``corner`` degrees
+    (pieces share the vertex)."""
+    cut = np.flatnonzero(np.degrees(_turns(np.diff(p, axis=0))) > corner) + 1
+    bounds = np.r_[0, cut, len(p) - 1]
+    return [p[a:b + 1] for a, b in zip(bounds[:-1], bounds[1:])]
 
 
 def _pieces(p: np.ndarray, degree: int, tolerance: float, max_control: int) -> list[tuple[Spline, float]]:
@@ -352,7 +374,5 @@ def _pieces(p: np.ndarray, degree: int, tolerance: float, max_control: int) -> l
     spline, err = _fit(p, degree, tolerance, cap)
     if err <= tolerance:
         return [(spline, err)]
-    cross = d[:-1, 0] * d[1:, 1] - d[:-1, 1] * d[1:, 0]
-    turn = np.abs(np.arctan2(cross, (d[:-1] * d[1:]).sum(axis=1)))
-    k = int(np.argmax(turn)) + 1
+    k = int(np.argmax(_turns(d))) + 1
     return _pieces(p[: k + 1], degree, tolerance, max_control) + _pieces(p[k:], degree, tolerance, max_control)

@@ -16,7 +16,9 @@ numbered command list. Each command is
 
 The report's machine has no separate pen command, so the pen follows the
 command type: the PLC lowers the pen (and waits its down delay) before a DRAW
-that follows a MOVE, and lifts it before a MOVE that follows a DRAW.
+that follows a MOVE, and lifts it before a MOVE that follows a DRAW. A DRAW
+after a DRAW keeps the pen down, so two strokes that meet (the pieces of a
+split outline) are written as one run of DRAWs without a MOVE between.
 
 The byte layout is documented in docs/formats.md; this module is the one
 reader and writer (the UDP transport and ``doodlecam inspect`` use it too).
@@ -152,10 +154,11 @@ def commands_array(job) -> tuple[PlcHeader, np.ndarray]:
     blocks = []
     changes = set(job.pen_changes)
     pens = job.pen_numbers if changes else ()
-    for k, s in enumerate(job.samples):
-        move = np.round(np.asarray(s.start) * spm)[None]
+    for k, (s, lift) in enumerate(zip(job.samples, job.lifts)):
+        # no MOVE before a stroke that goes on from the last one's end: the pen stays down
+        move = np.round(np.asarray(s.start) * spm)[None] if lift else np.zeros((0, 2))
         blocks.append((pens[k] if k in changes else 0, move, whole_step_targets(s.velocity, spm)))
-    n = sum(1 + len(d) for _, _, d in blocks) + len(changes) + 1
+    n = sum(len(mv) + len(d) for _, mv, d in blocks) + len(changes) + 1
     out = np.zeros(n, RECORD_DTYPE)
     xy = np.empty((n, 2))
     types = np.full(n, DRAW, dtype=np.uint16)
@@ -164,9 +167,10 @@ def commands_array(job) -> tuple[PlcHeader, np.ndarray]:
         if pen:  # a pen change before this stroke: at rest, the pen lifts, the operator fits pen `pen`
             types[i], xy[i] = PAUSE, (pen, 0)
             i += 1
-        types[i], xy[i] = MOVE, move[0]
-        xy[i + 1:i + 1 + len(draws)] = draws
-        i += 1 + len(draws)
+        if len(move):
+            types[i], xy[i] = MOVE, move[0]
+        xy[i + len(move):i + len(move) + len(draws)] = draws
+        i += len(move) + len(draws)
     types[i], xy[i] = MOVE, np.round(np.asarray(home) * spm)
     if np.abs(xy).max(initial=0) > _I32.max:
         raise OutputError("a PLC command exceeds the int32 range; check steps_per_mm and the work area in the machine profile")
@@ -191,7 +195,9 @@ def commands_from_job(job) -> tuple[PlcHeader, list[PlcCommand]]:
 
     Per stroke: a PAUSE first where the pen changes (job.pen_changes), a MOVE
     to its start (rounded to steps), then one DRAW per velocity sample
-    (steps/s); finally a MOVE home. Numbered 1..N.
+    (steps/s); finally a MOVE home. Numbered 1..N. A stroke that starts where
+    the one before ended (``job.lifts``) gets no MOVE: its DRAWs follow the
+    last ones, so the pen stays down between them.
     """
     header, arr = commands_array(job)
     return header, to_commands(arr)
