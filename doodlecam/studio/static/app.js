@@ -435,32 +435,64 @@ $("export").onclick = async () => {
   const r = await api("/api/export", { method: "POST", json: { posts: [$("post").value], folder: $("export-folder").value } });
   $("export-result").textContent = "wrote " + r.written.join(", ");
 };
-$("target").onchange = () => { $("target-host").hidden = $("target").value !== "host"; };
+const GRBL_TARGETS = ["grbl-simulator", "serial"];
+function sendTarget() {
+  const t = $("target").value;
+  return t === "host" ? $("target-host").value : t === "serial" ? "serial:" + $("target-serial").value : t;
+}
+$("target").onchange = () => {
+  const t = $("target").value;
+  $("target-host").hidden = t !== "host"; $("target-serial").hidden = t !== "serial";
+  $("machine-panel").hidden = !GRBL_TARGETS.includes(t);
+};
 
+const ACTIVE = ["sending", "pausing", "paused", "held", "stopping", "waiting"];
 let sendAgain = false; // the PLC refuses a finished job unless asked to draw it again
 function showSend(s) {
   $("send-progress").value = s.percent;
   const pos = s.position_mm ? ` at (${s.position_mm[0].toFixed(1)}, ${s.position_mm[1].toFixed(1)}) mm` : "";
-  $("send-status").textContent = s.state === "sending"
-    ? `sending: command ${s.executed} of ${s.total} (${s.percent.toFixed(1)} %), ${s.time_left_s.toFixed(1)} s left${pos}`
+  const what = s.transport === "grbl" ? `line ${s.line} (${s.executed} of ${s.total} answered)` : `command ${s.executed} of ${s.total}`;
+  const grbl = s.machine_state ? `, GRBL ${s.machine_state}` : "";
+  $("send-status").textContent = ACTIVE.includes(s.state)
+    ? `${s.state}: ${what}, ${s.percent.toFixed(1)} %, ${s.time_left_s.toFixed(1)} s left${pos}${grbl}` + (s.message ? ` — ${s.message}` : "")
     : `${s.state}${s.message ? ": " + s.message : ""}`;
   $("send-status").dataset.state = s.state;
-  $("send").disabled = s.state === "sending"; $("stop").disabled = s.state !== "sending";
+  const can = new Set(s.controls || []);
+  $("send").disabled = ACTIVE.includes(s.state); $("stop").disabled = !can.has("stop");
+  for (const b of ["pause", "hold", "resume"]) { $(b).hidden = !can.has(b); }
   sendAgain = s.state === "done" || (s.state === "failed" && /again/.test(s.message || ""));
-  $("send").textContent = s.state === "stopped" ? "Resume" : sendAgain ? "Send again" : "Send"; // the PLC holds a stopped job
+  // a stopped job resumes where it stopped (the PLC holds it; GRBL's resume record names the next line)
+  $("send").textContent = s.state === "stopped" ? "Resume" : sendAgain ? "Send again" : "Send";
 }
 function follow() {
   const es = new EventSource(withToken("/api/send/events"));
-  es.onmessage = (e) => { const s = JSON.parse(e.data); showSend(s); if (s.state !== "sending") es.close(); };
+  es.onmessage = (e) => { const s = JSON.parse(e.data); showSend(s); if (!ACTIVE.includes(s.state)) es.close(); };
   es.onerror = () => es.close();
 }
 $("send").onclick = async () => {
-  const target = $("target").value === "host" ? $("target-host").value : "simulator";
   const speed = $("send-speed").value ? Number($("send-speed").value) : null;
-  showSend(await api("/api/send", { method: "POST", json: { target, speed, again: sendAgain } }));
+  showSend(await api("/api/send", { method: "POST", json: { target: sendTarget(), speed, again: sendAgain } }));
   follow();
 };
-$("stop").onclick = async () => { showSend(await api("/api/send/stop", { method: "POST" })); };
+$("stop").onclick = async () => { showSend(await api("/api/send/control", { method: "POST", json: { action: "stop" } })); };
+for (const b of ["pause", "hold", "resume"]) {
+  $(b).onclick = async () => { showSend(await api("/api/send/control", { method: "POST", json: { action: b } })); };
+}
+
+async function machine(action, extra = {}) {
+  const r = await api("/api/machine", { method: "POST", json: { target: sendTarget(), action, ...extra } });
+  $("machine-status").textContent = (r.sent ? `sent ${r.sent}: ` : "") + r.line;
+  $("machine-status").dataset.state = r.state;
+  $("machine-settings").innerHTML = !r.settings ? "" : "<tr><th>setting</th><th>GRBL</th><th>the profile needs</th></tr>" +
+    r.settings.map((s) => `<tr class="${s.ok ? "flag-ok" : "flag-bad"}"><td>${s.key}</td><td>${s.have ?? "–"}</td><td>${s.want}</td></tr>`).join("");
+}
+for (const b of document.querySelectorAll("[data-machine]")) b.onclick = () => machine(b.dataset.machine);
+for (const b of document.querySelectorAll("[data-jog]")) {
+  b.onclick = () => {
+    const [dx, dy] = b.dataset.jog.split(",").map(Number), step = Number($("jog-step").value);
+    machine("jog", { x: dx * step, y: dy * step });
+  };
+}
 
 // ------------------------------------------------------------------ tabs
 
@@ -482,7 +514,8 @@ $("show-order").addEventListener("change", () => { S.base = null; draw(); });
   await posts();
   const st = await api("/api/state");
   $("machine").textContent = `machine ${st.machine}`;
-  if (st.send.state === "sending") { showSend(st.send); follow(); } // a send outlives its page: pick it up
+  showSend(st.send);
+  if (ACTIVE.includes(st.send.state)) follow(); // a send outlives its page: pick it up
   if (st.loaded) { await refresh(); await tracerPanel(); window.studioPerf.firstView = performance.now(); }
   else await tracerPanel();
   document.body.dataset.ready = "1";
