@@ -240,6 +240,47 @@ def test_7_send_to_the_plc_simulator(page, server):
     shot(page, "send")
 
 
+def test_7b_send_to_the_grbl_emulator_pause_resume_stop(page, server):
+    """The edited job to the built-in GRBL emulator over a real pseudo-terminal: the machine panel,
+    pause (pen lifted) and resume, completion with every line acknowledged once; a stop leaves the pen up."""
+    from grbl_received import check_received  # tests/ is on sys.path
+
+    from doodlecam.link.grbl.protocol import prepare
+
+    sender = server["app"].state.sender
+    lines = prepare(server["app"].state.session.export("gcode")[1].decode())  # the edited job
+    page.select_option("#target", "grbl-simulator")
+    assert page.is_visible("#machine-panel")
+    page.click("[data-machine=status]")
+    page.wait_for_selector("#machine-status[data-state=Idle]")
+    emu = sender._grbl.emulator
+    n0 = len(emu.received)
+    page.select_option("#send-speed", "10")
+    page.click("#send")
+    page.wait_for_function("() => /^sending: line \\d+ \\(\\d+ of \\d+ answered\\), [\\d.]+ %, [\\d.]+ s left at \\(/"
+                           ".test(document.getElementById('send-status').textContent)", timeout=30_000)
+    page.click("#pause")
+    page.wait_for_selector("#send-status[data-state=paused]", timeout=30_000)
+    assert emu.state == "Idle" and emu.modal["s"] == 0  # at rest, pen up (M3 S0)
+    assert page.is_visible("#resume") and not page.is_visible("#pause")
+    shot(page, "send-grbl")
+    page.click("#resume")
+    page.wait_for_selector("#send-status[data-state=done]", timeout=120_000)
+    assert page.evaluate("document.getElementById('send-progress').value") == 100
+    assert page.text_content("#send-status").startswith(f"done: {len(lines)} lines in ")
+    check_received(emu.received[n0:], lines)  # every line of the edited job acknowledged exactly once
+    # a second send, stopped: GRBL finishes its queued lines and the pen ends up
+    page.click("#send")
+    page.wait_for_function("() => /^sending: line/.test(document.getElementById('send-status').textContent)")
+    page.click("#stop")
+    page.wait_for_selector("#send-status[data-state=stopped]", timeout=30_000)
+    assert "with the pen up" in page.text_content("#send-status")
+    assert emu.state == "Idle" and emu.modal["s"] == 0
+    assert page.text_content("#send").strip() == "Resume"
+    page.select_option("#target", "simulator")
+    assert not page.is_visible("#machine-panel")
+
+
 def test_8_motion_page_curves_follow_a_changed_segment_law(page, server):
     shutil.copy(ROOT / "samples" / "motion" / "fuse.toml", server["folder"] / "fuse.toml")
     page.click(".tabs button[data-tab=motion]")

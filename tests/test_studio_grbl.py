@@ -15,6 +15,7 @@ from pathlib import Path
 
 import pytest
 from fastapi.testclient import TestClient
+from grbl_received import check_received  # tests/ is on sys.path
 
 from doodlecam.link.grbl.protocol import pen_up_line, prepare
 from doodlecam.link.grbl.streamer import end_positions
@@ -25,8 +26,6 @@ from doodlecam.studio.session import Session
 
 ROOT = Path(__file__).resolve().parents[1]
 PICTURE = ROOT / "samples" / "images" / "coins.png"
-# lines the streamer adds to pause and resume (pen commands, the resume prefix): nothing else may reach GRBL
-ADDED = re.compile(r"M3S0|M3S1000|G21G90G94G17|G0X[-\d.]+Y[-\d.]+|G4P[\d.]+|F[\d.]+")
 
 
 @pytest.fixture(scope="module")
@@ -139,16 +138,8 @@ def test_grbl_send_pause_hold_stop_resume_every_line_once(studio):
     assert s["executed"] == s["total"] == len(lines)
 
     # what GRBL received: every line of the file exactly once, in order, plus only pause/resume lines
-    got = emu.received[n0:]
-    j, extra = 0, []
-    for text in got:
-        if j < len(lines) and text == lines[j].text:
-            j += 1
-        else:
-            extra.append(text)
-    assert j == len(lines), f"GRBL got lines up to {j} of {len(lines)}"
-    assert all(ADDED.fullmatch(t) for t in extra), extra
-    assert len(extra) <= 12 and len(got) == len(lines) + len(extra)
+    extra = check_received(emu.received[n0:], lines)
+    assert len(extra) <= 12  # one pen-up per pause and stop, one resume prefix each
     assert emu.state == "Idle" and not pen_down(emu)
 
 
@@ -191,3 +182,39 @@ def test_machine_panel_on_the_emulator(studio):
     assert "x must be a number" in one_line(studio.post("/api/machine", json={"action": "jog", "x": "far", "y": 1}))
     act("zero", x=0, y=0)
     act("jog", x=0, y=0, absolute=True)
+
+
+def test_grbl_pause_at_a_stroke_boundary_and_restart(studio):
+    """A pause asked for as a stroke ends: the pen is up at rest, lifted by the sender only if the
+    lines GRBL still had lowered it again (no redundant pen command); restart starts at line 1."""
+    sender = studio.app.state.sender
+    lines = prepare(studio.get("/api/export/gcode").content.decode())
+    first, last = longest_stroke(lines)
+    assert lines[last + 1].text == "M3S0"  # the stroke's own pen-up line
+    assert studio.post("/api/send", json={"target": "grbl-simulator", "speed": 4}).status_code == 200
+    emu = sender._grbl.emulator
+    n0 = len(emu.received)
+    wait(sender, lambda s: s["executed"] >= last + 2)  # GRBL answered the pen-up line: the stroke has run
+    control(studio, "pause")
+    s = wait(sender, lambda s: s["state"] == "paused", 30)
+    k = s["executed"]
+    got = emu.received[n0:]
+    file_pens = [ln.text for ln in lines[:k] if ln.text in ("M3S0", "M3S1000")]
+    if file_pens[-1] == "M3S1000":  # GRBL's queue reached into the next stroke: the sender lifted the pen
+        assert got[-1] == "M3S0" and len(got) == k + 1
+    else:  # stopped in the travel, the pen already up: nothing added
+        assert got[-1] == lines[k - 1].text and len(got) == k
+    assert emu.state == "Idle" and not pen_down(emu)
+    # stop while paused: stays up, and the record says where to resume
+    control(studio, "stop")
+    s = wait(sender, lambda s: s["state"] not in ("paused", "stopping"), 30)
+    assert s["state"] == "stopped" and f"job.gcode:{lines[k].lineno}" in s["message"], s
+    assert not pen_down(emu)
+    # restart: from the first line of the file, not from the resume point
+    n1 = len(emu.received)
+    assert studio.post("/api/send", json={"target": "grbl-simulator", "speed": 4, "restart": True}).status_code == 200
+    wait(sender, lambda s: s["executed"] >= 5)
+    control(studio, "stop")
+    s = wait(sender, lambda s: s["state"] not in ("sending", "stopping"), 30)
+    assert s["state"] == "stopped" and emu.received[n1:n1 + 3] == [ln.text for ln in lines[:3]]
+    assert not pen_down(emu) and emu.state == "Idle"
