@@ -159,6 +159,29 @@ def test_move_control_point_replans_only_that_stroke(loaded, tmp_path):
     assert "nothing to undo" in one_line(loaded.post("/api/undo"))
 
 
+def test_edit_with_a_patch_reply_equals_the_whole_view(loaded):
+    """The page's re-plan after a drag asks for reply=patch: the changed stroke, travels, summary and
+    figures in one answer, equal to what /api/view and /api/stroke answer afterwards."""
+    view = loaded.get("/api/view").json()
+    k = len(view["strokes"]) // 2
+    control = np.array(view["strokes"][k]["control"])
+    control[len(control) // 2] += [0.5, 0.25]
+    r = loaded.post("/api/edit", json={"op": "move", "stroke": k, "control": control.tolist(), "reply": "patch"})
+    assert r.status_code == 200, r.text
+    p = r.json()
+    new = loaded.get("/api/view").json()
+    assert [s["i"] for s in p["strokes"]] == [k] and p["strokes"][0] == new["strokes"][k]
+    assert p["strokes"][0] != view["strokes"][k]
+    assert p["travels"] == new["travels"] and p["summary"] == new["summary"]
+    assert p["figures"] == loaded.get(f"/api/stroke/{k}").json()
+    # an edit that changes the number of strokes answers the summary: the page fetches the whole view
+    r = loaded.post("/api/edit", json={"op": "split", "stroke": k, "point": len(control) // 2, "reply": "patch"})
+    assert r.status_code == 200 and "strokes" in r.json() and isinstance(r.json()["strokes"], int)
+    for _ in range(2):
+        loaded.post("/api/undo")
+    assert loaded.get("/api/view").json() == view
+
+
 def test_structure_edits_and_their_errors(loaded):
     s0 = loaded.get("/api/state").json()["summary"]
     view = loaded.get("/api/view").json()

@@ -195,11 +195,19 @@ def create_app(session: Session, config: StudioConfig | None = None) -> FastAPI:
         doc = await payload(request)
         op = doc.pop("op", None)
         i = doc.pop("stroke", None)
+        patch = doc.pop("reply", None) == "patch"
         allowed = {"control", "point", "to"}
         extra = set(doc) - allowed
         if extra:
-            raise InputError(f"unknown edit field '{sorted(extra)[0]}'; use op, stroke, control, point, to")
-        return await run_in_threadpool(lambda: session.edit(str(op), i, **doc))
+            raise InputError(f"unknown edit field '{sorted(extra)[0]}'; use op, stroke, control, point, to, reply")
+
+        def run():
+            with session.lock:  # the edit and what it changed, with no other request in between
+                summary = session.edit(str(op), i, **doc)
+                # reply=patch: what changed, in the same answer (the page's re-plan after a drag)
+                return _json(session.patch() if patch and session.last_changed else summary)
+
+        return await run_in_threadpool(run)
 
     @app.post("/api/undo")
     def undo():

@@ -152,6 +152,15 @@ async function refresh() {
   document.body.dataset.strokes = S.view.strokes.length;
 }
 
+async function applyPatch(p) {
+  for (const st of p.strokes) S.view.strokes[st.i] = st;
+  S.view.travels = p.travels; S.view.summary = p.summary;
+  summary(p.summary);
+  S.timeline = null; S.base = null;
+  draw();
+  if (S.selected >= 0) await figures(S.selected === p.figures.i ? p.figures : null);
+}
+
 async function figures(fetched) {
   const i = S.selected;
   $("sel-index").textContent = i >= 0 ? `${i + 1} of ${S.view.strokes.length}` : "–";
@@ -225,9 +234,10 @@ window.addEventListener("mouseup", async (e) => {
     if (!d.moved) { S.drag = null; return; }
     const t0 = performance.now();
     try {
-      await api("/api/edit", { method: "POST", json: { op: "move", stroke: S.selected, control: d.control } });
+      // one request: the edit answers with what it changed (the stroke, travels, summary, figures)
+      const r = await api("/api/edit", { method: "POST", json: { op: "move", stroke: S.selected, control: d.control, reply: "patch" } });
       S.drag = null;
-      await refresh();
+      if (r.strokes) await applyPatch(r); else await refresh();
       window.studioPerf.replan.push(performance.now() - t0);
     } catch (err) { S.drag = null; draw(); }
     return;
