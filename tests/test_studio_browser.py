@@ -309,6 +309,48 @@ def test_8_motion_page_curves_follow_a_changed_segment_law(page, server):
     shot(page, "motion")
 
 
+def test_8b_motion_page_animates_a_theta_axis(page, server):
+    """A design with X, Y and a Θ axis (samples/motion/turn.toml): the tool is drawn at (x, y) turned by Θ."""
+    shutil.copy(ROOT / "samples" / "motion" / "turn.toml", server["folder"] / "turn.toml")
+    page.evaluate("window.studioMotion && (studioMotion.opened = false)")  # list the folder again (it shows the first design)
+    version = page.evaluate("Number(document.body.dataset.motionVersion || 0)")
+    page.click(".tabs button[data-tab=paper]")
+    page.click(".tabs button[data-tab=motion]")
+    page.wait_for_function(f"Number(document.body.dataset.motionVersion) > {version}", timeout=30_000)
+    page.select_option("#motion-sample", "turn.toml")
+    page.wait_for_function("studioMotion.name === 'turn.toml'", timeout=30_000)
+    r = page.evaluate("studioMotion.result")
+    assert r["units"] == {"x": "mm", "y": "mm", "theta": "deg"}
+    page.click("#m-play")
+    samples = []
+    for _ in range(40):  # the effector as the page draws it, against the solved curves
+        e = page.evaluate("studioMotion.effector")
+        if e and "theta" in e:
+            samples.append(e)
+        if page.text_content("#m-time").startswith("1.000 /"):
+            break
+        time.sleep(0.03)
+    page.wait_for_function("document.getElementById('m-time').textContent.startsWith('1.000 /')", timeout=30_000)
+    e = page.evaluate("studioMotion.effector")
+    assert (e["x"], e["y"], e["theta"]) == pytest.approx((80.0, 0.0, 90.0), abs=1e-6)
+    t = np.array(r["t"])
+    moving = [s for s in samples if 0.25 < s["t"] < 0.75]
+    assert moving, samples
+    for s in samples:
+        for axis in ("x", "y", "theta"):
+            assert s[axis] == pytest.approx(float(np.interp(s["t"], t, r["axes"][axis][0])), abs=1e-6)
+    # the tool at 90 degrees stands upright: red above and below its centre, not beside it, and the
+    # white tick of its leading end above (Θ counter-clockwise from +X)
+    cx, cy = e["screen"]
+    colour = page.evaluate("""([x, y]) => { const c = document.getElementById('m-anim'), d = window.devicePixelRatio || 1;
+        const at = (u, v) => c.getContext('2d').getImageData(Math.round(u * d), Math.round(v * d), 1, 1).data;
+        return [[x, y - 10], [x, y + 10], [x + 10, y], [x - 10, y], [x, y - 17], [x, y + 17]].map(([u, v]) => {
+            const p = at(u, v); return p[3] < 128 ? "none" : p[0] > 180 && p[1] < 80 ? "red" : p[1] > 200 ? "white" : "other"; });
+    }""", [cx, cy])
+    assert colour[:4] == ["red", "red", "none", "none"] and colour[4:] == ["white", "red"], colour
+    shot(page, "motion-theta")
+
+
 def segment_flags(result) -> list[str]:
     """Per segment number, the findings of both axes as the page writes them ("envelope, meander" or "ok")."""
     numbers = sorted({s["number"] for s in result["segments"]})

@@ -12,6 +12,7 @@ from __future__ import annotations
 import asyncio
 import json
 import secrets
+import time
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -58,6 +59,16 @@ def _json(doc: Any) -> Response:
     """A large JSON answer (views, figures, timelines): json.dumps at C speed instead of
     FastAPI's per-value encoder, which costs tens of ms on a job's thousands of points."""
     return Response(json.dumps(doc, separators=(",", ":")), media_type="application/json")
+
+
+def _run_queue_wait() -> float | None:
+    """Seconds this thread has spent runnable but waiting for a CPU (Linux schedstat), else None.
+    Wall time minus CPU time minus this is time spent asleep (a lock, the GIL, I/O)."""
+    try:
+        with open("/proc/thread-self/schedstat", "rb") as f:
+            return int(f.read().split()[1]) / 1e9
+    except (OSError, ValueError, IndexError):
+        return None
 
 
 def _error(status: int, message: str) -> JSONResponse:
@@ -202,10 +213,21 @@ def create_app(session: Session, config: StudioConfig | None = None) -> FastAPI:
             raise InputError(f"unknown edit field '{sorted(extra)[0]}'; use op, stroke, control, point, to, reply")
 
         def run():
+            w0, c0, q0 = time.perf_counter(), time.thread_time(), _run_queue_wait()
             with session.lock:  # the edit and what it changed, with no other request in between
+                w1 = time.perf_counter()
                 summary = session.edit(str(op), i, **doc)
                 # reply=patch: what changed, in the same answer (the page's re-plan after a drag)
-                return _json(session.patch() if patch and session.last_changed else summary)
+                r = _json(session.patch() if patch and session.last_changed else summary)
+            # where the time went, for the page's (and the benchmark's) measurements: waiting for the
+            # session, wall and CPU time of this thread, and its time runnable but waiting for a core
+            timing = (f"lock;dur={(w1 - w0) * 1e3:.1f}, edit;dur={(time.perf_counter() - w1) * 1e3:.1f}, "
+                      f"cpu;dur={(time.thread_time() - c0) * 1e3:.1f}")
+            q1 = _run_queue_wait()
+            if q0 is not None and q1 is not None:
+                timing += f", runqueue;dur={(q1 - q0) * 1e3:.1f}"
+            r.headers["Server-Timing"] = timing
+            return r
 
         return await run_in_threadpool(run)
 

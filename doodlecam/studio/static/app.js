@@ -41,7 +41,7 @@ const S = {
   sim: { t: 0, playing: false, last: 0 },
 };
 window.studio = S; // for tests and the benchmark
-window.studioPerf = { moves: [], frames: [], replan: [], firstView: null };
+window.studioPerf = { moves: [], frames: [], replan: [], replanParts: [], firstView: null };
 
 // ------------------------------------------------------------------ drawing
 
@@ -236,9 +236,17 @@ window.addEventListener("mouseup", async (e) => {
     try {
       // one request: the edit answers with what it changed (the stroke, travels, summary, figures)
       const r = await api("/api/edit", { method: "POST", json: { op: "move", stroke: S.selected, control: d.control, reply: "patch" } });
+      const t1 = performance.now();
       S.drag = null;
       if (r.strokes) await applyPatch(r); else await refresh();
-      window.studioPerf.replan.push(performance.now() - t0);
+      const t2 = performance.now();
+      window.studioPerf.replan.push(t2 - t0);
+      // where the time went: the request (server parts from its Server-Timing header) and the page's redraw
+      const e = performance.getEntriesByType("resource").filter((x) => x.name.includes("/api/edit")).pop();
+      const server = Object.fromEntries((e && e.serverTiming || []).map((x) => [x.name, x.duration]));
+      window.studioPerf.replanParts.push({ request: t1 - t0, page: t2 - t1, ...server,
+        ttfb: e ? e.responseStart - e.requestStart : null, bytes: e ? e.encodedBodySize : null });
+      performance.clearResourceTimings(); // the buffer holds 250 entries: keep room for the next one
     } catch (err) { S.drag = null; draw(); }
     return;
   }
