@@ -218,3 +218,25 @@ def test_grbl_pause_at_a_stroke_boundary_and_restart(studio):
     s = wait(sender, lambda s: s["state"] not in ("sending", "stopping"), 30)
     assert s["state"] == "stopped" and emu.received[n1:n1 + 3] == [ln.text for ln in lines[:3]]
     assert not pen_down(emu) and emu.state == "Idle"
+
+
+def test_closing_the_studio_during_a_grbl_send_stops_with_the_pen_up(tmp_path):
+    """Ctrl-C of the studio (its shutdown) during a GRBL send: stopped as Stop does, pen up, not cut off
+    mid-stroke with the pen down; the page being closed does not stop it (the send belongs to the server)."""
+    session = Session(Settings(machine=load_machine("doodlebot")))
+    app = create_app(session, StudioConfig(token="tok", folders=(tmp_path,)))
+    c = TestClient(app, headers={"x-doodlecam-token": "tok"})
+    assert c.post("/api/load?name=coins.png", content=PICTURE.read_bytes()).status_code == 200
+    sender = app.state.sender
+    assert c.post("/api/send", json={"target": "grbl-simulator", "speed": 4}).status_code == 200
+    with c.stream("GET", "/api/send/events") as ev:  # a page follows, then goes away
+        assert '"state": "sending"' in next(ev.iter_lines())
+    emu = sender._grbl.emulator
+    s = wait(sender, lambda s: s["executed"] >= 300)
+    assert s["state"] == "sending"
+    emu_stop, seen = emu.stop, {}
+    emu.stop = lambda: (seen.update(state=emu.state, down=pen_down(emu), thread=sender.busy), emu_stop())
+    sender.close()
+    assert seen == {"state": "Idle", "down": False, "thread": False}
+    s = sender.snapshot()[1]
+    assert s["state"] == "stopped" and "pen up" in s["message"], s

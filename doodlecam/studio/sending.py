@@ -299,8 +299,17 @@ class Sender:
             self._sim.stop()
             self._sim = None
 
-    def close(self) -> None:
-        """Stop the built-in simulators (at server shutdown)."""
+    def close(self, timeout: float = 30.0) -> None:
+        """At server shutdown (Ctrl-C): a GRBL send stops as Stop does (GRBL finishes the lines it has,
+        the pen is lifted, the resume record kept) before the process ends; then the built-in
+        simulators stop."""
+        thread = self._thread
+        if thread is not None and self.busy and self.s.transport == "grbl":
+            try:
+                self.control("stop")
+            except InputError:  # already stopping
+                pass
+            thread.join(timeout)
         self._close_plc_sim()
         self._grbl.close()
 

@@ -327,8 +327,12 @@ class Session:
 
     @staticmethod
     def _view_travels(job: Job) -> list:
-        return [[*np.round(t.start, 3).tolist(), *np.round(t.end, 3).tolist(), round(t.duration, 4)]
-                for t in job.travels]
+        """[x0, y0, x1, y1, duration] per travel (mm, s), rounded as the strokes are."""
+        if not job.travels:
+            return []
+        a = np.array([[*t.start, *t.end, t.duration] for t in job.travels], float)
+        a[:, :4], a[:, 4] = np.round(a[:, :4], 3), np.round(a[:, 4], 4)
+        return a.tolist()
 
     def patch(self) -> dict:
         """What the last edit changed, for a page that has the view: the re-planned strokes' entries,

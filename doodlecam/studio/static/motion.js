@@ -154,8 +154,8 @@ function animate() {
     M.effector = { t: s - t[0] };
     if (xy) {
       const X = r.axes.x[0], Y = r.axes.y[0], [x0, x1] = range(X), [y0, y1] = range(Y);
-      const k = Math.min((W - 60) / Math.max(x1 - x0, 1e-9), (H - 60) / Math.max(y1 - y0, 1e-9));
-      const px = (x) => 30 + (x - x0) * k, py = (y) => H - 30 - (y - y0) * k;
+      const k = Math.min((W - 80) / Math.max(x1 - x0, 1e-9), (H - 80) / Math.max(y1 - y0, 1e-9)); // room for the tool
+      const px = (x) => 40 + (x - x0) * k, py = (y) => H - 40 - (y - y0) * k;
       g.strokeStyle = "#999"; g.beginPath(); X.forEach((x, i) => i ? g.lineTo(px(x), py(Y[i])) : g.moveTo(px(x), py(Y[i]))); g.stroke();
       const x = at(X, s), y = at(Y, s);
       M.effector.x = x; M.effector.y = y; M.effector.screen = [px(x), py(y)];
