@@ -31,7 +31,8 @@ from doodlecam.studio.grbl import GrblTargets, time_left, work_position
 # States in which a send is under way (the event stream follows them); "waiting" is for a job that
 # waits for the operator (a pen change), left by ``continue``.
 ACTIVE = ("sending", "pausing", "paused", "held", "stopping", "waiting")
-# What each state lets the page do (GRBL; the PLC has only stop): the buttons it shows.
+# What each state lets the page do (GRBL; the PLC has only stop): the buttons it shows. A job waiting
+# for the operator (a pen change, G-code M0) gets "continue" here once the streamer takes it.
 GRBL_CONTROLS = {"sending": ("pause", "hold", "stop", "feed+", "feed-", "feed="), "pausing": ("stop",),
                  "paused": ("resume", "stop"), "held": ("resume", "stop"), "stopping": (), "waiting": ("stop",)}
 
@@ -192,8 +193,12 @@ class Sender:
         from doodlecam.link.session import state_file_for
 
         self._check_start(speed)
-        text = gcode.decode("ascii")
-        lines = prepare(text, "studio.gcode")
+        try:
+            text = gcode.decode("ascii")
+        except UnicodeDecodeError:
+            raise InputError("the job's G-code is not ASCII, which GRBL reads only; check the gcode post's "
+                             "pen_up / pen_down options") from None
+        lines = prepare(text, "job.gcode")
         if not lines:
             raise InputError("the job's G-code has no lines to send")
         left = time_left(text, lines, machine)

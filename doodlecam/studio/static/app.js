@@ -477,7 +477,7 @@ function showSend(s) {
   $("send-status").dataset.state = s.state;
   const can = new Set(s.controls || []);
   $("send").disabled = ACTIVE.includes(s.state); $("stop").disabled = !can.has("stop");
-  for (const b of ["pause", "hold", "resume"]) { $(b).hidden = !can.has(b); }
+  for (const b of ["pause", "hold", "resume", "continue"]) { $(b).hidden = !can.has(b); }
   sendAgain = s.state === "done" || (s.state === "failed" && /again/.test(s.message || ""));
   // a stopped job resumes where it stopped (the PLC holds it; GRBL's resume record names the next line)
   $("send").textContent = s.state === "stopped" ? "Resume" : sendAgain ? "Send again" : "Send";
@@ -493,7 +493,7 @@ $("send").onclick = async () => {
   follow();
 };
 $("stop").onclick = async () => { showSend(await api("/api/send/control", { method: "POST", json: { action: "stop" } })); };
-for (const b of ["pause", "hold", "resume"]) {
+for (const b of ["pause", "hold", "resume", "continue"]) { // continue: a job waiting for the operator (state "waiting")
   $(b).onclick = async () => { showSend(await api("/api/send/control", { method: "POST", json: { action: b } })); };
 }
 
