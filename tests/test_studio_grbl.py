@@ -9,6 +9,7 @@ ends with the pen up, and sending again resumes after the last line.
 
 from __future__ import annotations
 
+import math
 import re
 import time
 from pathlib import Path
@@ -240,3 +241,36 @@ def test_closing_the_studio_during_a_grbl_send_stops_with_the_pen_up(tmp_path):
     assert seen == {"state": "Idle", "down": False, "thread": False}
     s = sender.snapshot()[1]
     assert s["state"] == "stopped" and "pen up" in s["message"], s
+
+
+def test_grbl_hold_during_a_travel_keeps_the_pen_up(studio):
+    """A feed hold at a stroke boundary (during the pen-up travel to the next stroke): GRBL stands still
+    on the travel with the pen up. GRBL runs a pen command only with its planner empty, so the pen's
+    state while a travel runs is the last pen command received before that travel."""
+    sender = studio.app.state.sender
+    assert studio.post("/api/send", json={"target": "grbl-simulator", "speed": 1, "restart": True}).status_code == 200
+    emu = sender._grbl.emulator
+    end = time.monotonic() + 40
+    while time.monotonic() < end:  # a travel of 30 mm or more running, less than a third done
+        head = emu.planner[0] if emu.planner else None
+        if head is not None and head.rapid and math.dist(head.start, head.end) > 30 and emu.block_t < 0.3 * head.duration:
+            break
+        time.sleep(0.001)
+    else:
+        raise AssertionError("no travel seen")
+    control(studio, "hold")
+    wait(sender, lambda s: s["machine_state"].startswith("Hold") or emu.state == "Hold", 10)
+    time.sleep(0.3)
+    p1 = list(emu.pos)
+    time.sleep(0.3)
+    assert emu.state == "Hold" and emu.pos == p1
+    travel = emu.planner[0]
+    assert travel.rapid and 0 < math.dist(travel.start[:2], p1[:2]) < math.dist(travel.start[:2], travel.end[:2])
+    before = emu.received[:travel.line - 1]
+    pens = [t for t in before if t in ("M3S0", "M3S1000")]
+    assert pens and pens[-1] == "M3S0"  # the pen is up while the travel stands held
+    control(studio, "resume")
+    wait(sender, lambda s: s["executed"] >= 20)
+    control(studio, "stop")
+    s = wait(sender, lambda s: s["state"] not in ("sending", "stopping"), 30)
+    assert s["state"] == "stopped" and emu.state == "Idle" and not pen_down(emu)
