@@ -7,8 +7,11 @@
 2. Dragging a control point of the stroke with the number of control points nearest 100:
    script time per mousemove event (the page's handler: B-spline evaluation + redraw), in the page.
 3. Re-planning the dragged stroke and updating the figures: mouse release until the page
-   shows the new plan (wall), this process's CPU time meanwhile (server and Playwright's client),
-   and the CPU time of the same requests (edit, view, figures) through the API without a browser.
+   shows the new plan (wall, median of 10), this process's CPU time meanwhile (server and Playwright's
+   client), and its parts: the request (the edit answers with what changed: one request), the server's
+   wall and thread CPU time for it and its time runnable but waiting for a core (its Server-Timing
+   header, from Linux schedstat), the page's redraw; and the CPU time of
+   the same request through the API without a browser.
 4. Simulation playback of the whole job: frame intervals and script time per frame.
 
 Wall times depend on the load of the machine (2 shared cores here); the server's CPU time does not.
@@ -106,7 +109,24 @@ def run_once(p) -> dict:
         page.mouse.up()
         page.wait_for_function(f"studioPerf.replan.length > 0 && document.body.dataset.jobTime !== '{before}'")
         out["replan_cpu_s"] = time.process_time() - c0
-        out["replan_page_ms"] = page.evaluate("studioPerf.replan[studioPerf.replan.length - 1]")
+        # nine more drags and releases of the same point: medians of the re-plan and its parts
+        for r in range(9):
+            n_before = page.evaluate("studioPerf.replan.length")
+            c = page.evaluate(f"studio.view.strokes[{k}].control[{n // 2}]")
+            x, y = page.evaluate(f"studioScreen({c[0]}, {c[1]})")
+            page.mouse.move(box["x"] + x, box["y"] + y)
+            page.mouse.down()
+            for i in range(1, 6):
+                page.mouse.move(box["x"] + x + i * 0.4 * (-1) ** r, box["y"] + y + i * 0.2)
+            page.mouse.up()
+            page.wait_for_function(f"studioPerf.replan.length > {n_before}")
+        out["replan_page_ms"] = statistics.median(page.evaluate("studioPerf.replan"))
+        parts = page.evaluate("studioPerf.replanParts")
+        for key, name in (("request", "replan_request_ms"), ("lock", "replan_server_lock_wait_ms"),
+                          ("edit", "replan_server_wall_ms"), ("cpu", "replan_server_thread_cpu_ms"),
+                          ("runqueue", "replan_server_waiting_for_a_core_ms"),
+                          ("page", "replan_page_redraw_ms"), ("bytes", "replan_answer_bytes")):
+            out[name] = statistics.median(p[key] for p in parts)
 
         # 4. simulation of the whole job at 16x
         page.select_option("#sim-speed", "16")
@@ -140,9 +160,7 @@ def replan_api_cpu(session, n: int = 10) -> float:
     c0 = time.process_time()
     for _ in range(n):
         control[len(control) // 2] += 0.3
-        c.post("/api/edit", json={"op": "move", "stroke": k, "control": control.tolist()})
-        c.get("/api/view")
-        c.get(f"/api/stroke/{k}")
+        c.post("/api/edit", json={"op": "move", "stroke": k, "control": control.tolist(), "reply": "patch"})
     return (time.process_time() - c0) / n
 
 

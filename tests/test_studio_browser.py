@@ -240,6 +240,47 @@ def test_7_send_to_the_plc_simulator(page, server):
     shot(page, "send")
 
 
+def test_7b_send_to_the_grbl_emulator_pause_resume_stop(page, server):
+    """The edited job to the built-in GRBL emulator over a real pseudo-terminal: the machine panel,
+    pause (pen lifted) and resume, completion with every line acknowledged once; a stop leaves the pen up."""
+    from grbl_received import check_received  # tests/ is on sys.path
+
+    from doodlecam.link.grbl.protocol import prepare
+
+    sender = server["app"].state.sender
+    lines = prepare(server["app"].state.session.export("gcode")[1].decode())  # the edited job
+    page.select_option("#target", "grbl-simulator")
+    assert page.is_visible("#machine-panel")
+    page.click("[data-machine=status]")
+    page.wait_for_selector("#machine-status[data-state=Idle]")
+    emu = sender._grbl.emulator
+    n0 = len(emu.received)
+    page.select_option("#send-speed", "10")
+    page.click("#send")
+    page.wait_for_function("() => /^sending: line \\d+ \\(\\d+ of \\d+ answered\\), [\\d.]+ %, [\\d.]+ s left at \\(/"
+                           ".test(document.getElementById('send-status').textContent)", timeout=30_000)
+    page.click("#pause")
+    page.wait_for_selector("#send-status[data-state=paused]", timeout=30_000)
+    assert emu.state == "Idle" and emu.modal["s"] == 0  # at rest, pen up (M3 S0)
+    assert page.is_visible("#resume") and not page.is_visible("#pause")
+    shot(page, "send-grbl")
+    page.click("#resume")
+    page.wait_for_selector("#send-status[data-state=done]", timeout=120_000)
+    assert page.evaluate("document.getElementById('send-progress').value") == 100
+    assert page.text_content("#send-status").startswith(f"done: {len(lines)} lines in ")
+    check_received(emu.received[n0:], lines)  # every line of the edited job acknowledged exactly once
+    # a second send, stopped: GRBL finishes its queued lines and the pen ends up
+    page.click("#send")
+    page.wait_for_function("() => /^sending: line/.test(document.getElementById('send-status').textContent)")
+    page.click("#stop")
+    page.wait_for_selector("#send-status[data-state=stopped]", timeout=30_000)
+    assert "with the pen up" in page.text_content("#send-status")
+    assert emu.state == "Idle" and emu.modal["s"] == 0
+    assert page.text_content("#send").strip() == "Resume"
+    page.select_option("#target", "simulator")
+    assert not page.is_visible("#machine-panel")
+
+
 def test_8_motion_page_curves_follow_a_changed_segment_law(page, server):
     shutil.copy(ROOT / "samples" / "motion" / "fuse.toml", server["folder"] / "fuse.toml")
     page.click(".tabs button[data-tab=motion]")
@@ -266,6 +307,48 @@ def test_8_motion_page_curves_follow_a_changed_segment_law(page, server):
     page.wait_for_function("document.getElementById('m-time').textContent.startsWith('0.666 /')", timeout=30_000)
     assert page.evaluate("studioMotion.frames") > 10
     shot(page, "motion")
+
+
+def test_8b_motion_page_animates_a_theta_axis(page, server):
+    """A design with X, Y and a Θ axis (samples/motion/turn.toml): the tool is drawn at (x, y) turned by Θ."""
+    shutil.copy(ROOT / "samples" / "motion" / "turn.toml", server["folder"] / "turn.toml")
+    page.evaluate("window.studioMotion && (studioMotion.opened = false)")  # list the folder again (it shows the first design)
+    version = page.evaluate("Number(document.body.dataset.motionVersion || 0)")
+    page.click(".tabs button[data-tab=paper]")
+    page.click(".tabs button[data-tab=motion]")
+    page.wait_for_function(f"Number(document.body.dataset.motionVersion) > {version}", timeout=30_000)
+    page.select_option("#motion-sample", "turn.toml")
+    page.wait_for_function("studioMotion.name === 'turn.toml'", timeout=30_000)
+    r = page.evaluate("studioMotion.result")
+    assert r["units"] == {"x": "mm", "y": "mm", "theta": "deg"}
+    page.click("#m-play")
+    samples = []
+    for _ in range(40):  # the effector as the page draws it, against the solved curves
+        e = page.evaluate("studioMotion.effector")
+        if e and "theta" in e:
+            samples.append(e)
+        if page.text_content("#m-time").startswith("1.000 /"):
+            break
+        time.sleep(0.03)
+    page.wait_for_function("document.getElementById('m-time').textContent.startsWith('1.000 /')", timeout=30_000)
+    e = page.evaluate("studioMotion.effector")
+    assert (e["x"], e["y"], e["theta"]) == pytest.approx((80.0, 0.0, 90.0), abs=1e-6)
+    t = np.array(r["t"])
+    moving = [s for s in samples if 0.25 < s["t"] < 0.75]
+    assert moving, samples
+    for s in samples:
+        for axis in ("x", "y", "theta"):
+            assert s[axis] == pytest.approx(float(np.interp(s["t"], t, r["axes"][axis][0])), abs=1e-6)
+    # the tool at 90 degrees stands upright: red above and below its centre, not beside it, and the
+    # white tick of its leading end above (Θ counter-clockwise from +X)
+    cx, cy = e["screen"]
+    colour = page.evaluate("""([x, y]) => { const c = document.getElementById('m-anim'), d = window.devicePixelRatio || 1;
+        const at = (u, v) => c.getContext('2d').getImageData(Math.round(u * d), Math.round(v * d), 1, 1).data;
+        return [[x, y - 10], [x, y + 10], [x + 10, y], [x - 10, y], [x, y - 17], [x, y + 17]].map(([u, v]) => {
+            const p = at(u, v); return p[3] < 128 ? "none" : p[0] > 180 && p[1] < 80 ? "red" : p[1] > 200 ? "white" : "other"; });
+    }""", [cx, cy])
+    assert colour[:4] == ["red", "red", "none", "none"] and colour[4:] == ["white", "red"], colour
+    shot(page, "motion-theta")
 
 
 def segment_flags(result) -> list[str]:

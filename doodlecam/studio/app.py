@@ -12,6 +12,7 @@ from __future__ import annotations
 import asyncio
 import json
 import secrets
+import time
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -23,7 +24,8 @@ from fastapi.staticfiles import StaticFiles
 
 from doodlecam.errors import DoodleError, InputError, OutputError
 from doodlecam.studio import motion as studio_motion
-from doodlecam.studio.sending import Sender
+from doodlecam.studio import grbl as studio_grbl
+from doodlecam.studio.sending import ACTIVE, Sender
 from doodlecam.studio.session import Session
 
 STATIC = Path(__file__).parent / "static"
@@ -59,6 +61,16 @@ def _json(doc: Any) -> Response:
     return Response(json.dumps(doc, separators=(",", ":")), media_type="application/json")
 
 
+def _run_queue_wait() -> float | None:
+    """Seconds this thread has spent runnable but waiting for a CPU (Linux schedstat), else None.
+    Wall time minus CPU time minus this is time spent asleep (a lock, the GIL, I/O)."""
+    try:
+        with open("/proc/thread-self/schedstat", "rb") as f:
+            return int(f.read().split()[1]) / 1e9
+    except (OSError, ValueError, IndexError):
+        return None
+
+
 def _error(status: int, message: str) -> JSONResponse:
     return JSONResponse({"error": message}, status_code=status)
 
@@ -74,7 +86,7 @@ def create_app(session: Session, config: StudioConfig | None = None) -> FastAPI:
     @app.middleware("http")
     async def guard(request: Request, call_next):
         path = request.url.path
-        sending = path.startswith("/api/send") and request.method == "POST"
+        sending = (path.startswith("/api/send") and request.method == "POST") or path.startswith("/api/machine")
         if path.startswith("/api/") and (config.require_token or sending):
             given = request.headers.get(TOKEN_HEADER) or request.query_params.get("token") or ""
             if not secrets.compare_digest(given.encode(), config.token.encode()):
@@ -194,11 +206,30 @@ def create_app(session: Session, config: StudioConfig | None = None) -> FastAPI:
         doc = await payload(request)
         op = doc.pop("op", None)
         i = doc.pop("stroke", None)
+        patch = doc.pop("reply", None) == "patch"
         allowed = {"control", "point", "to"}
         extra = set(doc) - allowed
         if extra:
-            raise InputError(f"unknown edit field '{sorted(extra)[0]}'; use op, stroke, control, point, to")
-        return await run_in_threadpool(lambda: session.edit(str(op), i, **doc))
+            raise InputError(f"unknown edit field '{sorted(extra)[0]}'; use op, stroke, control, point, to, reply")
+
+        def run():
+            w0, c0, q0 = time.perf_counter(), time.thread_time(), _run_queue_wait()
+            with session.lock:  # the edit and what it changed, with no other request in between
+                w1 = time.perf_counter()
+                summary = session.edit(str(op), i, **doc)
+                # reply=patch: what changed, in the same answer (the page's re-plan after a drag)
+                r = _json(session.patch() if patch and session.last_changed else summary)
+            # where the time went, for the page's (and the benchmark's) measurements: waiting for the
+            # session, wall and CPU time of this thread, and its time runnable but waiting for a core
+            timing = (f"lock;dur={(w1 - w0) * 1e3:.1f}, edit;dur={(time.perf_counter() - w1) * 1e3:.1f}, "
+                      f"cpu;dur={(time.thread_time() - c0) * 1e3:.1f}")
+            q1 = _run_queue_wait()
+            if q0 is not None and q1 is not None:
+                timing += f", runqueue;dur={(q1 - q0) * 1e3:.1f}"
+            r.headers["Server-Timing"] = timing
+            return r
+
+        return await run_in_threadpool(run)
 
     @app.post("/api/undo")
     def undo():
@@ -289,9 +320,14 @@ def create_app(session: Session, config: StudioConfig | None = None) -> FastAPI:
         doc = await payload(request)
         target = doc.get("target") or "simulator"
         if not isinstance(target, str):
-            raise InputError("target must be 'simulator' or HOST:PORT")
+            raise InputError("target must be 'simulator' or HOST:PORT (PLC), 'grbl-simulator' or serial:PORT (GRBL)")
+        grbl = target == studio_grbl.EMULATOR or target.startswith(studio_grbl.SERIAL_PREFIX)
 
         def start():
+            if grbl:
+                _, data = session.export("gcode")
+                return sender.start_grbl(data, session.machine, target, doc.get("speed"),
+                                         restart=doc.get("restart") is True, plugin_dirs=session.settings.plugin_dirs)
             _, data = session.export("plc")
             return sender.start(data, session.machine, target, doc.get("speed"), again=doc.get("again") is True)
 
@@ -301,6 +337,32 @@ def create_app(session: Session, config: StudioConfig | None = None) -> FastAPI:
     def send_stop():
         return sender.stop()
 
+    @app.post("/api/send/control")
+    async def send_control(request: Request):
+        action = (await payload(request)).get("action")
+        if not isinstance(action, str):
+            raise InputError("action must be pause, hold, resume, stop, feed+, feed- or feed=")
+        return sender.control(action)
+
+    # ------------------------------------------------------------ GRBL machine control
+
+    @app.post("/api/machine")
+    async def machine_control(request: Request):
+        """One of ``doodlecam machine``'s commands on a GRBL target (token-protected like sends)."""
+        from doodlecam.link.grbl.timing import grbl_settings_for
+
+        doc = await payload(request)
+        action = doc.pop("action", None)
+        port = sender.grbl_port(doc.pop("target", studio_grbl.EMULATOR))
+
+        def run():
+            pens = None
+            if session.job is not None and action in ("pen_up", "pen_down"):
+                pens = studio_grbl.pen_commands(session.export("gcode")[1].decode("ascii"))
+            return studio_grbl.machine_action(port, str(action), doc, pens, grbl_settings_for(session.machine))
+
+        return await run_in_threadpool(run)
+
     @app.get("/api/send/events")
     async def send_events(request: Request):
         """Server-sent events: the send's state on every change, until it ends."""
@@ -308,7 +370,7 @@ def create_app(session: Session, config: StudioConfig | None = None) -> FastAPI:
         async def stream():
             version, snap = sender.snapshot()
             yield f"data: {json.dumps(snap)}\n\n"
-            while snap["state"] == "sending":
+            while snap["state"] in ACTIVE:
                 if await request.is_disconnected():
                     return  # the send goes on: it belongs to the server, not to the page
                 version, snap = await asyncio.to_thread(sender.wait, version, 0.5)

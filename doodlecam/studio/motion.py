@@ -60,6 +60,7 @@ def solve(doc: Any, source: str = "design") -> dict:
                  "findings": sorted({f.kind for f in rep.findings if f.where == s.where})}
                 for a in traj.axes for s in a.segments]
     return {"t": _finite(t), "axes": {n: [_finite(v[k]) for k in range(4)] for n, v in axes.items()},
+            "units": {a.name: a.unit for a in traj.axes},  # mm, or deg / rad for an axis that turns (Θ)
             "segments": segments, "findings": [{"kind": f.kind, "where": f.where, "t": f.t, "message": f.message}
                                                for f in rep.findings],
             "laws": sorted([*laws.LAWS, "polynomial", "cubic-spline"])}

@@ -1,4 +1,8 @@
-"""Sending the studio's job to a PLC over UDP (the same UdpSender as ``doodlecam send``).
+"""Sending the studio's job to a PLC over UDP or to GRBL over serial, as ``doodlecam send`` does.
+
+PLC: the same ``UdpSender``; GRBL: the same serial transport (``send_gcode``:
+character counting, resume record, pause/hold/stop controls), against a real
+port or the built-in GRBL emulator on a pseudo-terminal (``studio.grbl``).
 
 The send runs in its own thread, owned by the server, not by a page: closing
 the tab does not touch it, so the job runs to its end (the PLC never sees a
@@ -15,30 +19,47 @@ import math
 import tempfile
 import threading
 import time
+from collections import deque
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
 from doodlecam.errors import DoodleError, InputError
+from doodlecam.studio.grbl import GrblTargets, time_left, work_position
+
+
+# States in which a send is under way (the event stream follows them); "waiting" is for a job that
+# waits for the operator (a pen change), left by ``continue``.
+ACTIVE = ("sending", "pausing", "paused", "held", "stopping", "waiting")
+# What each state lets the page do (GRBL; the PLC has only stop): the buttons it shows. A job waiting
+# for the operator (a pen change, G-code M0) gets "continue" here once the streamer takes it.
+GRBL_CONTROLS = {"sending": ("pause", "hold", "stop", "feed+", "feed-", "feed="), "pausing": ("stop",),
+                 "paused": ("resume", "stop"), "held": ("resume", "stop"), "stopping": (), "waiting": ("stop",)}
 
 
 @dataclass
 class SendState:
-    state: str = "idle"  # idle | sending | done | stopped | failed
+    state: str = "idle"  # idle | done | stopped | failed, or one of ACTIVE
+    transport: str = ""  # plc | grbl
     target: str = ""
-    executed: int = 0
+    executed: int = 0  # PLC: commands executed; GRBL: lines answered
     total: int = 0
+    line: int | None = None  # GRBL: the G-code file's line number being sent next
     time_left_s: float = 0.0
     position_mm: tuple[float, float] | None = None
+    machine_state: str = ""  # GRBL's own state from its status reports (Run, Hold:0, Idle ...)
     message: str = ""
     version: int = 0  # bumped on every change, for the event stream
     started: float = field(default_factory=time.monotonic)
 
     def public(self) -> dict[str, Any]:
         pct = 100.0 * self.executed / self.total if self.total else 0.0
-        return {"state": self.state, "target": self.target, "executed": self.executed, "total": self.total,
-                "percent": round(pct, 2), "time_left_s": round(self.time_left_s, 2),
-                "position_mm": self.position_mm, "message": self.message,
+        controls = GRBL_CONTROLS.get(self.state, ()) if self.transport == "grbl" else (
+            ("stop",) if self.state == "sending" else ())
+        return {"state": self.state, "transport": self.transport, "target": self.target, "executed": self.executed,
+                "total": self.total, "line": self.line, "percent": round(pct, 2),
+                "time_left_s": round(self.time_left_s, 2), "position_mm": self.position_mm,
+                "machine_state": self.machine_state, "message": self.message, "controls": list(controls),
                 "elapsed_s": round(time.monotonic() - self.started, 2)}
 
 
@@ -52,6 +73,8 @@ class Sender:
         self._sender = None
         self._sim = None
         self._thread: threading.Thread | None = None
+        self._grbl = GrblTargets()
+        self._controls: deque[str] = deque()  # GRBL: the page's controls, taken by the streamer at safe points
         # The sender's record (job id, owner token, progress): with it a stopped job resumes on the
         # PLC that holds it, which takes it only from the computer that started it (docs/protocol.md).
         self._records = tempfile.TemporaryDirectory(prefix="doodlecam-studio-")
@@ -77,6 +100,18 @@ class Sender:
     def busy(self) -> bool:
         return self._thread is not None and self._thread.is_alive()
 
+    def _check_start(self, speed) -> None:
+        if self.busy:
+            raise InputError("a send is running; stop it or wait for it to finish")
+        if speed is not None and not (isinstance(speed, (int, float)) and math.isfinite(speed) and speed > 0):
+            raise InputError(f"speed must be a positive number, got {speed!r}")
+
+    def grbl_port(self, target: str) -> str:
+        """The port of a GRBL target for the machine panel; refused while a send uses GRBL."""
+        if self.busy and self.s.transport == "grbl":
+            raise InputError("a send to GRBL is running; the panel can talk to GRBL when it has ended")
+        return self._grbl.port(target, keep_speed=True)[0]
+
     def start(self, plc_bytes: bytes, machine, target: str, speed: float | None = None, again: bool = False) -> dict:
         """Send to ``target``: 'simulator' (a built-in PLC simulator, ``speed`` x real time;
         None = as fast as it can) or 'HOST:PORT' of a PLC. ``again``: run a job the PLC has
@@ -84,15 +119,12 @@ class Sender:
         from doodlecam.link.plc.sender import UdpSender, parse_target, planned_time_left
         from doodlecam.link.plc.simulator import PlcConfig, PlcSimulator
 
-        if self.busy:
-            raise InputError("a send is running; stop it or wait for it to finish")
-        if speed is not None and not (isinstance(speed, (int, float)) and math.isfinite(speed) and speed > 0):
-            raise InputError(f"speed must be a positive number, got {speed!r}")
+        self._check_start(speed)
         sim = None
         if target == "simulator":
             want = speed or math.inf
             if self._sim is None or self._sim.cfg.speed != want:  # one simulator per speed: it keeps held jobs
-                self.close()
+                self._close_plc_sim()
                 self._sim = PlcSimulator(PlcConfig.from_machine(machine, speed=want)).start()
             sim = self._sim
             host, port = sim.address
@@ -113,7 +145,8 @@ class Sender:
         left = planned_time_left(sender.records, header)
         self._sender = sender
         with self.changed:
-            self.s = SendState(state="sending", target=target if sim is None else f"PLC simulator {host}:{port}",
+            self.s = SendState(state="sending", transport="plc",
+                               target=target if sim is None else f"PLC simulator {host}:{port}",
                                total=sender.n, time_left_s=float(left[0]), version=self.s.version + 1)
             self.changed.notify_all()
         self._thread = threading.Thread(target=self._run, name="studio-send", daemon=True)
@@ -138,15 +171,155 @@ class Sender:
         self._update(**end)
 
     def stop(self) -> dict:
-        """Stop at the end of the current stroke, pen up (the sender's Ctrl-C)."""
+        """PLC: stop at the end of the current stroke, pen up (the sender's Ctrl-C). GRBL: ``control('stop')``."""
         if not self.busy:
             raise InputError("no send is running")
+        if self.s.transport == "grbl":
+            return self.control("stop")
         self._sender.interrupts.count += 1  # the sender raises at its next safe point, then stops the PLC
         self._update(message="stopping at the end of the current stroke")
         return self.snapshot()[1]
 
-    def close(self) -> None:
-        """Stop the built-in simulator (at server shutdown, or for another speed)."""
+    # ------------------------------------------------------------ GRBL
+
+    def start_grbl(self, gcode: bytes, machine, target: str, speed: float | None = None, restart: bool = False,
+                   plugin_dirs: tuple = ()) -> dict:
+        """Stream G-code to GRBL: ``target`` 'grbl-simulator' (the built-in emulator, ``speed`` x real time)
+        or 'serial:PORT'. As ``doodlecam send --serial``: a stopped job resumes after its last executed
+        line when sent again, unless ``restart``."""
+        from doodlecam import registry
+        from doodlecam.link.grbl.protocol import prepare
+        from doodlecam.link.grbl.streamer import end_positions
+        from doodlecam.link.session import state_file_for
+
+        self._check_start(speed)
+        try:
+            text = gcode.decode("ascii")
+        except UnicodeDecodeError:
+            raise InputError("the job's G-code is not ASCII, which GRBL reads only; check the gcode post's "
+                             "pen_up / pen_down options") from None
+        lines = prepare(text, "job.gcode")
+        if not lines:
+            raise InputError("the job's G-code has no lines to send")
+        left = time_left(text, lines, machine)
+        port, label = self._grbl.port(target, speed)
+        cls = registry.get("transport", "serial", plugin_dirs)
+        options = cls.resolve_options(machine.plugin_options.get("transport.serial", {}), {})
+        path = Path(self._records.name) / "studio.gcode"  # the resume record goes next to it (same CRC: resume)
+        path.write_bytes(gcode)
+        if restart:
+            state_file_for(path).unlink(missing_ok=True)
+        self._controls.clear()
+        last = [0.0]
+        acked = [0]  # lines answered so far, every one (the page's updates are thinned out)
+
+        def progress(done: int, total: int, st) -> None:
+            acked[0] = done
+            now = time.monotonic()
+            if now - last[0] < 0.05 and done < total:  # the page needs no more than 20 updates a second
+                return
+            last[0] = now
+            self._update(executed=done, total=total, line=lines[min(done, len(lines) - 1)].lineno,
+                         time_left_s=float(left[min(done, len(left) - 1)]), position_mm=work_position(st) or
+                         self.s.position_mm, machine_state=_grbl_state(st) or self.s.machine_state)
+
+        ends = end_positions(lines)
+
+        def log(msg: str) -> None:
+            msg = msg.replace(str(path), "job.gcode")  # the private copy's path means nothing to the user
+            # the streamer reports its pause by log lines: they move the state on
+            if "with the pen up" in msg and msg.startswith("paused"):
+                # paused: every line sent has run, so the pen stands at the end of the last one
+                k = acked[0]
+                x, y = ends[max(k - 1, 0)]
+                self._update(state="paused", message=msg, machine_state="Idle", executed=k,
+                             line=lines[min(k, len(lines) - 1)].lineno, time_left_s=float(left[k]),
+                             position_mm=(x, y) if x is not None and y is not None else self.s.position_mm)
+            elif msg == "resumed":
+                self._update(state="sending", message="")
+            else:
+                self._update(message=msg)
+
+        def controls() -> str | None:
+            return self._controls.popleft() if self._controls else None
+
+        def run():
+            return cls().send(path, port, options, progress=progress, log=log, controls=controls)
+
+        with self.changed:
+            self.s = SendState(state="sending", transport="grbl", target=label, total=len(lines),
+                               line=lines[0].lineno, time_left_s=float(left[0]), version=self.s.version + 1)
+            self.changed.notify_all()
+        self._thread = threading.Thread(target=self._run_grbl, args=(run, path, acked), name="studio-send-grbl",
+                                        daemon=True)
+        self._thread.start()
+        return self.snapshot()[1]
+
+    def _run_grbl(self, run, path: Path, acked: list[int]) -> None:
+        from doodlecam.link.session import Paused
+
+        try:
+            r = run()
+            end = dict(state="done", executed=self.s.total, time_left_s=0.0,
+                       message=f"{r['lines']} lines in {r['elapsed_s']:.2f} s"
+                       + (f", resumed at line {r['start_line']}" if r["resumed"] else ""))
+        except Paused as e:
+            end = dict(state="stopped", message=str(e).replace(str(path), "job.gcode"), executed=acked[0])
+        except DoodleError as e:
+            end = dict(state="failed", message=str(e).replace(str(path), "job.gcode"))
+        except Exception as e:  # never let a send kill the server quietly
+            end = dict(state="failed", message=f"send failed: {type(e).__name__}: {e}")
+        self._thread = None
+        self._update(**end)
+
+    def control(self, action: str) -> dict:
+        """A control of the running GRBL send (``streamer.Streamer``'s): pause (GRBL finishes the lines it
+        has, then the pen is lifted), hold (feed hold '!': stops at once, the pen stays as it is),
+        resume, stop (ends with the pen up), feed+ / feed- / feed= (feed override)."""
+        if not self.busy:
+            raise InputError("no send is running")
+        if self.s.transport != "grbl":
+            if action == "stop":
+                return self.stop()
+            raise InputError(f"'{action}' is for GRBL; the PLC stops at the end of a stroke with Stop, "
+                             "and Resume sends the job again")
+        allowed = GRBL_CONTROLS.get(self.s.state, ())
+        if action not in allowed:
+            raise InputError(f"cannot {action} while {self.s.state}"
+                             + (f"; possible now: {', '.join(allowed)}" if allowed else ""))
+        if action == "stop" and self.s.state == "held":
+            # a stop in a feed hold would reset GRBL with the pen where it is: resume first, so GRBL
+            # finishes the lines it has and the pen is lifted (the clean stop)
+            self._controls.append("resume")
+        self._controls.append(action)
+        new = {"pause": "pausing", "hold": "held", "resume": "sending", "stop": "stopping"}.get(action, self.s.state)
+        msg = {"pause": "pausing: GRBL finishes the lines it has, then the pen is lifted",
+               "hold": "feed hold: stopped on the path, the pen as it was",
+               "stop": "stopping: GRBL finishes the lines it has, then the pen is lifted"}.get(action, self.s.message)
+        self._update(state=new, message=msg)
+        return self.snapshot()[1]
+
+    def _close_plc_sim(self) -> None:
         if self._sim is not None:
             self._sim.stop()
             self._sim = None
+
+    def close(self, timeout: float = 30.0) -> None:
+        """At server shutdown (Ctrl-C): a GRBL send stops as Stop does (GRBL finishes the lines it has,
+        the pen is lifted, the resume record kept) before the process ends; then the built-in
+        simulators stop."""
+        thread = self._thread
+        if thread is not None and self.busy and self.s.transport == "grbl":
+            try:
+                self.control("stop")
+            except InputError:  # already stopping
+                pass
+            thread.join(timeout)
+        self._close_plc_sim()
+        self._grbl.close()
+
+
+def _grbl_state(st) -> str:
+    if st is None:
+        return ""
+    return st.state + (f":{st.substate}" if st.substate is not None else "")

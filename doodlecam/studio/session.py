@@ -49,6 +49,8 @@ class Session:
         self.undo_stack: list[Job] = []
         self.redo_stack: list[Job] = []
         self._checks: dict[int, tuple] = {}  # id(stroke) -> (stroke, acc ratio, vel ratio, deviation per period), cached
+        self._views: dict[int, tuple] = {}  # id(stroke) -> (stroke, samples, its /api/view entry without "i"), cached
+        self.last_changed: tuple[int, ...] = ()  # strokes the last edit re-planned (the count of strokes unchanged)
 
     # ------------------------------------------------------------ tracers
 
@@ -152,15 +154,34 @@ class Session:
         for st in strokes:
             points += [st.spline.start, st.spline.end]
         points.append(np.asarray(m.home, float))
-        travels = tuple(make_travel(points[2 * i], points[2 * i + 1], m) for i in range(len(strokes) + 1))
         old = self._require()
+        # a travel whose ends did not move is kept: an edit re-plans one or two of them, not all
+        kept: dict[tuple, list] = {}
+        for t in old.travels:
+            kept.setdefault((*t.start, *t.end), []).append(t)
+        travels, new_t = [], []
+        for i in range(len(strokes) + 1):
+            same = kept.get((*points[2 * i], *points[2 * i + 1]))
+            if same:
+                travels.append(same.pop())  # each old travel is used at most once
+            else:
+                new_t.append(make_travel(points[2 * i], points[2 * i + 1], m))
+                travels.append(new_t[-1])
+        travels = tuple(travels)
+        gone = [t for ts in kept.values() for t in ts]
         checks = [self.checks(st, sa) for st, sa in zip(strokes, samples)]
+        by_law = old.meta.get("travel_time_by_law")
+        if by_law is None or len(new_t) + len(gone) > len(travels):
+            by_law = travel_time_by_law(travels, m)
+        else:  # the old totals, less the travels gone, plus the new ones
+            minus, plus = travel_time_by_law(gone, m), travel_time_by_law(new_t, m)
+            by_law = {law: v - minus[law] + plus[law] for law, v in by_law.items()}
         meta = {**old.meta, "control_points": sum(len(st.spline.control) for st in strokes),
                 "worst_acceleration_ratio": max((c[0] for c in checks), default=0.0),
                 "worst_velocity_ratio": max((c[1] for c in checks), default=0.0),
                 "max_between_samples_mm": max((float(c[2].max(initial=0.0)) for c in checks), default=0.0),
                 "max_fit_error_mm": max((st.fit_error for st in strokes), default=0.0),
-                "travel_time_by_law": travel_time_by_law(travels, m), "edited": True}
+                "travel_time_by_law": by_law, "edited": True}
         return replace(old, strokes=tuple(strokes), samples=tuple(samples), travels=travels, meta=meta)
 
     def checks(self, stroke: Stroke, samples) -> tuple[float, float, np.ndarray]:
@@ -235,6 +256,7 @@ class Session:
             else:
                 raise InputError(f"unknown edit '{op}'; use move, insert, delete_point, delete, reverse, split or reorder")
             self._set(self._rebuild(strokes, samples, changed))
+            self.last_changed = tuple(sorted(changed)) if len(strokes) == len(job.strokes) else ()
             return self.summary()
 
     def _set(self, job: Job, keep_history: bool = True) -> None:
@@ -243,6 +265,7 @@ class Session:
         elif not keep_history:
             self.undo_stack = []
             self._checks.clear()
+            self._views.clear()
         self.redo_stack = []
         self.job = job
 
@@ -279,21 +302,49 @@ class Session:
         with self.lock:
             job = self._require()
             m = self.machine
-            strokes = []
-            for n, (st, sa) in enumerate(zip(job.strokes, job.samples)):
-                pos = sa.integrate()
-                speed = np.concatenate([[0.0], np.hypot(*sa.velocity.T)])
-                strokes.append({"i": n, "degree": st.spline.degree, "length": round(st.spline.length, 3),
-                                "control": np.round(st.spline.control, 4).tolist(),
-                                "points": np.round(pos, 3).tolist(), "speed": np.round(speed, 2).tolist(),
-                                "time": round(len(sa.velocity) * sa.delta_time, 4)})
-            travels = [[*np.round(t.start, 3).tolist(), *np.round(t.end, 3).tolist(), round(t.duration, 4)]
-                       for t in job.travels]
+            strokes = [self._view_stroke(n, st, sa) for n, (st, sa) in enumerate(zip(job.strokes, job.samples))]
             return {"machine": {"name": m.name, "width": m.width, "height": m.height, "margin": m.margin,
                                 "home": list(m.home), "vmax": max(m.x.max_velocity, m.y.max_velocity),
                                 "delta_time": m.delta_time, "pen_up_delay": m.pen.up_delay,
                                 "pen_down_delay": m.pen.down_delay},
-                    "strokes": strokes, "travels": travels, "summary": self.summary()}
+                    "strokes": strokes, "travels": self._view_travels(job), "summary": self.summary()}
+
+    def _view_stroke(self, n: int, st: Stroke, sa) -> dict:
+        """One stroke of the view: executed positions every sample instant (mm), the speed there (mm/s),
+        control points; cached per stroke (an edit re-plans one, the others are drawn as they were)."""
+        hit = self._views.get(id(st))
+        if hit is None or hit[0] is not st or hit[1] is not sa:
+            pos = sa.integrate()
+            speed = np.concatenate([[0.0], np.hypot(*sa.velocity.T)])
+            entry = {"degree": st.spline.degree, "length": round(st.spline.length, 3),
+                     "control": np.round(st.spline.control, 4).tolist(),
+                     "points": np.round(pos, 3).tolist(), "speed": np.round(speed, 2).tolist(),
+                     "time": round(len(sa.velocity) * sa.delta_time, 4)}
+            hit = self._views[id(st)] = (st, sa, entry)
+            if len(self._views) > 20000:  # strokes of old jobs and old edits: start again
+                self._views = {id(st): hit}
+        return {"i": n, **hit[2]}
+
+    @staticmethod
+    def _view_travels(job: Job) -> list:
+        """[x0, y0, x1, y1, duration] per travel (mm, s), rounded as the strokes are."""
+        if not job.travels:
+            return []
+        a = np.array([[*t.start, *t.end, t.duration] for t in job.travels], float)
+        a[:, :4], a[:, 4] = np.round(a[:, :4], 3), np.round(a[:, 4], 4)
+        return a.tolist()
+
+    def patch(self) -> dict:
+        """What the last edit changed, for a page that has the view: the re-planned strokes' entries,
+        the travels, the summary, and the figures of the first of them (one answer instead of
+        /api/view and /api/stroke: a fraction of the bytes, one request)."""
+        with self.lock:
+            job = self._require()
+            if not self.last_changed:
+                raise InputError("the last edit changed the strokes' order or number; fetch the whole view")
+            return {"strokes": [self._view_stroke(n, job.strokes[n], job.samples[n]) for n in self.last_changed],
+                    "travels": self._view_travels(job), "summary": self.summary(),
+                    "figures": self.stroke(self.last_changed[0])}
 
     def stroke(self, i: Any) -> dict:
         """The figures of one stroke: the report's plots (path velocity sqrt(b(u)), axis velocities and

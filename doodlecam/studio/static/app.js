@@ -41,7 +41,7 @@ const S = {
   sim: { t: 0, playing: false, last: 0 },
 };
 window.studio = S; // for tests and the benchmark
-window.studioPerf = { moves: [], frames: [], replan: [], firstView: null };
+window.studioPerf = { moves: [], frames: [], replan: [], replanParts: [], firstView: null };
 
 // ------------------------------------------------------------------ drawing
 
@@ -152,6 +152,15 @@ async function refresh() {
   document.body.dataset.strokes = S.view.strokes.length;
 }
 
+async function applyPatch(p) {
+  for (const st of p.strokes) S.view.strokes[st.i] = st;
+  S.view.travels = p.travels; S.view.summary = p.summary;
+  summary(p.summary);
+  S.timeline = null; S.base = null;
+  draw();
+  if (S.selected >= 0) await figures(S.selected === p.figures.i ? p.figures : null);
+}
+
 async function figures(fetched) {
   const i = S.selected;
   $("sel-index").textContent = i >= 0 ? `${i + 1} of ${S.view.strokes.length}` : "–";
@@ -225,10 +234,19 @@ window.addEventListener("mouseup", async (e) => {
     if (!d.moved) { S.drag = null; return; }
     const t0 = performance.now();
     try {
-      await api("/api/edit", { method: "POST", json: { op: "move", stroke: S.selected, control: d.control } });
+      // one request: the edit answers with what it changed (the stroke, travels, summary, figures)
+      const r = await api("/api/edit", { method: "POST", json: { op: "move", stroke: S.selected, control: d.control, reply: "patch" } });
+      const t1 = performance.now();
       S.drag = null;
-      await refresh();
-      window.studioPerf.replan.push(performance.now() - t0);
+      if (r.strokes) await applyPatch(r); else await refresh();
+      const t2 = performance.now();
+      window.studioPerf.replan.push(t2 - t0);
+      // where the time went: the request (server parts from its Server-Timing header) and the page's redraw
+      const e = performance.getEntriesByType("resource").filter((x) => x.name.includes("/api/edit")).pop();
+      const server = Object.fromEntries((e && e.serverTiming || []).map((x) => [x.name, x.duration]));
+      window.studioPerf.replanParts.push({ request: t1 - t0, page: t2 - t1, ...server,
+        ttfb: e ? e.responseStart - e.requestStart : null, bytes: e ? e.encodedBodySize : null });
+      performance.clearResourceTimings(); // the buffer holds 250 entries: keep room for the next one
     } catch (err) { S.drag = null; draw(); }
     return;
   }
@@ -435,32 +453,64 @@ $("export").onclick = async () => {
   const r = await api("/api/export", { method: "POST", json: { posts: [$("post").value], folder: $("export-folder").value } });
   $("export-result").textContent = "wrote " + r.written.join(", ");
 };
-$("target").onchange = () => { $("target-host").hidden = $("target").value !== "host"; };
+const GRBL_TARGETS = ["grbl-simulator", "serial"];
+function sendTarget() {
+  const t = $("target").value;
+  return t === "host" ? $("target-host").value : t === "serial" ? "serial:" + $("target-serial").value : t;
+}
+$("target").onchange = () => {
+  const t = $("target").value;
+  $("target-host").hidden = t !== "host"; $("target-serial").hidden = t !== "serial";
+  $("machine-panel").hidden = !GRBL_TARGETS.includes(t);
+};
 
+const ACTIVE = ["sending", "pausing", "paused", "held", "stopping", "waiting"];
 let sendAgain = false; // the PLC refuses a finished job unless asked to draw it again
 function showSend(s) {
   $("send-progress").value = s.percent;
   const pos = s.position_mm ? ` at (${s.position_mm[0].toFixed(1)}, ${s.position_mm[1].toFixed(1)}) mm` : "";
-  $("send-status").textContent = s.state === "sending"
-    ? `sending: command ${s.executed} of ${s.total} (${s.percent.toFixed(1)} %), ${s.time_left_s.toFixed(1)} s left${pos}`
+  const what = s.transport === "grbl" ? `line ${s.line} (${s.executed} of ${s.total} answered)` : `command ${s.executed} of ${s.total}`;
+  const grbl = s.machine_state ? `, GRBL ${s.machine_state}` : "";
+  $("send-status").textContent = ACTIVE.includes(s.state)
+    ? `${s.state}: ${what}, ${s.percent.toFixed(1)} %, ${s.time_left_s.toFixed(1)} s left${pos}${grbl}` + (s.message ? ` — ${s.message}` : "")
     : `${s.state}${s.message ? ": " + s.message : ""}`;
   $("send-status").dataset.state = s.state;
-  $("send").disabled = s.state === "sending"; $("stop").disabled = s.state !== "sending";
+  const can = new Set(s.controls || []);
+  $("send").disabled = ACTIVE.includes(s.state); $("stop").disabled = !can.has("stop");
+  for (const b of ["pause", "hold", "resume", "continue"]) { $(b).hidden = !can.has(b); }
   sendAgain = s.state === "done" || (s.state === "failed" && /again/.test(s.message || ""));
-  $("send").textContent = s.state === "stopped" ? "Resume" : sendAgain ? "Send again" : "Send"; // the PLC holds a stopped job
+  // a stopped job resumes where it stopped (the PLC holds it; GRBL's resume record names the next line)
+  $("send").textContent = s.state === "stopped" ? "Resume" : sendAgain ? "Send again" : "Send";
 }
 function follow() {
   const es = new EventSource(withToken("/api/send/events"));
-  es.onmessage = (e) => { const s = JSON.parse(e.data); showSend(s); if (s.state !== "sending") es.close(); };
+  es.onmessage = (e) => { const s = JSON.parse(e.data); showSend(s); if (!ACTIVE.includes(s.state)) es.close(); };
   es.onerror = () => es.close();
 }
 $("send").onclick = async () => {
-  const target = $("target").value === "host" ? $("target-host").value : "simulator";
   const speed = $("send-speed").value ? Number($("send-speed").value) : null;
-  showSend(await api("/api/send", { method: "POST", json: { target, speed, again: sendAgain } }));
+  showSend(await api("/api/send", { method: "POST", json: { target: sendTarget(), speed, again: sendAgain } }));
   follow();
 };
-$("stop").onclick = async () => { showSend(await api("/api/send/stop", { method: "POST" })); };
+$("stop").onclick = async () => { showSend(await api("/api/send/control", { method: "POST", json: { action: "stop" } })); };
+for (const b of ["pause", "hold", "resume", "continue"]) { // continue: a job waiting for the operator (state "waiting")
+  $(b).onclick = async () => { showSend(await api("/api/send/control", { method: "POST", json: { action: b } })); };
+}
+
+async function machine(action, extra = {}) {
+  const r = await api("/api/machine", { method: "POST", json: { target: sendTarget(), action, ...extra } });
+  $("machine-status").textContent = (r.sent ? `sent ${r.sent}: ` : "") + r.line;
+  $("machine-status").dataset.state = r.state;
+  $("machine-settings").innerHTML = !r.settings ? "" : "<tr><th>setting</th><th>GRBL</th><th>the profile needs</th></tr>" +
+    r.settings.map((s) => `<tr class="${s.ok ? "flag-ok" : "flag-bad"}"><td>${s.key}</td><td>${s.have ?? "–"}</td><td>${s.want}</td></tr>`).join("");
+}
+for (const b of document.querySelectorAll("[data-machine]")) b.onclick = () => machine(b.dataset.machine);
+for (const b of document.querySelectorAll("[data-jog]")) {
+  b.onclick = () => {
+    const [dx, dy] = b.dataset.jog.split(",").map(Number), step = Number($("jog-step").value);
+    machine("jog", { x: dx * step, y: dy * step });
+  };
+}
 
 // ------------------------------------------------------------------ tabs
 
@@ -482,7 +532,8 @@ $("show-order").addEventListener("change", () => { S.base = null; draw(); });
   await posts();
   const st = await api("/api/state");
   $("machine").textContent = `machine ${st.machine}`;
-  if (st.send.state === "sending") { showSend(st.send); follow(); } // a send outlives its page: pick it up
+  showSend(st.send);
+  if (ACTIVE.includes(st.send.state)) follow(); // a send outlives its page: pick it up
   if (st.loaded) { await refresh(); await tracerPanel(); window.studioPerf.firstView = performance.now(); }
   else await tracerPanel();
   document.body.dataset.ready = "1";

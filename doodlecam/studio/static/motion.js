@@ -106,7 +106,8 @@ function show() {
   const titles = ["position", "velocity", "acceleration", "jerk"];
   ["m-pos", "m-vel", "m-acc", "m-jerk"].forEach((id, k) => {
     linePlot($(id), { title: titles[k], xlabel: "s", series: names.map((n, i) => ({
-      x: r.t.filter((_, j) => r.axes[n][k][j] !== null), y: r.axes[n][k].filter((v) => v !== null), color: COLORS[i % 4], label: n })) });
+      x: r.t.filter((_, j) => r.axes[n][k][j] !== null), y: r.axes[n][k].filter((v) => v !== null), color: COLORS[i % 4],
+      label: r.units && r.units[n] !== "mm" ? `${n} (${r.units[n]})` : n })) });
   });
   for (const td of document.querySelectorAll("td.checks")) {
     const kinds = new Set(r.segments.filter((s) => s.number === Number(td.dataset.number) && (!td.dataset.axis || s.axis === td.dataset.axis))
@@ -129,13 +130,17 @@ async function exportTable(e) {
 }
 
 // The end effector along the trajectory: with axes x and y, the pen on the X-Y plane
-// (its path drawn); otherwise each axis as a slider on its own track. Real time.
+// (its path drawn), turned by a rotation axis (Θ: unit deg or rad) if the design has one;
+// otherwise each linear axis as a slider on its own track and each rotation as a dial. Real time.
+const ANGLE = { deg: Math.PI / 180, rad: 1 };
 function animate() {
   const r = M.result, names = Object.keys(r.axes), t = r.t, T = t[t.length - 1] - t[0];
+  const units = r.units || {}, turns = (n) => units[n] in ANGLE;
   const c = $("m-anim"), dpr = window.devicePixelRatio || 1, W = c.clientWidth, H = c.clientHeight;
   c.width = W * dpr; c.height = H * dpr;
   const g = c.getContext("2d"); g.setTransform(dpr, 0, 0, dpr, 0, 0);
-  const xy = names.includes("x") && names.includes("y");
+  const xy = names.includes("x") && names.includes("y") && !turns("x") && !turns("y");
+  const theta = names.find((n) => turns(n) && (!xy || (n !== "x" && n !== "y"))); // the tool's orientation
   const range = (a) => { const v = a.filter((x) => x !== null); return [Math.min(...v), Math.max(...v) || 1]; };
   const at = (a, s) => { // linear interpolation at time s
     let k = t.findIndex((x) => x >= s); if (k <= 0) return a[0];
@@ -146,19 +151,41 @@ function animate() {
   const frame = (now) => {
     const s = Math.min(T, (now - start) / 1000) + t[0];
     g.clearRect(0, 0, W, H);
+    M.effector = { t: s - t[0] };
     if (xy) {
       const X = r.axes.x[0], Y = r.axes.y[0], [x0, x1] = range(X), [y0, y1] = range(Y);
-      const k = Math.min((W - 40) / Math.max(x1 - x0, 1e-9), (H - 40) / Math.max(y1 - y0, 1e-9));
-      const px = (x) => 20 + (x - x0) * k, py = (y) => H - 20 - (y - y0) * k;
+      const k = Math.min((W - 80) / Math.max(x1 - x0, 1e-9), (H - 80) / Math.max(y1 - y0, 1e-9)); // room for the tool
+      const px = (x) => 40 + (x - x0) * k, py = (y) => H - 40 - (y - y0) * k;
       g.strokeStyle = "#999"; g.beginPath(); X.forEach((x, i) => i ? g.lineTo(px(x), py(Y[i])) : g.moveTo(px(x), py(Y[i]))); g.stroke();
-      g.fillStyle = "#d00"; g.beginPath(); g.arc(px(at(X, s)), py(at(Y, s)), 6, 0, 2 * Math.PI); g.fill();
+      const x = at(X, s), y = at(Y, s);
+      M.effector.x = x; M.effector.y = y; M.effector.screen = [px(x), py(y)];
+      if (theta) { // the tool turned by Θ: a bar with a tick on its leading end, counter-clockwise positive
+        const a = at(r.axes[theta][0], s);
+        M.effector[theta] = a;
+        const q = a * ANGLE[units[theta]], L = 22;
+        g.save(); g.translate(px(x), py(y)); g.rotate(-q);
+        g.fillStyle = "#d00"; g.fillRect(-L, -4, 2 * L, 8); g.fillStyle = "#fff"; g.fillRect(L - 8, -2, 6, 4);
+        g.restore();
+        g.fillStyle = "#333"; g.fillText(`${theta} ${a.toFixed(1)} ${units[theta]}`, 6, 14);
+      } else {
+        g.fillStyle = "#d00"; g.beginPath(); g.arc(px(x), py(y), 6, 0, 2 * Math.PI); g.fill();
+      }
     } else {
+      const rows = Math.max(1, names.length - 1);
       names.forEach((n, i) => {
-        const P = r.axes[n][0], [p0, p1] = range(P), y = 20 + i * (H - 40) / Math.max(1, names.length - 1 || 1);
-        const px = (p) => 60 + (p - p0) / Math.max(p1 - p0, 1e-9) * (W - 80);
+        const P = r.axes[n][0], [p0, p1] = range(P), y = 20 + i * (H - 40) / rows, v = at(P, s);
+        M.effector[n] = v;
         g.fillStyle = "#333"; g.fillText(n, 4, y + 4);
+        if (turns(n)) { // a dial: the hand at the axis's angle, counter-clockwise from 3 o'clock
+          const R = Math.min(16, (H - 40) / rows / 2 - 2), cx = 80, q = v * ANGLE[units[n]];
+          g.strokeStyle = "#bbb"; g.beginPath(); g.arc(cx, y, R, 0, 2 * Math.PI); g.stroke();
+          g.strokeStyle = COLORS[i % 4]; g.lineWidth = 3; g.beginPath(); g.moveTo(cx, y); g.lineTo(cx + R * Math.cos(q), y - R * Math.sin(q)); g.stroke();
+          g.lineWidth = 1; g.fillStyle = "#333"; g.fillText(`${v.toFixed(1)} ${units[n]}`, cx + R + 6, y + 4);
+          return;
+        }
+        const px = (p) => 60 + (p - p0) / Math.max(p1 - p0, 1e-9) * (W - 80);
         g.strokeStyle = "#bbb"; g.beginPath(); g.moveTo(px(p0), y); g.lineTo(px(p1), y); g.stroke();
-        g.fillStyle = COLORS[i % 4]; g.fillRect(px(at(P, s)) - 8, y - 6, 16, 12);
+        g.fillStyle = COLORS[i % 4]; g.fillRect(px(v) - 8, y - 6, 16, 12);
       });
     }
     $("m-time").textContent = `${(s - t[0]).toFixed(3)} / ${T.toFixed(3)} s`;
