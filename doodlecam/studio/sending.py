@@ -34,7 +34,8 @@ ACTIVE = ("sending", "pausing", "paused", "held", "stopping", "waiting")
 # What each state lets the page do (GRBL; the PLC has only stop): the buttons it shows. A job waiting
 # for the operator (a pen change, G-code M0) gets "continue" here once the streamer takes it.
 GRBL_CONTROLS = {"sending": ("pause", "hold", "stop", "feed+", "feed-", "feed="), "pausing": ("stop",),
-                 "paused": ("resume", "stop"), "held": ("resume", "stop"), "stopping": (), "waiting": ("stop",)}
+                 "paused": ("resume", "stop"), "held": ("resume", "stop"), "stopping": (), "waiting": ("continue", "stop")}
+PLC_CONTROLS = {"sending": ("stop",), "waiting": ("continue", "stop")}
 
 
 @dataclass
@@ -54,8 +55,7 @@ class SendState:
 
     def public(self) -> dict[str, Any]:
         pct = 100.0 * self.executed / self.total if self.total else 0.0
-        controls = GRBL_CONTROLS.get(self.state, ()) if self.transport == "grbl" else (
-            ("stop",) if self.state == "sending" else ())
+        controls = (GRBL_CONTROLS if self.transport == "grbl" else PLC_CONTROLS).get(self.state, ())
         return {"state": self.state, "transport": self.transport, "target": self.target, "executed": self.executed,
                 "total": self.total, "line": self.line, "percent": round(pct, 2),
                 "time_left_s": round(self.time_left_s, 2), "position_mm": self.position_mm,
@@ -75,6 +75,8 @@ class Sender:
         self._thread: threading.Thread | None = None
         self._grbl = GrblTargets()
         self._controls: deque[str] = deque()  # GRBL: the page's controls, taken by the streamer at safe points
+        self._operator = threading.Event()  # set by Continue (or Stop) while the job waits for a pen change
+        self._stop_waiting = False
         # The sender's record (job id, owner token, progress): with it a stopped job resumes on the
         # PLC that holds it, which takes it only from the computer that started it (docs/protocol.md).
         self._records = tempfile.TemporaryDirectory(prefix="doodlecam-studio-")
@@ -112,6 +114,32 @@ class Sender:
             raise InputError("a send to GRBL is running; the panel can talk to GRBL when it has ended")
         return self._grbl.port(target, keep_speed=True)[0]
 
+    def _pen_change(self, machine):
+        """The links' ``pen_change``: the send waits in state 'waiting' (the pen up, the machine holding
+        the job) until the page's Continue; Stop ends the send there, resumable (it asks again)."""
+        from doodlecam.link.session import Paused
+
+        def ask(pen, what: str) -> None:
+            if pen and (not machine.pens or pen <= len(machine.pens)):
+                what = machine.pen_number(pen).describe(pen)
+            self._operator.clear()
+            self._stop_waiting = False
+            self._update(state="waiting", message=f"change to {what}, then press Continue")
+            self._operator.wait()
+            if self._stop_waiting:
+                raise Paused(f"stopped at the pen change, pen up: change to {what}, then send again to resume")
+            self._update(state="sending", message="")
+
+        return ask
+
+    def _answer(self, action: str) -> dict:
+        """Continue or Stop while the job waits for the operator."""
+        self._stop_waiting = action == "stop"
+        self._update(state="stopping" if self._stop_waiting else "sending",
+                     message="stopping at the pen change" if self._stop_waiting else "")
+        self._operator.set()
+        return self.snapshot()[1]
+
     def start(self, plc_bytes: bytes, machine, target: str, speed: float | None = None, again: bool = False) -> dict:
         """Send to ``target``: 'simulator' (a built-in PLC simulator, ``speed`` x real time;
         None = as fast as it can) or 'HOST:PORT' of a PLC. ``again``: run a job the PLC has
@@ -140,7 +168,8 @@ class Sender:
                          time_left_s=float(left[min(executed, len(left) - 1)]))
 
         sender = UdpSender(host, port, plc_bytes, "studio.plc", progress=progress, again=again,
-                           state_file=Path(self._records.name) / "send-record.json")
+                           state_file=Path(self._records.name) / "send-record.json",
+                           pen_change=self._pen_change(machine))
         header = sender.plc_header
         left = planned_time_left(sender.records, header)
         self._sender = sender
@@ -176,6 +205,8 @@ class Sender:
             raise InputError("no send is running")
         if self.s.transport == "grbl":
             return self.control("stop")
+        if self.s.state == "waiting":
+            return self._answer("stop")
         self._sender.interrupts.count += 1  # the sender raises at its next safe point, then stops the PLC
         self._update(message="stopping at the end of the current stroke")
         return self.snapshot()[1]
@@ -243,8 +274,12 @@ class Sender:
         def controls() -> str | None:
             return self._controls.popleft() if self._controls else None
 
+        import inspect
+
+        extra = {"pen_change": self._pen_change(machine)} if "pen_change" in inspect.signature(cls.send).parameters else {}
+
         def run():
-            return cls().send(path, port, options, progress=progress, log=log, controls=controls)
+            return cls().send(path, port, options, progress=progress, log=log, controls=controls, **extra)
 
         with self.changed:
             self.s = SendState(state="sending", transport="grbl", target=label, total=len(lines),
@@ -278,6 +313,8 @@ class Sender:
         resume, stop (ends with the pen up), feed+ / feed- / feed= (feed override)."""
         if not self.busy:
             raise InputError("no send is running")
+        if self.s.state == "waiting" and action in ("continue", "stop"):
+            return self._answer(action)  # a pen change: the operator has fitted the pen, or stops there
         if self.s.transport != "grbl":
             if action == "stop":
                 return self.stop()
@@ -309,7 +346,10 @@ class Sender:
         the pen is lifted, the resume record kept) before the process ends; then the built-in
         simulators stop."""
         thread = self._thread
-        if thread is not None and self.busy and self.s.transport == "grbl":
+        if thread is not None and self.busy and self.s.state == "waiting":
+            self._answer("stop")  # nobody will answer the pen change now: stop there, pen up
+            thread.join(timeout)
+        elif thread is not None and self.busy and self.s.transport == "grbl":
             try:
                 self.control("stop")
             except InputError:  # already stopping

@@ -389,17 +389,21 @@ class Session:
                 pen.extend([down] * len(times))
                 now += float(times[-1])
 
+            lifts = job.lifts + (True,)  # the pen stays down between strokes that meet (Job.lifts)
+            pens = [m.pen_number(n) for n in job.pen_numbers]  # each pen's own delays ([[pen]])
             for k, tr in enumerate(job.travels):
-                if tr.duration > 0:
+                if tr.duration > 0 and lifts[min(k, len(job.strokes))]:
                     tt = np.linspace(0.0, tr.duration, max(2, int(tr.duration / 0.02) + 1))
                     add(tt, travel_state(tr, m, tt)[0], 0)
                 if k == len(job.strokes):
                     break
                 sa = job.samples[k]
-                add(np.array([m.pen.down_delay]), [xs[-1]], 0)
+                if lifts[k]:
+                    add(np.array([pens[k].down_delay]), [xs[-1]], 0)
                 pos = sa.integrate()
                 add(np.arange(len(pos)) * sa.delta_time, pos, 1)
-                add(np.array([m.pen.up_delay]), [xs[-1]], 0)
+                if lifts[k + 1]:
+                    add(np.array([pens[k].up_delay]), [xs[-1]], 0)
             return {"t": np.round(ts, 5).tolist(), "xy": np.round(np.array(xs), 3).tolist(), "pen": pen,
                     "duration": now}
 

@@ -1,0 +1,114 @@
+"""The studio's sends stop at each pen change and wait for the page's Continue (PLC and GRBL).
+
+A three-layer drawing (samples/vectors/layers.svg) is sent to the built-in PLC simulator over UDP
+and to the GRBL emulator over a pseudo-terminal: the send waits (state 'waiting', the machine
+holding the job with the pen up) until Continue; Stop there ends it, resumable; every command runs once.
+"""
+
+from __future__ import annotations
+
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+from fastapi.testclient import TestClient
+
+from doodlecam.link.plc.protocol import Fault
+from doodlecam.machine import load_machine
+from doodlecam.pipeline import Settings
+from doodlecam.studio.app import StudioConfig, create_app
+from doodlecam.studio.session import Session
+
+ROOT = Path(__file__).resolve().parents[1]
+LAYERS = ROOT / "samples" / "vectors" / "layers.svg"
+
+
+@pytest.fixture(scope="module")
+def studio(tmp_path_factory):
+    session = Session(Settings(machine=load_machine("doodlebot")))
+    folder = tmp_path_factory.mktemp("pens")
+    app = create_app(session, StudioConfig(token="tok", folders=(folder,)))
+    c = TestClient(app, headers={"x-doodlecam-token": "tok"})
+    assert c.post("/api/load?name=layers.svg", content=LAYERS.read_bytes()).status_code == 200
+    yield c
+    app.state.sender.close()
+
+
+def wait(c, until, timeout: float = 90.0) -> dict:
+    end = time.monotonic() + timeout
+    while time.monotonic() < end:
+        s = c.get("/api/send").json()
+        if until(s):
+            return s
+        time.sleep(0.02)
+    raise AssertionError(f"send state never reached: {c.get('/api/send').json()}")
+
+
+def answer(c, action: str) -> dict:
+    r = c.post("/api/send/control", json={"action": action})
+    assert r.status_code == 200, r.text
+    return r.json()
+
+
+def test_plc_send_waits_for_each_pen_change(studio):
+    sender = studio.app.state.sender
+    assert studio.post("/api/send", json={"target": "simulator"}).status_code == 200
+    messages = []
+    for _ in range(2):  # 3 layers, 2 pen changes
+        s = wait(studio, lambda s: s["state"] in ("waiting", "done", "failed"))
+        assert s["state"] == "waiting" and s["controls"] == ["continue", "stop"], s
+        sim = sender._sim
+        assert sim.held is not None and sim.held.reason == Fault.PEN_CHANGE and not sim.pen  # holding, pen up
+        messages.append(s["message"])
+        answer(studio, "continue")
+        wait(studio, lambda s: s["state"] != "waiting" or s["message"] != messages[-1])
+    s = wait(studio, lambda s: s["state"] in ("done", "failed"))
+    assert s["state"] == "done", s
+    assert messages == ["change to pen 2, then press Continue", "change to pen 3, then press Continue"]
+    ex = sim.executed()
+    np.testing.assert_array_equal(np.sort(ex), np.arange(1, len(ex) + 1))  # every command once
+
+
+def test_plc_stop_at_a_pen_change_resumes_and_asks_again(studio):
+    sender = studio.app.state.sender
+    assert studio.post("/api/send", json={"target": "simulator", "again": True}).status_code == 200
+    wait(studio, lambda s: s["state"] == "waiting")
+    answer(studio, "stop")
+    s = wait(studio, lambda s: s["state"] in ("stopped", "failed", "done"))
+    assert s["state"] == "stopped" and "pen change" in s["message"], s
+    assert sender._sim.held is not None and sender._sim.held.reason == Fault.PEN_CHANGE
+    assert studio.post("/api/send", json={"target": "simulator"}).status_code == 200  # resume: asks again first
+    s = wait(studio, lambda s: s["state"] in ("waiting", "done", "failed"))
+    assert s["state"] == "waiting" and "pen 2" in s["message"]
+    answer(studio, "continue")
+    wait(studio, lambda s: s["state"] == "waiting" and "pen 3" in s["message"])
+    answer(studio, "continue")
+    assert wait(studio, lambda s: s["state"] in ("done", "failed"))["state"] == "done"
+
+
+def test_grbl_send_waits_at_each_m0(studio):
+    from doodlecam.link.grbl.protocol import prepare
+
+    sender = studio.app.state.sender
+    r = studio.post("/api/send", json={"target": "grbl-simulator", "speed": 50, "restart": True})
+    assert r.status_code == 200, r.text
+    emu = sender._grbl.emulator
+    before = len(emu.received)
+    for k in (2, 3):
+        s = wait(studio, lambda s: s["state"] in ("waiting", "done", "failed", "stopped"))
+        assert s["state"] == "waiting" and f"pen {k}" in s["message"] and "continue" in s["controls"], s
+        assert emu.state == "Hold" and emu.m0_hold and emu.modal["s"] == 0  # GRBL holds at the M0, pen up (M3 S0)
+        answer(studio, "continue")
+        wait(studio, lambda s: s["state"] != "waiting")
+    s = wait(studio, lambda s: s["state"] in ("done", "failed", "stopped"))
+    assert s["state"] == "done", s
+    gcode = (Path(sender._records.name) / "studio.gcode").read_text()
+    assert emu.received[before:] == [ln.text.upper() for ln in prepare(gcode)]  # every line once, in order
+    assert emu.pauses >= 2
+
+
+def test_simulation_takes_the_planned_time(studio):
+    summary = studio.get("/api/state").json()["summary"]
+    tl = studio.get("/api/timeline").json()
+    assert abs(tl["duration"] - summary["job_time_s"]) < 1e-3 * summary["job_time_s"]
