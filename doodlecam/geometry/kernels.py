@@ -107,3 +107,23 @@ def distance_to_stretch(c0, c1, c2, k, nseg, x, lo, hi, candidates, iterations, 
             u = min(max(u, a), b)
         qx, qy = _point(c0, k, nseg, u, N, left, right)
         out[i] = min(np.sqrt((qx - px) ** 2 + (qy - py) ** 2), best)
+
+
+@numba.njit(cache=True, nogil=True)
+def span_taylor(D, p, nseg, mid, out):  # pragma: no cover - compiled
+    """out[s, j] = q^(j)(mid[s]) / j!, the Taylor coefficients of knot span s at
+    its midpoint mid[s] (j = 0..p), from D[j] = the control points of q^(j)
+    (the first n - j rows of D[j]; a clamped uniform spline of degree p - j).
+    At the midpoint no knot is near, so each span gets its own polynomial even
+    where a derivative jumps at its ends (the planner's interval rows)."""
+    N = np.empty(p + 1)
+    left = np.empty(p + 1)
+    right = np.empty(p + 1)
+    for s in range(nseg):
+        f = 1.0
+        for j in range(p + 1):
+            if j > 0:
+                f *= j
+            x, y = _point(D[j], p - j, nseg, mid[s], N, left, right)
+            out[s, j, 0] = x / f
+            out[s, j, 1] = y / f

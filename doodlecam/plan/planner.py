@@ -67,28 +67,26 @@ class Limits:
 _GAUSS = np.polynomial.legendre.leggauss(6)
 
 
-def _span_measures(spline: Spline):
+def _span_measures(spline: Spline, span_polys: constraints.Spans | None = None):
     """Arc length (mm) and total turning (rad) of every knot span."""
-    bp = spline.breakpoints
+    from doodlecam.plan.kernels import span_measures
+
+    sp = span_polys if span_polys is not None else constraints.spans(spline)
     x, w = _GAUSS
-    lo, hi = bp[:-1, None], bp[1:, None]
-    uu = ((lo + hi) / 2 + (hi - lo) / 2 * x).ravel()
-    d1, d2 = spline(uu, 1), spline(uu, 2)
-    sp = np.linalg.norm(d1, axis=1)
-    turn = np.abs(d1[:, 0] * d2[:, 1] - d1[:, 1] * d2[:, 0]) / np.maximum(sp, 1e-300) ** 2  # |kappa| ds/du
-    half = (hi - lo) / 2
-    length = (half * (sp.reshape(-1, len(x)) * w)).sum(axis=1)
-    turning = (half * (turn.reshape(-1, len(x)) * w)).sum(axis=1)
+    length, turning = np.empty(len(sp.mid)), np.empty(len(sp.mid))
+    span_measures(sp.T, np.diff(sp.bp) / 2, x, w, length, turning)
     return length, turning
 
 
 def make_grid(spline: Spline, spacing: float = 0.5, turn_step: float = 0.05, n_points: int | None = None,
-              min_per_span: int = 2, max_points: int = 200_000) -> np.ndarray:
+              min_per_span: int = 2, max_points: int = 200_000,
+              span_polys: constraints.Spans | None = None) -> np.ndarray:
     """Grid in u: every knot; each span split so steps are ~``spacing`` mm and
     turn ~``turn_step`` rad at most (dense where the curve is tight), or into
-    ``n_points`` nodes in total distributed by the same weights."""
+    ``n_points`` nodes in total distributed by the same weights.
+    ``span_polys``: constraints.spans(spline), if already computed."""
     bp = spline.breakpoints
-    length, turning = _span_measures(spline)
+    length, turning = _span_measures(spline, span_polys)
     weight = length / spacing + turning / turn_step
     if n_points is not None:
         n = np.maximum(np.floor(weight / weight.sum() * (n_points - 1)).astype(int), 1)
@@ -107,13 +105,14 @@ def make_grid(spline: Spline, spacing: float = 0.5, turn_step: float = 0.05, n_p
     return np.append(starts + widths * frac, 1.0)
 
 
-def build_rows(spline: Spline, u: np.ndarray, limits: Limits, mode: str = "bernstein") -> constraints.Rows:
+def build_rows(spline: Spline, u: np.ndarray, limits: Limits, mode: str = "bernstein",
+               span_polys: constraints.Spans | None = None) -> constraints.Rows:
     if mode == "collocation":
         if limits.M is None:
             raise PlanError("collocation mode needs linear kinematics")
         return constraints.collocation_rows(spline, u, limits.M, limits.vmax, limits.amax, limits.pen_speed)
     if limits.M is not None:
-        return constraints.bernstein_rows(spline, u, limits.M, limits.vmax, limits.amax, limits.pen_speed)
+        return constraints.bernstein_rows(spline, u, limits.M, limits.vmax, limits.amax, limits.pen_speed, span_polys)
     return constraints.sampled_rows(spline, u, limits.kinematics, limits.vmax, limits.amax, limits.pen_speed)
 
 
@@ -285,15 +284,16 @@ def plan_stroke(spline: Spline, limits: Limits, solver: str = "reach", spacing: 
     period = jerk_period if jerk_max else None
     if solver == "reach" and mode == "bernstein" and grid is None and n_points is None and _straight(spline, limits):
         return _trapezoid(spline, limits, b0, bN)
+    sp = constraints.spans(spline)  # the span polynomials, shared by the grid and every round's rows
     if grid is not None:
         u, adaptive = np.asarray(grid, float), False
     else:
-        u = make_grid(spline, spacing, n_points=n_points)
+        u = make_grid(spline, spacing, n_points=n_points, span_polys=sp)
     base = solver if solver.startswith(("reach", "lp")) else "reach"
     nonlinear = limits.M is None and mode != "collocation"
     best_t = np.inf
     for round_ in range(max_rounds):
-        rows = _capped(build_rows(spline, u, limits, mode), knot_caps(spline, u, jerk_max, period))
+        rows = _capped(build_rows(spline, u, limits, mode, sp), knot_caps(spline, u, jerk_max, period))
         b = _solve(rows, u, base, b0, bN)
         if mode == "collocation" or not (adaptive or nonlinear):
             break
