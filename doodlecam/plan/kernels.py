@@ -274,9 +274,9 @@ def max_ratio(tot, beta, gamma, b):  # pragma: no cover - compiled
         for r in range(R):
             g = gamma[k, r]
             if g < np.inf:
-                v = (tot[k, r] * b[k] + beta[k, r] * (b[k + 1] - b[k])) / g
-                if v > worst:
-                    worst = v
+                v = tot[k, r] * b[k] + beta[k, r] * (b[k + 1] - b[k])
+                if v > worst * g:  # divide only when it may be the worst (g > 0)
+                    worst = v / g
     return worst
 
 
