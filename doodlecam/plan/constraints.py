@@ -82,19 +82,42 @@ class Spans:
     T: np.ndarray  # (nseg, degree + 1, 2)
 
 
+@lru_cache(maxsize=None)
+def _interior_taylor(p: int) -> np.ndarray:
+    """C[r, j]: the j-th Taylor coefficient, at the middle of a knot span of unit
+    width, of the r-th of the p + 1 uniform B-spline pieces over it."""
+    from doodlecam.geometry.kernels import span_taylor
+
+    nseg = 2 * p + 1  # span p is at least p spans from both ends
+    C = np.empty((p + 1, p + 1))
+    bp = np.linspace(0.0, 1.0, nseg + 1)
+    for r in range(p + 1):
+        e = np.zeros((nseg + p, 2))
+        e[p + r, 0] = 1.0
+        out = np.empty((nseg, p + 1, 2))
+        span_taylor(_padded_derivatives(Spline(p, e)), p, nseg, (bp[:-1] + bp[1:]) / 2, np.empty((0, 0)), out)
+        C[r] = out[p, :, 0] / float(nseg) ** np.arange(p + 1)
+    return C
+
+
+def _padded_derivatives(spline: Spline) -> np.ndarray:
+    """D[j, :n - j] = the control points of q^(j) (Spline.derivative_controls)."""
+    dc = spline.derivative_controls
+    D = np.zeros((len(dc), len(dc[0]), 2))
+    for j, c in enumerate(dc):
+        D[j, : len(c)] = c
+    return D
+
+
 def spans(spline: Spline) -> Spans:
     """The span polynomials of ``spline``: computed once per plan, then the grid
     and the rows of every round use them (Horner instead of de Boor per point)."""
     from doodlecam.geometry.kernels import span_taylor
 
     p, bp = spline.degree, spline.breakpoints
-    dc = spline.derivative_controls
-    D = np.zeros((p + 1, len(dc[0]), 2))
-    for j, c in enumerate(dc):
-        D[j, : len(c)] = c
     mid = (bp[:-1] + bp[1:]) / 2
     T = np.empty((len(mid), p + 1, 2))
-    span_taylor(D, p, len(mid), mid, T)
+    span_taylor(_padded_derivatives(spline), p, len(mid), mid, _interior_taylor(p), T)
     return Spans(bp, mid, T)
 
 

@@ -173,12 +173,13 @@ def check_inputs(spline: Spline, limits: Limits, v_start: float = 0.0, v_end: fl
     if spline.degree < 1:
         raise PlanError(f"a degree-{spline.degree} spline has no velocity; fit the stroke with degree 1 or more")
     c = np.asarray(spline.control, float)
-    if not _finite(c):
+    lo, hi = c.min(axis=0), c.max(axis=0)  # (NaN propagates into both)
+    if not (np.isfinite(lo).all() and np.isfinite(hi).all()):
         raise PlanError("the stroke has non-finite control points (NaN or infinity); fix the drawing")
-    if float(np.ptp(c, axis=0).max()) <= 1e-9 * max(1.0, float(np.abs(c).max())):
+    tiny = 1e-9 * max(1.0, float(np.abs(lo).max()), float(np.abs(hi).max()))
+    if float((hi - lo).max()) <= tiny:
         raise PlanError("the stroke has zero length (all control points equal); drop it or draw a dot")
-    legs = np.linalg.norm(np.diff(c, axis=0), axis=1)
-    if spline.degree == 1 and (legs <= 1e-9 * max(1.0, float(np.abs(c).max()))).any():
+    if spline.degree == 1 and (np.linalg.norm(np.diff(c, axis=0), axis=1) <= tiny).any():
         raise PlanError("the degree-1 stroke repeats a control point (a span without length); remove repeated points")
     for name, x in (("velocity", limits.vmax), ("acceleration", limits.amax)):
         x = np.atleast_1d(np.asarray(x, float))
@@ -278,7 +279,8 @@ def plan_stroke(spline: Spline, limits: Limits, solver: str = "reach", spacing: 
         g = np.asarray(grid, float)
         if g.ndim != 1 or len(g) < 2 or not _finite(g) or g[0] != 0.0 or g[-1] != 1.0 or (np.diff(g) <= 0).any():
             raise PlanError("a planning grid must rise strictly from 0 to 1; pass the u of an earlier plan")
-    speed_ends = np.linalg.norm(spline(np.array([0.0, 1.0]), 1), axis=1)
+    d1 = spline.derivative_controls[1]
+    speed_ends = np.sqrt((d1[[0, -1]] ** 2).sum(axis=1))  # |q'(0)|, |q'(1)|: a clamped spline's end controls
     b0 = (v_start / max(speed_ends[0], 1e-300)) ** 2
     bN = (v_end / max(speed_ends[1], 1e-300)) ** 2
     period = jerk_period if jerk_max else None
