@@ -311,3 +311,29 @@ def interval_worst(b, h, t1, t2, sp, amax, vmax, pen, refine):  # pragma: no cov
                 if p > wp[k]:
                     wp[k] = p
     return wa, wv, wp
+
+
+@numba.njit(cache=True, nogil=True)
+def grid_fill(bp, n, out):  # pragma: no cover - compiled
+    """out = every breakpoint bp[s] and n[s] - 1 evenly spaced points after it
+    in its span, then 1 (planner.make_grid)."""
+    i = 0
+    for s in range(n.shape[0]):
+        w = (bp[s + 1] - bp[s]) / n[s]
+        for j in range(n[s]):
+            out[i] = bp[s] + w * j
+            i += 1
+    out[i] = 1.0
+
+
+@numba.njit(cache=True, nogil=True)
+def times(u, b, t):  # pragma: no cover - compiled
+    """t[k] = time (s) at node k when b = u-dot^2 is linear in u between nodes:
+    each interval takes 2 h / (sqrt b_k + sqrt b_k+1) (inf where both are 0)."""
+    t[0] = 0.0
+    s0 = np.sqrt(max(b[0], 0.0))
+    for k in range(u.shape[0] - 1):
+        s1 = np.sqrt(max(b[k + 1], 0.0))
+        den = s0 + s1
+        t[k + 1] = t[k] + (2.0 * (u[k + 1] - u[k]) / den if den > 0.0 else np.inf)
+        s0 = s1

@@ -99,10 +99,11 @@ def make_grid(spline: Spline, spacing: float = 0.5, turn_step: float = 0.05, n_p
         n = np.clip(np.ceil(weight).astype(int), min_per_span, None)
         if n.sum() > max_points:
             n = np.maximum((n * max_points / n.sum()).astype(int), 1)
-    starts = np.repeat(bp[:-1], n)
-    widths = np.repeat(np.diff(bp) / n, n)
-    frac = np.arange(n.sum()) - np.repeat(np.cumsum(n) - n, n)
-    return np.append(starts + widths * frac, 1.0)
+    from doodlecam.plan.kernels import grid_fill
+
+    u = np.empty(int(n.sum()) + 1)
+    grid_fill(bp, n.astype(np.int64), u)
+    return u
 
 
 def build_rows(spline: Spline, u: np.ndarray, limits: Limits, mode: str = "bernstein",
@@ -117,10 +118,12 @@ def build_rows(spline: Spline, u: np.ndarray, limits: Limits, mode: str = "berns
 
 
 def profile_times(u: np.ndarray, b: np.ndarray) -> np.ndarray:
-    sb = np.sqrt(np.maximum(b, 0.0))
-    with np.errstate(divide="ignore"):
-        dt = 2 * np.diff(u) / (sb[:-1] + sb[1:])
-    return np.concatenate([[0.0], np.cumsum(dt)])
+    """Time (s) at every node of the profile b (inf after a node where it stops)."""
+    from doodlecam.plan.kernels import times
+
+    t = np.empty(len(u))
+    times(np.asarray(u, float), np.asarray(b, float), t)
+    return t
 
 
 def interval_ratios(spline: Spline, u: np.ndarray, b: np.ndarray, limits: Limits, refine: int = CHECK_REFINE):
