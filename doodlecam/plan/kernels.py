@@ -1,8 +1,9 @@
 """Compiled inner loops of the planner (numba).
 
-Both are sequential per grid interval and run at every plan, so they are
-compiled: the same loops in Python would be ~100x slower. This module is
-imported only when a stroke is planned (numba's import costs ~0.3 s).
+They run per grid interval at every plan (rows, the two reachability passes,
+the checks, the grid and the times), so they are compiled: the same loops in
+Python would be ~100x slower. This module is imported only when a stroke is
+planned (numba's import costs ~0.3 s).
 """
 
 import numba
