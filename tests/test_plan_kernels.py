@@ -166,3 +166,21 @@ def test_reach_sets_on_arbitrary_rows_equal_the_pairwise_elimination(seed, R, un
     assert status in (0, -1), f"refused an interval the pairwise elimination keeps (status {status})"
     assert (status == -1) == (ref[0][0] > 1e-300)
     assert np.allclose(lo, ref[0], rtol=1e-9, atol=1e-12) and np.allclose(hi, ref[1], rtol=1e-9, atol=1e-12)
+
+
+@pytest.mark.parametrize("control,degree", [
+    ([[0.0, 1.0], [0.0, 0.0], [0.0, 0.0], [0.0, 0.0]], 2),  # found by the explore profile: a span standing still
+    ([[0.0, 0.0], [5.0, 0.0], [5.0, 0.0], [5.0, 0.0], [5.0, 0.0], [9.0, 3.0]], 3),
+])
+def test_a_span_where_the_pen_stands_still_is_planned_within_limits(control, degree):
+    from doodlecam.plan.planner import check_profile, plan_stroke
+
+    s = Spline(degree, np.array(control))
+    lim = Limits(np.array([150.0, 120.0]), np.array([2000.0, 1500.0]), np.eye(2))
+    u = make_grid(s)
+    assert np.all(np.isfinite(u)) and np.all(np.diff(u) > 0)
+    with np.errstate(invalid="ignore"):  # b is unbounded where q' = 0: the pen does not move there
+        prof = plan_stroke(s, lim)
+        acc, vel = check_profile(s, prof, lim)
+    assert np.isfinite(prof.duration) and prof.duration > 0
+    assert acc <= 1 + 1e-9 and vel <= 1 + 1e-9

@@ -131,9 +131,10 @@ def span_measures(T, half, gx, gw, length, turning):  # pragma: no cover - compi
                 if i >= 2:
                     d2x = d2x * t + i * (i - 1) * T[s, i, 0]
                     d2y = d2y * t + i * (i - 1) * T[s, i, 1]
-            sp = np.sqrt(d1x * d1x + d1y * d1y)
-            ln += gw[m] * sp
-            tn += gw[m] * abs(d1x * d2y - d1y * d2x) / max(sp, 1e-300) ** 2
+            sp2 = d1x * d1x + d1y * d1y
+            ln += gw[m] * np.sqrt(sp2)
+            if sp2 > 0.0:  # where the pen stands still (a span of equal controls) it does not turn
+                tn += gw[m] * abs(d1x * d2y - d1y * d2x) / sp2
         length[s] = half[s] * ln
         turning[s] = half[s] * tn
 
