@@ -242,6 +242,18 @@ def knot_caps(spline: Spline, u: np.ndarray, jerk_max=None, period: float | None
     return cap
 
 
+def _standing_still(rows: constraints.Rows, u: np.ndarray, b: np.ndarray, base: str, b0: float, bN: float):
+    """No limit bounds b where q' = 0 on whole intervals (a span of equal control
+    points: the pen stands still), so the solver leaves b = inf there and the
+    profile's a and b are not finite. Any finite b keeps those rows: cap it at
+    1e4 x the fastest b elsewhere and solve again (the time spent standing still,
+    2 h / sqrt(b), is then 1 % of what the same stretch of u takes at that speed)."""
+    fin = b[np.isfinite(b)]
+    cap = np.where(np.isfinite(b), np.inf, 1e4 * max(float(fin.max(initial=0.0)), 1.0))
+    rows = _capped(rows, cap)
+    return rows, _solve(rows, u, base, b0, bN)
+
+
 def _capped(rows: constraints.Rows, cap: np.ndarray) -> constraints.Rows:
     if np.isinf(cap).all():
         return rows
@@ -300,6 +312,8 @@ def plan_stroke(spline: Spline, limits: Limits, solver: str = "reach", spacing: 
     for round_ in range(max_rounds):
         rows = _capped(build_rows(spline, u, limits, mode, sp), knot_caps(spline, u, jerk_max, period))
         b = _solve(rows, u, base, b0, bN)
+        if not np.isfinite(b).all():
+            rows, b = _standing_still(rows, u, b, base, b0, bN)
         if mode == "collocation" or not (adaptive or nonlinear):
             break
         wa, wv, wp = interval_ratios(spline, u, b, limits, refine=8 if not nonlinear else CHECK_REFINE)
