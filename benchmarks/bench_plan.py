@@ -102,9 +102,13 @@ def main() -> None:
     ap.add_argument("--repeat", type=int, default=5)
     ap.add_argument("--sizes", type=int, nargs="*", default=[1000, 10000])
     ap.add_argument("--picture-only", action="store_true", help="only the all-strokes-of-camera timing")
+    ap.add_argument("--phases", action="store_true", help="only where a plan's CPU time goes, per path and N")
     args = ap.parse_args()
     if args.picture_only:
         picture()
+        return
+    if args.phases:
+        phases(args.sizes, args.repeat)
         return
     warnings.simplefilter("ignore")
     limits = Limits(np.array([VMAX, VMAX]), np.array([AMAX, AMAX]), np.eye(2))
@@ -140,6 +144,39 @@ def main() -> None:
             row += [f"{100 * (lp / prof.duration - 1):+.4f} %", f"{100 * (qp / prof.duration - 1):+.3f} %" if qp == qp else "-"]
             print("| " + " | ".join(map(str, row)) + " |")
     picture()
+
+
+def phases(sizes, repeat) -> None:
+    """CPU ms of each step of plan_stroke(adaptive=False), best of ``repeat`` x 20 calls."""
+    from doodlecam.plan import constraints, planner, reach
+
+    limits = Limits(np.array([VMAX, VMAX]), np.array([AMAX, AMAX]), np.eye(2))
+
+    def best(fn):
+        fn()
+        times = []
+        for _ in range(repeat):
+            t0 = time.process_time()
+            for _ in range(20):
+                fn()
+            times.append((time.process_time() - t0) / 20)
+        return 1000 * min(times)
+
+    print("| path | N | plan_stroke ms | input checks | span polynomials | grid | rows | passes | certificate |")
+    print("|---|---|---|---|---|---|---|---|---|")
+    for name, s in paths().items():
+        for n in sizes:
+            sp = constraints.spans(s)
+            u = make_grid(s, n_points=n, span_polys=sp)
+            rows = planner.build_rows(s, u, limits, "bernstein", sp)
+            b = reach.solve(rows.tot, rows.beta, rows.gamma, rows.ub)
+            cells = [best(lambda: plan_stroke(s, limits, n_points=n, adaptive=False)),
+                     best(lambda: planner.check_inputs(s, limits)), best(lambda: constraints.spans(s)),
+                     best(lambda: make_grid(s, n_points=n, span_polys=sp)),
+                     best(lambda: planner.build_rows(s, u, limits, "bernstein", sp)),
+                     best(lambda: reach.solve(rows.tot, rows.beta, rows.gamma, rows.ub)),
+                     best(lambda: planner._certify(s, u, b, limits, 0.0, 0.0, rows))]
+            print(f"| {name} | {n} | " + " | ".join(f"{c:.3f}" for c in cells) + " |")
 
 
 def picture() -> None:

@@ -107,3 +107,39 @@ def distance_to_stretch(c0, c1, c2, k, nseg, x, lo, hi, candidates, iterations, 
             u = min(max(u, a), b)
         qx, qy = _point(c0, k, nseg, u, N, left, right)
         out[i] = min(np.sqrt((qx - px) ** 2 + (qy - py) ** 2), best)
+
+
+@numba.njit(cache=True, nogil=True)
+def span_taylor(D, p, nseg, mid, C, out):  # pragma: no cover - compiled
+    """out[s, j] = q^(j)(mid[s]) / j!, the Taylor coefficients of knot span s at
+    its midpoint mid[s] (j = 0..p), for every span s < nseg. D[j]: the control
+    points of q^(j) (its first n - j rows; a clamped uniform spline of degree
+    p - j, nseg spans). At the midpoint no knot is near, so each span gets its
+    own polynomial even where a derivative jumps at its ends. Spans at least p
+    from both ends take C[r, j] (the same for all of them: the uniform pieces'
+    coefficients on a unit-width span) times nseg^j; the others de Boor. With
+    C of shape (0, 0), all by de Boor."""
+    N = np.empty(p + 1)
+    left = np.empty(p + 1)
+    right = np.empty(p + 1)
+    uniform = C.shape[0] == p + 1
+    for s in range(nseg):
+        if uniform and p <= s < nseg - p:
+            f = 1.0
+            for j in range(p + 1):
+                x = 0.0
+                y = 0.0
+                for r in range(p + 1):
+                    x += C[r, j] * D[0, s + r, 0]
+                    y += C[r, j] * D[0, s + r, 1]
+                out[s, j, 0] = x * f
+                out[s, j, 1] = y * f
+                f *= nseg
+            continue
+        f = 1.0
+        for j in range(p + 1):
+            if j > 0:
+                f *= j
+            x, y = _point(D[j], p - j, nseg, mid[s], N, left, right)
+            out[s, j, 0] = x / f
+            out[s, j, 1] = y / f

@@ -72,12 +72,62 @@ def _b_matrix(n: int) -> np.ndarray:
     return np.array([[comb(i, j) / comb(n, j) if j <= i else 0.0 for j in range(n + 1)] for i in range(n + 1)])
 
 
+@dataclass(frozen=True)
+class Spans:
+    """Every knot span's polynomial: Taylor coefficients ``T[s, j]`` = q^(j)(mid[s]) / j!
+    (mm / u^j) at the span's midpoint, for s over the spans [bp[s], bp[s+1]]."""
+
+    bp: np.ndarray  # (nseg + 1,) breakpoints
+    mid: np.ndarray  # (nseg,)
+    T: np.ndarray  # (nseg, degree + 1, 2)
+
+
+@lru_cache(maxsize=None)
+def _interior_taylor(p: int) -> np.ndarray:
+    """C[r, j]: the j-th Taylor coefficient, at the middle of a knot span of unit
+    width, of the r-th of the p + 1 uniform B-spline pieces over it."""
+    from doodlecam.geometry.kernels import span_taylor
+
+    nseg = 2 * p + 1  # span p is at least p spans from both ends
+    C = np.empty((p + 1, p + 1))
+    bp = np.linspace(0.0, 1.0, nseg + 1)
+    for r in range(p + 1):
+        e = np.zeros((nseg + p, 2))
+        e[p + r, 0] = 1.0
+        out = np.empty((nseg, p + 1, 2))
+        span_taylor(_padded_derivatives(Spline(p, e)), p, nseg, (bp[:-1] + bp[1:]) / 2, np.empty((0, 0)), out)
+        C[r] = out[p, :, 0] / float(nseg) ** np.arange(p + 1)
+    return C
+
+
+def _padded_derivatives(spline: Spline) -> np.ndarray:
+    """D[j, :n - j] = the control points of q^(j) (Spline.derivative_controls)."""
+    dc = spline.derivative_controls
+    D = np.zeros((len(dc), len(dc[0]), 2))
+    for j, c in enumerate(dc):
+        D[j, : len(c)] = c
+    return D
+
+
+def spans(spline: Spline) -> Spans:
+    """The span polynomials of ``spline``: computed once per plan, then the grid
+    and the rows of every round use them (Horner instead of de Boor per point)."""
+    from doodlecam.geometry.kernels import span_taylor
+
+    p, bp = spline.degree, spline.breakpoints
+    mid = (bp[:-1] + bp[1:]) / 2
+    T = np.empty((len(mid), p + 1, 2))
+    span_taylor(_padded_derivatives(spline), p, len(mid), mid, _interior_taylor(p), T)
+    return Spans(bp, mid, T)
+
+
 def bernstein_rows(spline: Spline, u: np.ndarray, M: np.ndarray, vmax: np.ndarray, amax: np.ndarray,
-                   pen_speed: float | None = None) -> Rows:
+                   pen_speed: float | None = None, span_polys: Spans | None = None) -> Rows:
     """Certified rows for linear kinematics (the grid must contain every knot).
 
     Per interval (compiled: this is the planner's hot path): the Taylor
-    coefficients of q', q'' at the left end give, for every actuator,
+    coefficients of q', q'' at the left end (from its knot span's polynomial,
+    ``span_polys`` = spans(spline) if not given) give, for every actuator,
     acceleration  a_k P(tau) + b(tau) Q(tau)  and velocity squared
     theta'(tau)^2 b(tau) in power form; their Bernstein coefficients are the
     rows. Sizes: 2 p acceleration rows and 2 p velocity rows per actuator,
@@ -85,14 +135,14 @@ def bernstein_rows(spline: Spline, u: np.ndarray, M: np.ndarray, vmax: np.ndarra
     """
     from doodlecam.plan.kernels import bernstein_rows as kernel
 
+    sp = span_polys if span_polys is not None else spans(spline)
     p = spline.degree
     K, na = len(u) - 1, M.shape[0]
-    d = np.stack([spline(u[:-1], j) for j in range(1, p + 1)] + [np.zeros((K, 2))])  # right limits at knots
     R = na * 4 * p + (2 * p if pen_speed is not None else 0)
     tot, beta, gamma = np.empty((K, R)), np.empty((K, R)), np.empty((K, R))
-    kernel(d, np.diff(u), np.ascontiguousarray(M, float), np.asarray(vmax, float), np.asarray(amax, float),
-          float(pen_speed) ** 2 if pen_speed is not None else 0.0, _b_matrix(p - 1), _b_matrix(2 * p - 1),
-          tot, beta, gamma)
+    kernel(sp.T, sp.bp, sp.mid, np.asarray(u, float), np.ascontiguousarray(M, float), np.asarray(vmax, float),
+           np.asarray(amax, float), float(pen_speed) ** 2 if pen_speed is not None else 0.0,
+           _b_matrix(p - 1), _b_matrix(2 * p - 1), tot, beta, gamma)
     return Rows(tot, beta, gamma, np.full(len(u), np.inf))
 
 

@@ -1,8 +1,9 @@
 """Compiled inner loops of the planner (numba).
 
-Both are sequential per grid interval and run at every plan, so they are
-compiled: the same loops in Python would be ~100x slower. This module is
-imported only when a stroke is planned (numba's import costs ~0.3 s).
+They run per grid interval at every plan (rows, the two reachability passes,
+the checks, the grid and the times), so they are compiled: the same loops in
+Python would be ~100x slower. This module is imported only when a stroke is
+planned (numba's import costs ~0.3 s).
 """
 
 import numba
@@ -32,29 +33,43 @@ def _product_rows(sq, T2, g, k, r, pa, pb, tot, beta, gamma):  # pragma: no cove
 
 
 @numba.njit(cache=True, nogil=True)
-def bernstein_rows(d, h, M, vmax, amax, pen2, T1, T2, tot, beta, gamma):  # pragma: no cover - compiled
-    # d: (p + 1, K, 2) derivatives q^(j+1) at the interval's left end, j = 0..p
-    # (the last is zero); T1, T2: power -> Bernstein matrices of degree p-1, 2p-1.
-    p = d.shape[0] - 1
-    K = d.shape[1]
+def bernstein_rows(T, bp, mid, u, M, vmax, amax, pen2, T1, T2, tot, beta, gamma):  # pragma: no cover - compiled
+    """The rows of every grid interval [u_k, u_k+1] (constraints.bernstein_rows).
+    T[s, i]: Taylor coefficients of knot span s ([bp[s], bp[s+1]]) at mid[s]
+    (geometry.kernels.span_taylor); u must contain every breakpoint. Each
+    interval's derivatives come from its span's polynomial, shifted to u_k
+    (the right side of a knot), instead of one spline evaluation per order
+    and node. T1, T2: power -> Bernstein matrices of degree p-1, 2p-1."""
+    p = T.shape[1] - 1
+    K = u.shape[0] - 1
+    nseg = T.shape[0]
     na = M.shape[0]
     n2 = 2 * p  # coefficients of theta'^2 b(tau)
+    g = np.empty((2, p + 1))
     dq = np.zeros((2, p))
     ddq = np.zeros((2, p))
     P = np.zeros(p)
     Q = np.zeros(p)
-    sq = np.zeros(n2)
-    pa = np.zeros(n2)
-    pb = np.zeros(n2)
+    sq = np.zeros(2 * p)
+    pa = np.zeros(2 * p)
+    pb = np.zeros(2 * p)
+    s = 0
     for k in range(K):
-        hk = h[k]
-        f = 1.0
-        for j in range(p):
-            if j > 0:
-                f *= hk / j
-            for c in range(2):
-                dq[c, j] = d[j, k, c] * f
-                ddq[c, j] = d[j + 1, k, c] * f if j + 1 < p else 0.0
+        while s + 1 < nseg and u[k] >= bp[s + 1]:
+            s += 1
+        x = u[k] - mid[s]
+        hk = u[k + 1] - u[k]
+        for c in range(2):
+            for i in range(p + 1):
+                g[c, i] = T[s, i, c]
+            for i in range(p):  # Taylor shift: g[i] = q^(i)(u_k) / i!
+                for j in range(p - 1, i - 1, -1):
+                    g[c, j] += x * g[c, j + 1]
+            f = 1.0  # h^j
+            for j in range(p):
+                dq[c, j] = (j + 1) * g[c, j + 1] * f
+                ddq[c, j] = (j + 1) * (j + 2) * g[c, j + 2] * f if j + 2 <= p else 0.0
+                f *= hk
         r = 0
         for i in range(na):
             for j in range(p):
@@ -93,6 +108,71 @@ def bernstein_rows(d, h, M, vmax, amax, pen2, T1, T2, tot, beta, gamma):  # prag
                 for j2 in range(p):
                     sq[j1 + j2] += dq[0, j1] * dq[0, j2] + dq[1, j1] * dq[1, j2]
             r = _product_rows(sq, T2, pen2, k, r, pa, pb, tot, beta, gamma)
+
+
+@numba.njit(cache=True, nogil=True)
+def span_measures(T, half, gx, gw, length, turning):  # pragma: no cover - compiled
+    """Arc length and total turning |kappa| ds of every knot span from its Taylor
+    coefficients T (at the midpoint; half = half the span's width in u), by
+    Gauss-Legendre nodes gx and weights gw on [-1, 1]."""
+    p = T.shape[1] - 1
+    for s in range(T.shape[0]):
+        ln = 0.0
+        tn = 0.0
+        for m in range(gx.shape[0]):
+            t = half[s] * gx[m]
+            d1x = 0.0
+            d1y = 0.0
+            d2x = 0.0
+            d2y = 0.0
+            for i in range(p, 0, -1):  # Horner on q' and q''
+                d1x = d1x * t + i * T[s, i, 0]
+                d1y = d1y * t + i * T[s, i, 1]
+                if i >= 2:
+                    d2x = d2x * t + i * (i - 1) * T[s, i, 0]
+                    d2y = d2y * t + i * (i - 1) * T[s, i, 1]
+            sp2 = d1x * d1x + d1y * d1y
+            ln += gw[m] * np.sqrt(sp2)
+            if sp2 > 0.0:  # where the pen stands still (a span of equal controls) it does not turn
+                tn += gw[m] * abs(d1x * d2y - d1y * d2x) / sp2
+        length[s] = half[s] * ln
+        turning[s] = half[s] * tn
+
+
+@numba.njit(cache=True, nogil=True, inline="always")
+def _newton_end(cu0, cu1, nu, cl0, cl1, nl, x, stop, direction):  # pragma: no cover - compiled
+    """The end of {x : min_i (cu0 + cu1 x) >= max_j (cl0 + cl1 x)} reached from x
+    moving in ``direction`` (-1: down from an upper bound, +1: up from a lower
+    bound), not past ``stop``; NaN if the steps fail (the caller then
+    eliminates every pair)."""
+    for _ in range(16):
+        ui = 0
+        uv = cu0[0] + cu1[0] * x
+        for i in range(1, nu):
+            v = cu0[i] + cu1[i] * x
+            if v < uv:
+                uv = v
+                ui = i
+        lj = 0
+        lv = cl0[0] + cl1[0] * x
+        for j in range(1, nl):
+            v = cl0[j] + cl1[j] * x
+            if v > lv:
+                lv = v
+                lj = j
+        if uv >= lv:
+            return x
+        d0 = cu0[ui] - cl0[lj]
+        d1 = cu1[ui] - cl1[lj]
+        if d1 * direction <= 0.0:
+            return np.nan  # the active pair does not rise that way: no root there (or a tie)
+        xn = -d0 / d1
+        if (xn - x) * direction <= 0.0:
+            return x  # the active pair's root, to rounding
+        if (xn - stop) * direction > 0.0:
+            return np.nan
+        x = xn
+    return np.nan
 
 
 @numba.njit(cache=True, nogil=True)
@@ -137,16 +217,27 @@ def reach_passes(tot, beta, gamma, ub, b0, bN, b, lo, hi):  # pragma: no cover -
                 xmax = min(xmax, g / t)
             elif t < -_EPS:
                 xmin = max(xmin, g / t)
-        for i in range(nu):
-            for j in range(nl):
-                d0 = cu0[i] - cl0[j]
-                d1 = cu1[i] - cl1[j]
-                if d1 < 0.0:
-                    xmax = min(xmax, -d0 / d1)
-                elif d1 > 0.0:
-                    xmin = max(xmin, -d0 / d1)
-                elif d0 < 0.0:
-                    return k + 1  # infeasible interval
+        # The feasible x are where g(x) = min upper - max lower >= 0: g is concave
+        # and piecewise linear, so Newton steps on its active pieces reach the
+        # ends of that interval exactly in a few evaluations of the nu + nl
+        # lines (not nu * nl pairs). Anything unusual (no root, a tie with no
+        # progress, many steps) takes the Fourier-Motzkin elimination of every
+        # pair, which the steps equal when they succeed.
+        hi_x = _newton_end(cu0, cu1, nu, cl0, cl1, nl, xmax, xmin, -1.0)
+        lo_x = _newton_end(cu0, cu1, nu, cl0, cl1, nl, xmin, xmax, 1.0)
+        if hi_x == hi_x and lo_x == lo_x and lo_x <= hi_x:  # (NaN: the steps failed)
+            xmin, xmax = lo_x, hi_x
+        else:
+            for i in range(nu):
+                for j in range(nl):
+                    d0 = cu0[i] - cl0[j]
+                    d1 = cu1[i] - cl1[j]
+                    if d1 < 0.0:
+                        xmax = min(xmax, -d0 / d1)
+                    elif d1 > 0.0:
+                        xmin = max(xmin, -d0 / d1)
+                    elif d0 < 0.0:
+                        return k + 1  # infeasible interval
         if xmax < xmin:
             if xmax < xmin - 1e-9 * max(1.0, abs(xmin)):
                 return k + 1
@@ -185,9 +276,9 @@ def max_ratio(tot, beta, gamma, b):  # pragma: no cover - compiled
         for r in range(R):
             g = gamma[k, r]
             if g < np.inf:
-                v = (tot[k, r] * b[k] + beta[k, r] * (b[k + 1] - b[k])) / g
-                if v > worst:
-                    worst = v
+                v = tot[k, r] * b[k] + beta[k, r] * (b[k + 1] - b[k])
+                if v > worst * g:  # divide only when it may be the worst (g > 0)
+                    worst = v / g
     return worst
 
 
@@ -222,3 +313,29 @@ def interval_worst(b, h, t1, t2, sp, amax, vmax, pen, refine):  # pragma: no cov
                 if p > wp[k]:
                     wp[k] = p
     return wa, wv, wp
+
+
+@numba.njit(cache=True, nogil=True)
+def grid_fill(bp, n, out):  # pragma: no cover - compiled
+    """out = every breakpoint bp[s] and n[s] - 1 evenly spaced points after it
+    in its span, then 1 (planner.make_grid)."""
+    i = 0
+    for s in range(n.shape[0]):
+        w = (bp[s + 1] - bp[s]) / n[s]
+        for j in range(n[s]):
+            out[i] = bp[s] + w * j
+            i += 1
+    out[i] = 1.0
+
+
+@numba.njit(cache=True, nogil=True)
+def times(u, b, t):  # pragma: no cover - compiled
+    """t[k] = time (s) at node k when b = u-dot^2 is linear in u between nodes:
+    each interval takes 2 h / (sqrt b_k + sqrt b_k+1) (inf where both are 0)."""
+    t[0] = 0.0
+    s0 = np.sqrt(max(b[0], 0.0))
+    for k in range(u.shape[0] - 1):
+        s1 = np.sqrt(max(b[k + 1], 0.0))
+        den = s0 + s1
+        t[k + 1] = t[k] + (2.0 * (u[k + 1] - u[k]) / den if den > 0.0 else np.inf)
+        s0 = s1

@@ -67,28 +67,26 @@ class Limits:
 _GAUSS = np.polynomial.legendre.leggauss(6)
 
 
-def _span_measures(spline: Spline):
+def _span_measures(spline: Spline, span_polys: constraints.Spans | None = None):
     """Arc length (mm) and total turning (rad) of every knot span."""
-    bp = spline.breakpoints
+    from doodlecam.plan.kernels import span_measures
+
+    sp = span_polys if span_polys is not None else constraints.spans(spline)
     x, w = _GAUSS
-    lo, hi = bp[:-1, None], bp[1:, None]
-    uu = ((lo + hi) / 2 + (hi - lo) / 2 * x).ravel()
-    d1, d2 = spline(uu, 1), spline(uu, 2)
-    sp = np.linalg.norm(d1, axis=1)
-    turn = np.abs(d1[:, 0] * d2[:, 1] - d1[:, 1] * d2[:, 0]) / np.maximum(sp, 1e-300) ** 2  # |kappa| ds/du
-    half = (hi - lo) / 2
-    length = (half * (sp.reshape(-1, len(x)) * w)).sum(axis=1)
-    turning = (half * (turn.reshape(-1, len(x)) * w)).sum(axis=1)
+    length, turning = np.empty(len(sp.mid)), np.empty(len(sp.mid))
+    span_measures(sp.T, np.diff(sp.bp) / 2, x, w, length, turning)
     return length, turning
 
 
 def make_grid(spline: Spline, spacing: float = 0.5, turn_step: float = 0.05, n_points: int | None = None,
-              min_per_span: int = 2, max_points: int = 200_000) -> np.ndarray:
+              min_per_span: int = 2, max_points: int = 200_000,
+              span_polys: constraints.Spans | None = None) -> np.ndarray:
     """Grid in u: every knot; each span split so steps are ~``spacing`` mm and
     turn ~``turn_step`` rad at most (dense where the curve is tight), or into
-    ``n_points`` nodes in total distributed by the same weights."""
+    ``n_points`` nodes in total distributed by the same weights.
+    ``span_polys``: constraints.spans(spline), if already computed."""
     bp = spline.breakpoints
-    length, turning = _span_measures(spline)
+    length, turning = _span_measures(spline, span_polys)
     weight = length / spacing + turning / turn_step
     if n_points is not None:
         n = np.maximum(np.floor(weight / weight.sum() * (n_points - 1)).astype(int), 1)
@@ -101,27 +99,31 @@ def make_grid(spline: Spline, spacing: float = 0.5, turn_step: float = 0.05, n_p
         n = np.clip(np.ceil(weight).astype(int), min_per_span, None)
         if n.sum() > max_points:
             n = np.maximum((n * max_points / n.sum()).astype(int), 1)
-    starts = np.repeat(bp[:-1], n)
-    widths = np.repeat(np.diff(bp) / n, n)
-    frac = np.arange(n.sum()) - np.repeat(np.cumsum(n) - n, n)
-    return np.append(starts + widths * frac, 1.0)
+    from doodlecam.plan.kernels import grid_fill
+
+    u = np.empty(int(n.sum()) + 1)
+    grid_fill(bp, n.astype(np.int64), u)
+    return u
 
 
-def build_rows(spline: Spline, u: np.ndarray, limits: Limits, mode: str = "bernstein") -> constraints.Rows:
+def build_rows(spline: Spline, u: np.ndarray, limits: Limits, mode: str = "bernstein",
+               span_polys: constraints.Spans | None = None) -> constraints.Rows:
     if mode == "collocation":
         if limits.M is None:
             raise PlanError("collocation mode needs linear kinematics")
         return constraints.collocation_rows(spline, u, limits.M, limits.vmax, limits.amax, limits.pen_speed)
     if limits.M is not None:
-        return constraints.bernstein_rows(spline, u, limits.M, limits.vmax, limits.amax, limits.pen_speed)
+        return constraints.bernstein_rows(spline, u, limits.M, limits.vmax, limits.amax, limits.pen_speed, span_polys)
     return constraints.sampled_rows(spline, u, limits.kinematics, limits.vmax, limits.amax, limits.pen_speed)
 
 
 def profile_times(u: np.ndarray, b: np.ndarray) -> np.ndarray:
-    sb = np.sqrt(np.maximum(b, 0.0))
-    with np.errstate(divide="ignore"):
-        dt = 2 * np.diff(u) / (sb[:-1] + sb[1:])
-    return np.concatenate([[0.0], np.cumsum(dt)])
+    """Time (s) at every node of the profile b (inf after a node where it stops)."""
+    from doodlecam.plan.kernels import times
+
+    t = np.empty(len(u))
+    times(np.asarray(u, float), np.asarray(b, float), t)
+    return t
 
 
 def interval_ratios(spline: Spline, u: np.ndarray, b: np.ndarray, limits: Limits, refine: int = CHECK_REFINE):
@@ -174,12 +176,13 @@ def check_inputs(spline: Spline, limits: Limits, v_start: float = 0.0, v_end: fl
     if spline.degree < 1:
         raise PlanError(f"a degree-{spline.degree} spline has no velocity; fit the stroke with degree 1 or more")
     c = np.asarray(spline.control, float)
-    if not _finite(c):
+    lo, hi = c.min(axis=0), c.max(axis=0)  # (NaN propagates into both)
+    if not (np.isfinite(lo).all() and np.isfinite(hi).all()):
         raise PlanError("the stroke has non-finite control points (NaN or infinity); fix the drawing")
-    if float(np.ptp(c, axis=0).max()) <= 1e-9 * max(1.0, float(np.abs(c).max())):
+    tiny = 1e-9 * max(1.0, float(np.abs(lo).max()), float(np.abs(hi).max()))
+    if float((hi - lo).max()) <= tiny:
         raise PlanError("the stroke has zero length (all control points equal); drop it or draw a dot")
-    legs = np.linalg.norm(np.diff(c, axis=0), axis=1)
-    if spline.degree == 1 and (legs <= 1e-9 * max(1.0, float(np.abs(c).max()))).any():
+    if spline.degree == 1 and (np.linalg.norm(np.diff(c, axis=0), axis=1) <= tiny).any():
         raise PlanError("the degree-1 stroke repeats a control point (a span without length); remove repeated points")
     for name, x in (("velocity", limits.vmax), ("acceleration", limits.amax)):
         x = np.atleast_1d(np.asarray(x, float))
@@ -239,6 +242,18 @@ def knot_caps(spline: Spline, u: np.ndarray, jerk_max=None, period: float | None
     return cap
 
 
+def _standing_still(rows: constraints.Rows, u: np.ndarray, b: np.ndarray, base: str, b0: float, bN: float):
+    """No limit bounds b where q' = 0 on whole intervals (a span of equal control
+    points: the pen stands still), so the solver leaves b = inf there and the
+    profile's a and b are not finite. Any finite b keeps those rows: cap it at
+    1e4 x the fastest b elsewhere and solve again (the time spent standing still,
+    2 h / sqrt(b), is then 1 % of what the same stretch of u takes at that speed)."""
+    fin = b[np.isfinite(b)]
+    cap = np.where(np.isfinite(b), np.inf, 1e4 * max(float(fin.max(initial=0.0)), 1.0))
+    rows = _capped(rows, cap)
+    return rows, _solve(rows, u, base, b0, bN)
+
+
 def _capped(rows: constraints.Rows, cap: np.ndarray) -> constraints.Rows:
     if np.isinf(cap).all():
         return rows
@@ -279,22 +294,26 @@ def plan_stroke(spline: Spline, limits: Limits, solver: str = "reach", spacing: 
         g = np.asarray(grid, float)
         if g.ndim != 1 or len(g) < 2 or not _finite(g) or g[0] != 0.0 or g[-1] != 1.0 or (np.diff(g) <= 0).any():
             raise PlanError("a planning grid must rise strictly from 0 to 1; pass the u of an earlier plan")
-    speed_ends = np.linalg.norm(spline(np.array([0.0, 1.0]), 1), axis=1)
+    d1 = spline.derivative_controls[1]
+    speed_ends = np.sqrt((d1[[0, -1]] ** 2).sum(axis=1))  # |q'(0)|, |q'(1)|: a clamped spline's end controls
     b0 = (v_start / max(speed_ends[0], 1e-300)) ** 2
     bN = (v_end / max(speed_ends[1], 1e-300)) ** 2
     period = jerk_period if jerk_max else None
     if solver == "reach" and mode == "bernstein" and grid is None and n_points is None and _straight(spline, limits):
         return _trapezoid(spline, limits, b0, bN)
+    sp = constraints.spans(spline)  # the span polynomials, shared by the grid and every round's rows
     if grid is not None:
         u, adaptive = np.asarray(grid, float), False
     else:
-        u = make_grid(spline, spacing, n_points=n_points)
+        u = make_grid(spline, spacing, n_points=n_points, span_polys=sp)
     base = solver if solver.startswith(("reach", "lp")) else "reach"
     nonlinear = limits.M is None and mode != "collocation"
     best_t = np.inf
     for round_ in range(max_rounds):
-        rows = _capped(build_rows(spline, u, limits, mode), knot_caps(spline, u, jerk_max, period))
+        rows = _capped(build_rows(spline, u, limits, mode, sp), knot_caps(spline, u, jerk_max, period))
         b = _solve(rows, u, base, b0, bN)
+        if not np.isfinite(b).all():
+            rows, b = _standing_still(rows, u, b, base, b0, bN)
         if mode == "collocation" or not (adaptive or nonlinear):
             break
         wa, wv, wp = interval_ratios(spline, u, b, limits, refine=8 if not nonlinear else CHECK_REFINE)

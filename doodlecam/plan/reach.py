@@ -4,11 +4,17 @@ Constraints on interval k are rows  tot_r b_k + beta_r (b_k+1 - b_k) <= gamma_r,
 with node bounds 0 <= b_k <= ub_k and given b_0, b_N. The backward pass
 computes the controllable set [lo_k, hi_k] of every node (the b_k from which
 the end can still be reached), eliminating b_k+1 from each 2-variable
-system exactly (Fourier-Motzkin over the pairs of upper and lower bounds on
-b_k+1); the forward pass then takes, at every node, the largest b_k+1 that
-is reachable and controllable (TOPP-RA's two passes, Pham & Pham 2018).
+system exactly; the forward pass then takes, at every node, the largest
+b_k+1 that is reachable and controllable (TOPP-RA's two passes, Pham & Pham
+2018).
 
-The passes are sequential, so they are compiled (doodlecam/geometry/kernels.py).
+The elimination: b_k is feasible where (least upper bound on b_k+1) -
+(greatest lower bound) >= 0, a concave piecewise-linear function of b_k, so
+Newton steps on its active pieces find both ends of that interval in a few
+passes over the bounds; where they do not (an infeasible interval, a tie),
+Fourier-Motzkin over every pair of an upper and a lower bound decides, as it
+did for every interval before (tests/test_plan_kernels.py checks the two
+agree). The passes are sequential, so they are compiled (doodlecam/plan/kernels.py).
 """
 
 from __future__ import annotations

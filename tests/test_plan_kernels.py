@@ -1,0 +1,186 @@
+"""The planner's compiled shortcuts against plain references written here.
+
+The span polynomials (constraints.spans) must be the spline itself on every
+knot span, both sides of every knot included; the Bernstein rows built from
+them must equal, at the ends of each interval, the limits evaluated straight
+from the spline; and the reachability pass, which finds each controllable
+interval by Newton steps, must give the sets that eliminating every pair of
+bounds (Fourier-Motzkin, as TOPP-RA does) gives.
+"""
+
+from math import factorial
+
+import numpy as np
+import pytest
+from hypothesis import given, settings, strategies as st
+
+from doodlecam.model import Spline
+from doodlecam.plan import constraints, reach
+from doodlecam.plan.planner import Limits, build_rows, make_grid
+
+
+def span_value(sp, s, u, j):
+    """q^(j)(u) from span s's Taylor coefficients (a plain sum, no Horner)."""
+    x = u - sp.mid[s]
+    p = sp.T.shape[1] - 1
+    return sum(sp.T[s, i] * factorial(i) / factorial(i - j) * x ** (i - j) for i in range(j, p + 1))
+
+
+@pytest.mark.parametrize("degree", [1, 2, 3, 4, 5])
+@pytest.mark.parametrize("extra", [0, 1, 3, 7, 40])
+def test_span_polynomials_are_the_spline_on_every_span(degree, extra):
+    rng = np.random.default_rng(degree * 100 + extra)
+    s = Spline(degree, rng.normal(0.0, 30.0, (degree + 1 + extra, 2)))
+    sp = constraints.spans(s)
+    assert np.array_equal(sp.bp, s.breakpoints) and len(sp.mid) == len(sp.bp) - 1
+    for k in range(len(sp.mid)):
+        lo, hi = sp.bp[k], sp.bp[k + 1]
+        # the span's own side of both of its knots: a derivative may jump there
+        for u in (lo, lo + 0.37 * (hi - lo), np.nextafter(hi, -np.inf)):
+            for j in range(degree + 1):
+                ref = s(np.array([u]), j)[0]
+                scale = np.abs(s(np.linspace(0, 1, 101), j)).max() + np.abs(ref).max()
+                assert np.abs(span_value(sp, k, u, j) - ref).max() <= 1e-12 * scale, (k, u, j)
+
+
+@pytest.mark.parametrize("degree", [2, 3, 4])
+def test_bernstein_rows_meet_the_limits_from_the_spline_at_interval_ends(degree):
+    """A Bernstein polynomial's first and last coefficients are its values at the
+    ends: each row must be the exact actuator acceleration / velocity^2 / pen
+    speed^2 there, for any b (here random), with derivatives evaluated by de Boor."""
+    rng = np.random.default_rng(degree)
+    s = Spline(degree, np.cumsum(rng.normal(0.0, 10.0, (12, 2)), axis=0))
+    M = np.array([[1.0, 1.0], [1.0, -1.0], [0.3, 2.0]])
+    vmax, amax = np.array([100.0, 80.0, 120.0]), np.array([1000.0, 1500.0, 900.0])
+    lim = Limits(vmax, amax, M, pen_speed=70.0)
+    u = make_grid(s, n_points=300)
+    rows = build_rows(s, u, lim)
+    b = rng.uniform(0.0, 5.0, len(u))
+    lhs = rows.tot * b[:-1, None] + rows.beta * np.diff(b)[:, None]  # row value before / gamma
+    a = np.diff(b) / (2 * np.diff(u))
+    left, right = u[:-1], np.nextafter(u[1:], -np.inf)
+    p, na = degree, len(vmax)
+    for end, uu, bb in ((0, left, b[:-1]), (1, right, b[1:])):
+        t1, t2 = s(uu, 1) @ M.T, s(uu, 2) @ M.T
+        for i in range(na):
+            base = i * 4 * p  # 2p acceleration rows (+, - per coefficient), then 2p velocity rows
+            acc = t1[:, i] * a + t2[:, i] * bb
+            col = base + (0 if end == 0 else 2 * (p - 1))
+            scale = np.abs(t1[:, i] * a).max() + np.abs(t2[:, i] * bb).max()
+            assert np.abs(lhs[:, col] - acc).max() <= 1e-9 * scale
+            assert np.abs(lhs[:, col + 1] + acc).max() <= 1e-9 * scale
+            vel = t1[:, i] ** 2 * bb
+            vcol = base + 2 * p + (0 if end == 0 else 2 * p - 1)
+            assert np.abs(lhs[:, vcol] - vel).max() <= 1e-9 * vel.max()
+            assert np.all(rows.gamma[:, col] == amax[i]) and np.all(rows.gamma[:, vcol] == vmax[i] ** 2)
+        pen = (s(uu, 1) ** 2).sum(axis=1) * bb
+        pcol = na * 4 * p + (0 if end == 0 else 2 * p - 1)
+        assert np.abs(lhs[:, pcol] - pen).max() <= 1e-9 * pen.max()
+
+
+def pairwise_sets(tot, beta, gamma, ub, bN, eps=1e-12):
+    """The controllable sets [lo_k, hi_k] by eliminating b_k+1 from every pair of
+    an upper and a lower bound on it (plain Python, for the reference)."""
+    K, R = tot.shape
+    lo, hi = np.empty(K + 1), np.empty(K + 1)
+    lo[K] = hi[K] = bN
+    for k in range(K - 1, -1, -1):
+        ups, lows = [(hi[k + 1], -1.0)], [(lo[k + 1], -1.0)]  # y - x = c0 + c1 x
+        xmin, xmax = 0.0, ub[k]
+        for t, bb, g in zip(tot[k], beta[k], gamma[k]):
+            if not np.isfinite(g):
+                continue
+            if abs(bb) > eps:
+                (ups if bb > 0 else lows).append((g / bb, -t / bb))
+            elif t > eps:
+                xmax = min(xmax, g / t)
+            elif t < -eps:
+                xmin = max(xmin, g / t)
+        for cu0, cu1 in ups:
+            for cl0, cl1 in lows:
+                d0, d1 = cu0 - cl0, cu1 - cl1
+                if d1 < 0:
+                    xmax = min(xmax, -d0 / d1)
+                elif d1 > 0:
+                    xmin = max(xmin, -d0 / d1)
+                elif d0 < 0:
+                    return None
+        if xmax < xmin - 1e-9 * max(1.0, abs(xmin)):
+            return None
+        lo[k], hi[k] = xmin, max(xmax, xmin)
+    return lo, hi
+
+
+def solve_sets(rows, b0=0.0, bN=0.0):
+    from doodlecam.plan.kernels import reach_passes
+
+    K = rows.tot.shape[0]
+    b, lo, hi = np.empty(K + 1), np.empty(K + 1), np.empty(K + 1)
+    status = reach_passes(rows.tot, rows.beta, np.ascontiguousarray(rows.gamma), rows.ub, b0, bN, b, lo, hi)
+    return status, b, lo, hi
+
+
+@settings(max_examples=25, deadline=None)
+@given(st.integers(2, 3), st.integers(0, 30), st.sampled_from([20, 200, 2000]), st.floats(0.05, 200.0),
+       st.booleans(), st.integers(0, 2**32 - 1))
+def test_reach_sets_equal_the_pairwise_elimination(degree, extra, n, size, pen, seed):
+    rng = np.random.default_rng(seed)
+    s = Spline(degree, size * rng.normal(0.0, 1.0, (degree + 1 + extra, 2)))
+    if float(np.ptp(s.control, axis=0).max()) < 1e-6 * size:
+        return
+    lim = Limits(np.array([150.0, 90.0]), np.array([2000.0, 700.0]), np.array([[1.0, 1.0], [1.0, -1.0]]),
+                 pen_speed=60.0 if pen else None)
+    u = make_grid(s, n_points=n)
+    rows = build_rows(s, u, lim)
+    status, b, lo, hi = solve_sets(rows)
+    ref = pairwise_sets(rows.tot, rows.beta, rows.gamma, rows.ub, 0.0)
+    assert status == 0 and ref is not None
+    assert np.allclose(lo, ref[0], rtol=1e-9, atol=0) and np.allclose(hi, ref[1], rtol=1e-9, atol=0)
+    assert 0.0 <= b.min() and np.all(b <= hi * (1 + 1e-12))
+    assert np.array_equal(b, reach.solve(rows.tot, rows.beta, rows.gamma, rows.ub))
+
+
+@settings(max_examples=60, deadline=None)
+@given(st.integers(0, 2**32 - 1), st.integers(1, 8), st.booleans(), st.sampled_from([0.0, 0.003, 0.02]),
+       st.sampled_from([0.0, 0.5, 30.0]))
+def test_reach_sets_on_arbitrary_rows_equal_the_pairwise_elimination(seed, R, unused, demanding, bN):
+    """Rows of any signs and sizes (slopes of both signs, beta ~ 0, unused rows,
+    rows no state at rest keeps, a moving end state): the same sets, or the same
+    refusal (the Newton steps fail there and the pairs decide)."""
+    rng = np.random.default_rng(seed)
+    K = 30
+    tot = rng.normal(0.0, 1.0, (K, R)) * rng.choice([1e-3, 1.0, 1e3], (K, R))
+    beta = rng.normal(0.0, 1.0, (K, R)) * rng.choice([0.0, 1e-2, 1.0, 1e2], (K, R))
+    gamma = rng.uniform(0.1, 10.0, (K, R))
+    gamma[rng.random((K, R)) < demanding] *= -0.01
+    if unused:
+        gamma[rng.random((K, R)) < 0.2] = np.inf
+    ub = rng.uniform(1.0, 100.0, K + 1)
+    rows = constraints.Rows(tot, beta, gamma, ub)
+    ref = pairwise_sets(tot, beta, gamma, ub, bN)
+    status, b, lo, hi = solve_sets(rows, 0.0, bN)
+    if ref is None:
+        assert status > 0
+        return
+    # (-1: the sets are kept, but the start at rest lies outside the first)
+    assert status in (0, -1), f"refused an interval the pairwise elimination keeps (status {status})"
+    assert (status == -1) == (ref[0][0] > 1e-300)
+    assert np.allclose(lo, ref[0], rtol=1e-9, atol=1e-12) and np.allclose(hi, ref[1], rtol=1e-9, atol=1e-12)
+
+
+@pytest.mark.parametrize("control,degree", [
+    ([[0.0, 1.0], [0.0, 0.0], [0.0, 0.0], [0.0, 0.0]], 2),  # found by the explore profile: a span standing still
+    ([[0.0, 0.0], [5.0, 0.0], [5.0, 0.0], [5.0, 0.0], [5.0, 0.0], [9.0, 3.0]], 3),
+])
+def test_a_span_where_the_pen_stands_still_is_planned_within_limits(control, degree):
+    from doodlecam.plan.planner import check_profile, plan_stroke
+
+    s = Spline(degree, np.array(control))
+    lim = Limits(np.array([150.0, 120.0]), np.array([2000.0, 1500.0]), np.eye(2))
+    u = make_grid(s)
+    assert np.all(np.isfinite(u)) and np.all(np.diff(u) > 0)
+    prof = plan_stroke(s, lim)
+    acc, vel = check_profile(s, prof, lim)
+    assert np.isfinite(prof.duration) and prof.duration > 0
+    assert np.isfinite(prof.b).all() and np.isfinite(prof.a).all()  # (b was inf there before: explore profile)
+    assert acc <= 1 + 1e-9 and vel <= 1 + 1e-9
