@@ -501,12 +501,12 @@ class GcodePost(PostProcessor):
 
         pen(options["pen_up"], m.pen.up_delay)
         lifts = job.lifts + (True,)  # a stroke that starts where the last ended keeps the pen down
-        for i, (p, feed, arc) in enumerate(paths):
-            tool = m.pen_number(pen_no[i])
-            if i in changes:  # pen up already: the operator fits the next pen, then resumes
-                for text in pause_lines(d, f"change to {tool.describe(pen_no[i])}"):
+        for n, (p, feed, arc) in enumerate(paths):
+            tool = m.pen_number(pen_no[n])
+            if n in changes:  # pen up already: the operator fits the next pen, then resumes
+                for text in pause_lines(d, f"change to {tool.describe(pen_no[n])}"):
                     line(text)
-            if lifts[i]:
+            if lifts[n]:
                 body.append(f"G0 X{_num(p[0, 0])} Y{_num(p[0, 1])}")
                 program.append(("G0", p[0, 0], p[0, 1], None, None))
                 pen(options["pen_down"], tool.down_delay)
@@ -522,7 +522,7 @@ class GcodePost(PostProcessor):
                     body.append(f"G1 X{_num(x)} Y{_num(y)}" + fword)
                     program.append(("G1", x, y, None, float(fs) if fword else None))
                 last_f = fs
-            if lifts[i + 1]:
+            if lifts[n + 1]:
                 pen(options["pen_up"], tool.up_delay)
         body.append(f"G0 X{_num(home[0])} Y{_num(home[1])}")
         program.append(("G0", float(np.round(home[0], 3)), float(np.round(home[1], 3)), None, None))
