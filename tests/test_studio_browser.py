@@ -386,3 +386,31 @@ def summary_commands(server) -> int:
     from doodlecam.link.plc.packetfile import read_plc_array
 
     return len(read_plc_array(server["app"].state.session.export("plc")[1])[1])
+
+
+def test_10_a_job_of_several_pens_waits_for_continue(page, server):
+    """samples/vectors/layers.svg (3 layers, 2 pen changes) to the PLC simulator: the page shows which
+    pen to fit and a Continue button at each change, while the simulator holds the job, pen up."""
+    from doodlecam.link.plc.protocol import Fault
+
+    page.click(".tabs button[data-tab=paper]")
+    page.set_input_files("#file", str(ROOT / "samples" / "vectors" / "layers.svg"))
+    page.wait_for_function("document.getElementById('machine').textContent.endsWith('layers.svg')", timeout=60_000)
+    sender = server["app"].state.sender
+    page.select_option("#target", "simulator")
+    page.select_option("#send-speed", "")
+    page.click("#send")
+    for pen in (2, 3):
+        page.wait_for_selector("#send-status[data-state=waiting]", timeout=60_000)
+        assert f"change to pen {pen}, then press Continue" in page.text_content("#send-status")
+        assert page.is_visible("#continue")
+        held = sender._sim.held
+        assert held is not None and held.reason == Fault.PEN_CHANGE and not sender._sim.pen
+        if pen == 2:
+            shot(page, "pen-change")
+        page.click("#continue")
+        page.wait_for_function(f"!/pen {pen},/.test(document.getElementById('send-status').textContent)")
+    # (a late answer to Continue must not put an older state over the 'done' event: showSend's version check)
+    page.wait_for_selector("#send-status[data-state=done]", timeout=60_000)
+    assert page.text_content("#send-status").startswith(f"done: {summary_commands(server)} commands in ")
+    assert not page.is_visible("#continue")

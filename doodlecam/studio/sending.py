@@ -60,7 +60,8 @@ class SendState:
                 "total": self.total, "line": self.line, "percent": round(pct, 2),
                 "time_left_s": round(self.time_left_s, 2), "position_mm": self.position_mm,
                 "machine_state": self.machine_state, "message": self.message, "controls": list(controls),
-                "elapsed_s": round(time.monotonic() - self.started, 2)}
+                "elapsed_s": round(time.monotonic() - self.started, 2),
+                "version": self.version}  # grows with every change: the page keeps the newest it has seen
 
 
 class Sender:

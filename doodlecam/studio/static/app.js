@@ -146,9 +146,11 @@ async function refresh() {
   summary(S.view.summary);
   legend();
   if (S.selected >= S.view.strokes.length) S.selected = -1;
-  S.timeline = null;
+  if (S.timeline) { // a new or changed job: the simulation starts over on it
+    S.timeline = null; S.sim.playing = false; S.sim.t = 0; $("scrub").value = 0; $("sim-time").textContent = "";
+  }
   draw();
-  if (S.selected >= 0) await figures(figs);
+  await figures(S.selected >= 0 ? figs : null);
   document.body.dataset.strokes = S.view.strokes.length;
 }
 
@@ -164,7 +166,11 @@ async function applyPatch(p) {
 async function figures(fetched) {
   const i = S.selected;
   $("sel-index").textContent = i >= 0 ? `${i + 1} of ${S.view.strokes.length}` : "–";
-  if (i < 0) { $("stroke-figures").innerHTML = ""; return; }
+  if (i < 0) { // nothing selected (e.g. a new job): no stale figures or plots of another stroke
+    $("stroke-figures").innerHTML = "";
+    for (const id of ["plot-b", "plot-v", "plot-a", "plot-d"]) { const c = $(id); c.getContext("2d").clearRect(0, 0, c.width, c.height); }
+    return;
+  }
   const f = (fetched && await fetched) || await api(`/api/stroke/${i}`);
   const rows = [["length", `${f.length_mm.toFixed(2)} mm`], ["control points", f.control_points], ["time", `${f.time_s.toFixed(3)} s`],
     ["worst acceleration ratio", f.worst_acceleration_ratio.toFixed(4)], ["worst velocity ratio", f.worst_velocity_ratio.toFixed(4)],
@@ -466,7 +472,9 @@ $("target").onchange = () => {
 
 const ACTIVE = ["sending", "pausing", "paused", "held", "stopping", "waiting"];
 let sendAgain = false; // the PLC refuses a finished job unless asked to draw it again
+let sendVersion = -1; // a control's answer can arrive after a newer event: never show an older state
 function showSend(s) {
+  if (s.version !== undefined) { if (s.version < sendVersion) return; sendVersion = s.version; }
   $("send-progress").value = s.percent;
   const pos = s.position_mm ? ` at (${s.position_mm[0].toFixed(1)}, ${s.position_mm[1].toFixed(1)}) mm` : "";
   const what = s.transport === "grbl" ? `line ${s.line} (${s.executed} of ${s.total} answered)` : `command ${s.executed} of ${s.total}`;
