@@ -42,9 +42,9 @@ class Pen:
     layers: tuple[str, ...] = ()  # the drawing's layers this pen draws (else matched by name or colour, then in order)
 
     def describe(self, number: int) -> str:
-        """'pen 2 (red)', 'pen 2 "fineliner" (red)': how the operator is told which pen to fit."""
+        """'pen 2 (red)', "pen 2 'fineliner' (red)": how the operator is told which pen to fit."""
         what = f" {self.name!r}" if self.name and self.name.lower() != self.colour.lower() else ""
-        return f"pen {number}{what}" + (f" ({self.colour})" if self.colour else f" ({self.name})" if self.name and not what else "")
+        return f"pen {number}{what}" + (f" ({self.colour})" if self.colour else "")
 
 
 @dataclass(frozen=True)
@@ -116,11 +116,18 @@ class Machine:
         free = [k for k in range(1, len(self.pens) + 1) if k not in out.values()] or list(range(1, len(self.pens) + 1))
         for i, name in enumerate(n for n in layers if n not in out):
             out[name] = free[i % len(free)]
-        return out
+        return {name: out[name] for name in layers}  # in plotting order
 
     def pen_number(self, number: int) -> Pen:
         """The Pen of a pen number from :meth:`pen_assignment` (the [pen] table when there are no [[pen]]s)."""
         return self.pens[number - 1] if self.pens else self.pen
+
+    def describe_pen(self, number: int | None, otherwise: str) -> str:
+        """Pen ``number`` as the operator is told it (:meth:`Pen.describe`), or ``otherwise`` when the
+        profile has no such pen (a job written for another machine)."""
+        if number and (not self.pens or number <= len(self.pens)):
+            return self.pen_number(number).describe(number)
+        return otherwise
 
 
 def _colour_key(text: str) -> str:

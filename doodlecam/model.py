@@ -264,12 +264,17 @@ class Job:
         return tuple(dict.fromkeys(s.layer for s in self.strokes))
 
     @property
-    def pen_numbers(self) -> tuple[int, ...]:
-        """The pen (1-based number) of every stroke: the machine's assignment of layers
-        to its [[pen]]s, or one pen per layer in plotting order."""
+    def layer_pens(self) -> dict[str, int]:
+        """Layer -> pen number (1-based): the machine's assignment of layers to its
+        [[pen]]s, or one pen per layer in plotting order."""
         assign = getattr(self.machine, "pen_assignment", None)
-        table = (assign(self.layers, self.meta.get("layer_colours")) if assign
-                 else {n: k for k, n in enumerate(self.layers, 1)})
+        return (assign(self.layers, self.meta.get("layer_colours")) if assign
+                else {n: k for k, n in enumerate(self.layers, 1)})
+
+    @property
+    def pen_numbers(self) -> tuple[int, ...]:
+        """The pen (1-based number) of every stroke."""
+        table = self.layer_pens
         return tuple(table[s.layer] for s in self.strokes)
 
     @property

@@ -371,8 +371,7 @@ class Result:
             "timings_s": {k: round(v, 3) for k, v in self.timings.items()},
             "layers": [n for n in j.layers if n] or [],
             "pen_changes": len(j.pen_changes),
-            "pens": {n: j.machine.pen_number(k).describe(k) for n, k in zip((s.layer for s in j.strokes), j.pen_numbers)
-                     if n},
+            "pens": {n: j.machine.pen_number(k).describe(k) for n, k in j.layer_pens.items() if n},
         }
 
 

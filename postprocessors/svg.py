@@ -62,7 +62,7 @@ class SvgPost(PostProcessor):
         colours = job.meta.get("layer_colours", {})
         m = job.machine
         # With [[pen]]s in the profile each layer is drawn in its pen's colour and width: what will come out.
-        pens = m.pen_assignment(names, colours) if getattr(m, "pens", ()) else {}
+        pens = job.layer_pens if getattr(m, "pens", ()) else {}
         out = []
         for k, name in enumerate(names):
             ident = "pen-down" if len(names) == 1 else f"pen-down-{k + 1}"

@@ -7,18 +7,15 @@ holding the job with the pen up) until Continue; Stop there ends it, resumable; 
 
 from __future__ import annotations
 
-import time
 from pathlib import Path
 
 import numpy as np
 import pytest
-from fastapi.testclient import TestClient
 
 from doodlecam.link.plc.protocol import Fault
-from doodlecam.machine import load_machine
-from doodlecam.pipeline import Settings
-from doodlecam.studio.app import StudioConfig, create_app
-from doodlecam.studio.session import Session
+
+from test_studio_api import make_client, wait_state  # tests/ is on sys.path
+from test_studio_grbl import control as answer
 
 ROOT = Path(__file__).resolve().parents[1]
 LAYERS = ROOT / "samples" / "vectors" / "layers.svg"
@@ -26,29 +23,14 @@ LAYERS = ROOT / "samples" / "vectors" / "layers.svg"
 
 @pytest.fixture(scope="module")
 def studio(tmp_path_factory):
-    session = Session(Settings(machine=load_machine("doodlebot")))
-    folder = tmp_path_factory.mktemp("pens")
-    app = create_app(session, StudioConfig(token="tok", folders=(folder,)))
-    c = TestClient(app, headers={"x-doodlecam-token": "tok"})
+    c = make_client(tmp_path_factory.mktemp("pens"))
     assert c.post("/api/load?name=layers.svg", content=LAYERS.read_bytes()).status_code == 200
     yield c
-    app.state.sender.close()
+    c.app.state.sender.close()
 
 
-def wait(c, until, timeout: float = 90.0) -> dict:
-    end = time.monotonic() + timeout
-    while time.monotonic() < end:
-        s = c.get("/api/send").json()
-        if until(s):
-            return s
-        time.sleep(0.02)
-    raise AssertionError(f"send state never reached: {c.get('/api/send').json()}")
-
-
-def answer(c, action: str) -> dict:
-    r = c.post("/api/send/control", json={"action": action})
-    assert r.status_code == 200, r.text
-    return r.json()
+def wait(c, until) -> dict:
+    return wait_state(c, until, timeout=90.0)
 
 
 def test_plc_send_waits_for_each_pen_change(studio):

@@ -188,8 +188,8 @@ def _pen_changes(transport, profile, bar, getch) -> dict:
     def ask(pen, what: str) -> None:
         from doodlecam.link.session import Paused
 
-        if profile is not None and pen and (not profile.pens or pen <= len(profile.pens)):
-            what = profile.pen_number(pen).describe(pen)
+        if profile is not None:
+            what = profile.describe_pen(pen, what)
         bar.log(f"change to {what}, then press Enter (Ctrl-C stops here, pen up)")
         if getch is not None:  # the terminal is in raw mode for the control keys
             while (getch() or "") not in ("\r", "\n"):

@@ -121,8 +121,7 @@ class Sender:
         from doodlecam.link.session import Paused
 
         def ask(pen, what: str) -> None:
-            if pen and (not machine.pens or pen <= len(machine.pens)):
-                what = machine.pen_number(pen).describe(pen)
+            what = machine.describe_pen(pen, what)
             self._operator.clear()
             self._stop_waiting = False
             self._update(state="waiting", message=f"change to {what}, then press Continue")

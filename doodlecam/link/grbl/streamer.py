@@ -315,7 +315,7 @@ class Streamer:
         self.link.fresh_status()  # the wait was silent: hear GRBL again before judging it
         self.link.realtime(b"~")
         self.pen_changes += 1
-        self.link.log(f"pen {pen or ''} fitted, going on".replace("  ", " "))
+        self.link.log(f"{what} fitted, going on")
 
     def _finish_queued(self) -> None:
         """After Ctrl-C: let GRBL finish what it has, then lift the pen."""
