@@ -24,6 +24,8 @@ from doodlecam.pipeline import Settings
 from doodlecam.studio.app import StudioConfig, create_app
 from doodlecam.studio.session import Session
 
+UPLOAD = {"content-type": "application/octet-stream"}  # how the page uploads a file (form and text bodies are refused)
+
 ROOT = Path(__file__).resolve().parents[1]
 PICTURE = ROOT / "samples" / "images" / "coins.png"
 
@@ -33,14 +35,14 @@ def make_client(tmp_path: Path, **cfg) -> TestClient:
     folder = tmp_path / "work"
     folder.mkdir(exist_ok=True)
     app = create_app(session, StudioConfig(token="secret-token", folders=(folder,), **cfg))
-    return TestClient(app, headers={"x-doodlecam-token": "secret-token"})
+    return TestClient(app, headers={"x-doodlecam-token": "secret-token"}, base_url="http://127.0.0.1")
 
 
 @pytest.fixture(scope="module")
 def loaded(tmp_path_factory):
     """A client with the coins traced and planned (shared: loading costs a few seconds)."""
     c = make_client(tmp_path_factory.mktemp("studio"))
-    r = c.post("/api/load?name=coins.png", content=PICTURE.read_bytes())
+    r = c.post("/api/load?name=coins.png", content=PICTURE.read_bytes(), headers=UPLOAD)
     assert r.status_code == 200, r.text
     return c
 
@@ -74,7 +76,7 @@ def test_bad_uploads_say_one_line_and_write_nothing(tmp_path):
                               ("broken.png", b"\x89PNG not really", "broken.png"),
                               ("camera.png", (ROOT / "samples/images/camera.png").read_bytes(), "limit"),
                               ("", b"x", "no file name"), ("..", b"x", "no file name")]:
-        r = c.post(f"/api/load?name={name}", content=data)
+        r = c.post(f"/api/load?name={name}", content=data, headers=UPLOAD)
         assert r.status_code == 400, (name, r.text)
         assert words in one_line(r) and "doodlecam-studio-" not in one_line(r)  # names the upload, not a temporary copy
     assert c.get("/api/state").json()["loaded"] is False
@@ -88,7 +90,7 @@ def test_tracer_panel_options_and_retrace(tmp_path):
     assert {"edges", "contours", "hatch", "vector"} <= set(tracers)
     sigma = next(o for o in tracers["edges"]["options"] if o["name"] == "sigma")
     assert sigma["type"] == "float" and sigma["default"] == 2.0 and sigma["help"]
-    n0 = c.post("/api/load?name=coins.png", content=PICTURE.read_bytes()).json()["strokes"]
+    n0 = c.post("/api/load?name=coins.png", content=PICTURE.read_bytes(), headers=UPLOAD).json()["strokes"]
     r = c.post("/api/trace", json={"tracer": "edges", "options": {"sigma": 6.0, "min_length": 40}})
     assert r.status_code == 200 and r.json()["strokes"] != n0
     assert r.json()["tracer_options"] == {"sigma": 6.0, "min_length": 40}
@@ -141,7 +143,7 @@ def test_move_control_point_replans_only_that_stroke(loaded, tmp_path):
     saved = loaded.get("/api/job")
     assert saved.json()["format"] == "doodlecam-studio-job" and saved.json()["version"] == 1
     other = make_client(tmp_path)
-    assert other.post("/api/job?name=coins.job.json", content=saved.content).status_code == 200
+    assert other.post("/api/job?name=coins.job.json", content=saved.content, headers=UPLOAD).status_code == 200
     assert other.get("/api/export/gcode").content == loaded.get("/api/export/gcode").content
     mine, fresh = (json.loads(c.get("/api/export/json").content)["meta"] for c in (loaded, other))
     for key in ("control_points", "worst_acceleration_ratio", "worst_velocity_ratio", "max_between_samples_mm",
@@ -152,11 +154,11 @@ def test_move_control_point_replans_only_that_stroke(loaded, tmp_path):
         assert mine[key] == pytest.approx(fresh[key], rel=1e-9, abs=tol), key
 
     # undo restores the plan exactly; redo the edit
-    assert loaded.post("/api/undo").json()["job_time_s"] == t0
+    assert loaded.post("/api/undo", json={}).json()["job_time_s"] == t0
     assert loaded.get("/api/view").json()["strokes"] == view["strokes"]
-    assert loaded.post("/api/redo").json()["job_time_s"] == r.json()["job_time_s"]
-    loaded.post("/api/undo")
-    assert "nothing to undo" in one_line(loaded.post("/api/undo"))
+    assert loaded.post("/api/redo", json={}).json()["job_time_s"] == r.json()["job_time_s"]
+    loaded.post("/api/undo", json={})
+    assert "nothing to undo" in one_line(loaded.post("/api/undo", json={}))
 
 
 def test_edit_with_a_patch_reply_equals_the_whole_view(loaded):
@@ -178,7 +180,7 @@ def test_edit_with_a_patch_reply_equals_the_whole_view(loaded):
     r = loaded.post("/api/edit", json={"op": "split", "stroke": k, "point": len(control) // 2, "reply": "patch"})
     assert r.status_code == 200 and "strokes" in r.json() and isinstance(r.json()["strokes"], int)
     for _ in range(2):
-        loaded.post("/api/undo")
+        loaded.post("/api/undo", json={})
     assert loaded.get("/api/view").json() == view
 
 
@@ -213,7 +215,7 @@ def test_structure_edits_and_their_errors(loaded):
     assert r.status_code == 400 and "outside the 400 x 300 mm work area" in one_line(r)
     assert loaded.get("/api/view").json() == before
     while loaded.get("/api/state").json()["summary"]["can_undo"]:
-        loaded.post("/api/undo")
+        loaded.post("/api/undo", json={})
     assert loaded.get("/api/state").json()["summary"] == {**s0, "can_redo": True}
 
 
@@ -239,9 +241,25 @@ def test_paths_stay_inside_the_chosen_folders(loaded, tmp_path):
     r = loaded.post("/api/export", json={"posts": ["svg"], "folder": "."})
     assert r.status_code == 400 and "opened from" in one_line(r)
     assert vector.read_bytes() == (ROOT / "samples/vectors/badge.svg").read_bytes()
-    assert loaded.post("/api/load?name=coins.png", content=PICTURE.read_bytes()).status_code == 200
+    assert loaded.post("/api/load?name=coins.png", content=PICTURE.read_bytes(), headers=UPLOAD).status_code == 200
     r = loaded.get("/api/export/nope")
     assert r.status_code == 400 and "nope" in one_line(r)
+
+
+def test_export_never_replaces_a_foreign_file_without_asking(loaded):
+    folder = Path(loaded.app.state.config.folders[0])
+    r = loaded.post("/api/export", json={"posts": ["gcode"]})
+    assert r.status_code == 400 and "choose the folder" in one_line(r)  # no silent default folder
+    (folder / "mine").mkdir()
+    foreign = folder / "mine" / "coins.gcode"
+    foreign.write_text("the user's own file\n")
+    r = loaded.post("/api/export", json={"posts": ["gcode", "svg"], "folder": "mine"})
+    assert r.status_code == 409 and r.json()["confirm"] is True and "not written by the studio" in one_line(r)
+    assert foreign.read_text() == "the user's own file\n" and not (folder / "mine" / "coins.svg").exists()
+    r = loaded.post("/api/export", json={"posts": ["gcode", "svg"], "folder": "mine", "overwrite": True})
+    assert r.status_code == 200 and foreign.read_bytes() == loaded.get("/api/export/gcode").content
+    # what the studio wrote itself it may write again without asking
+    assert loaded.post("/api/export", json={"posts": ["gcode"], "folder": "mine"}).status_code == 200
 
 
 def test_saved_job_errors(loaded):
@@ -251,22 +269,71 @@ def test_saved_job_errors(loaded):
                                      "strokes": []}).encode(), "--machine fivebar"),
                         (json.dumps({"format": "doodlecam-studio-job", "version": 1, "machine": "doodlebot",
                                      "strokes": [{"degree": 3, "control": [[0, 0]]}]}).encode(), "malformed")]:
-        r = loaded.post("/api/job?name=bad.json", content=data)
+        r = loaded.post("/api/job?name=bad.json", content=data, headers=UPLOAD)
         assert r.status_code == 400 and words in one_line(r), (data, r.text)
     assert loaded.get("/api/state").json()["loaded"]
 
 
-def test_token_required_beyond_loopback_and_for_sending(tmp_path):
-    c = make_client(tmp_path, require_token=True)
-    bare = TestClient(c.app)
-    assert bare.get("/api/state").status_code == 403 and "token" in one_line(bare.get("/api/state"))
+def studio_routes(app) -> list[tuple[str, str]]:
+    """Every (method, path) of the app's /api routes, read from the app itself: a new route cannot skip the checks."""
+    out = []
+    for r in app.routes:
+        if getattr(r, "path", "").startswith("/api/"):
+            path = r.path.replace("{i}", "0").replace("{post}", "gcode")
+            out += [(m, path) for m in sorted(getattr(r, "methods", ()) or ()) if m != "HEAD"]
+    return out
+
+
+def test_every_api_route_needs_the_token(tmp_path):
+    c = make_client(tmp_path)
+    routes = studio_routes(c.app)
+    assert len(routes) >= 20 and ("GET", "/api/state") in routes and ("POST", "/api/export") in routes
+    bare = TestClient(c.app, base_url="http://127.0.0.1")
+    for method, path in routes:
+        for token in ({}, {"x-doodlecam-token": "wrong"}):
+            r = bare.request(method, path, json={}, headers=token)
+            assert r.status_code == 403 and "token" in one_line(r), (method, path, r.text)
     assert bare.get("/api/state?token=wrong").status_code == 403
-    assert bare.get("/api/state?token=secret-token").status_code == 200
+    assert bare.get("/api/state?token=secret-token").status_code == 200  # downloads and the event stream
+    assert bare.post("/api/send/stop?token=secret-token", json={}).status_code == 403  # a POST carries it in a header
     assert bare.get("/").status_code == 200  # the page itself carries no data
-    local = TestClient(make_client(tmp_path).app)  # loopback: viewing without the token, sending never
-    assert local.get("/api/state").status_code == 200
-    assert local.post("/api/send", json={"target": "simulator"}).status_code == 403
-    assert local.post("/api/send/stop").status_code == 403
+
+
+def test_foreign_hosts_and_origins_are_refused(tmp_path):
+    """DNS rebinding (a foreign Host) and cross-site pages (a foreign Origin, Sec-Fetch-Site) get nothing,
+    even with the token; the studio's own names are served."""
+    c = make_client(tmp_path)
+    for method, path in studio_routes(c.app) + [("GET", "/"), ("GET", "/static/app.js")]:
+        r = c.request(method, path.replace("/api/", "/api/"), json={}, headers={"host": "evil.example"})
+        assert r.status_code == 403 and "own address" in one_line(r), (method, path, r.text)
+    for host in ("127.0.0.1:8765", "localhost:8765", "[::1]:8765", "LOCALHOST"):
+        assert c.get("/api/state", headers={"host": host}).status_code == 200, host
+    assert c.get("/api/state", headers={"host": "127.0.0.1.evil.example"}).status_code == 403
+    for origin in ("http://evil.example", "null", "http://127.0.0.1:9999", "https://127.0.0.1"):
+        r = c.post("/api/export", json={"posts": ["gcode"], "folder": "."}, headers={"origin": origin})
+        assert r.status_code == 403 and "cross-origin" in one_line(r), origin
+    assert c.get("/api/state", headers={"origin": "http://127.0.0.1"}).status_code == 200  # same origin
+    r = c.get("/api/state", headers={"sec-fetch-site": "cross-site"})
+    assert r.status_code == 403 and "cross-site" in one_line(r)
+    assert c.get("/api/state", headers={"sec-fetch-site": "same-origin"}).status_code == 200
+    extra = make_client(tmp_path, hosts=("studio.lan",))  # --host: the bound name is served too
+    assert extra.get("/api/state", headers={"host": "studio.lan:8765"}).status_code == 200
+
+
+def test_simple_cross_site_bodies_are_refused(loaded, tmp_path):
+    """A web page can POST text/plain, a form or multipart without a preflight: such bodies never reach the job
+    or the disk, even with the token (a leaked token in a page's script cannot write files either)."""
+    before = loaded.get("/api/state").json()["summary"]
+    for kind in ("text/plain", "application/x-www-form-urlencoded", "multipart/form-data; boundary=x", None):
+        headers = {"content-type": kind} if kind else {}
+        for path, data in (("/api/load?name=x.svg", b"<svg/>"), ("/api/export", b'{"posts":["gcode"],"folder":"."}'),
+                           ("/api/edit", b'{"op":"delete","stroke":0}')):
+            r = loaded.post(path, content=data, headers=headers)
+            assert r.status_code in (400, 403) and ("JSON" in one_line(r) or "file upload" in one_line(r)), (kind, path)
+    r = loaded.post("/api/export", content=b'{"posts":["gcode"],"folder":"."}', headers=UPLOAD)  # JSON routes want JSON
+    assert r.status_code == 400 and "JSON" in one_line(r)
+    assert loaded.get("/api/state").json()["summary"] == before
+    assert not list(tmp_path.rglob("*.gcode"))
 
 
 def test_server_survives_a_failing_request(loaded, monkeypatch):
@@ -313,7 +380,7 @@ def test_stop_ends_at_a_stroke_boundary_with_the_pen_up_and_resumes(loaded):
     assert loaded.post("/api/send", json={"target": "simulator", "speed": 20, "again": True}).status_code == 200
     assert "a send is running" in one_line(loaded.post("/api/send", json={"target": "simulator"}))
     wait_state(loaded, lambda s: s["executed"] > 5)
-    assert loaded.post("/api/send/stop").status_code == 200
+    assert loaded.post("/api/send/stop", json={}).status_code == 200
     s = wait_state(loaded, lambda s: s["state"] != "sending")
     assert s["state"] == "stopped" and "pen up" in s["message"], s
     assert 0 < s["executed"] < s["total"]
@@ -327,7 +394,7 @@ def test_stop_ends_at_a_stroke_boundary_with_the_pen_up_and_resumes(loaded):
     assert s["state"] == "done" and f"resumed at command {held + 1}" in s["message"], s["message"]
     ran = [c for job, c in sender._sim.executed_log if job == sender._sender.job_id]
     assert sorted(ran) == list(range(1, len(records) + 1))  # every command once, none repeated
-    assert "no send is running" in one_line(loaded.post("/api/send/stop"))
+    assert "no send is running" in one_line(loaded.post("/api/send/stop", json={}))
     assert "HOST:PORT" in one_line(loaded.post("/api/send", json={"target": "plc-without-port:x"}))
 
 
@@ -417,7 +484,8 @@ def test_the_studio_command(tmp_path):
         url = line.split()[-1]
         token = url.split("token=")[1]
         base = url.split("/?")[0]
-        assert httpx.get(base + "/api/state", timeout=10).json()["loaded"] is False
+        assert httpx.get(base + "/api/state", timeout=10).status_code == 403  # the token, even on loopback
+        assert httpx.get(base + "/api/state", headers={"x-doodlecam-token": token}, timeout=10).json()["loaded"] is False
         assert httpx.post(base + "/api/send", json={}, timeout=10).status_code == 403
         assert "access token " + token in p.stdout.readline()
         busy = run("--port", base.rsplit(":", 1)[1])
@@ -434,9 +502,12 @@ def test_the_studio_command(tmp_path):
         base, token = url.split("/?token=")
         assert httpx.get(base + "/api/state", timeout=10).status_code == 403
         assert httpx.get(base + "/api/state", headers={"x-doodlecam-token": token}, timeout=10).status_code == 200
+        p.send_signal(signal.SIGTERM)  # a service manager's stop
+        p.wait(10)
     finally:
-        p.send_signal(signal.SIGINT)
-        p.wait(20)
+        if p.poll() is None:
+            p.send_signal(signal.SIGINT)
+            p.wait(20)
 
 
 def test_fivebar_edits_replan(tmp_path):
@@ -446,8 +517,9 @@ def test_fivebar_edits_replan(tmp_path):
     session = Session(Settings(machine=load_machine("fivebar")))
     folder = tmp_path / "work"
     folder.mkdir()
-    c = TestClient(create_app(session, StudioConfig(token="t", folders=(folder,))), headers={"x-doodlecam-token": "t"})
-    assert c.post("/api/load?name=horse.png", content=(ROOT / "samples/images/horse.png").read_bytes()).status_code == 200
+    c = TestClient(create_app(session, StudioConfig(token="t", folders=(folder,))), headers={"x-doodlecam-token": "t"},
+                   base_url="http://127.0.0.1")
+    assert c.post("/api/load?name=horse.png", content=(ROOT / "samples/images/horse.png").read_bytes(), headers=UPLOAD).status_code == 200
     view = c.get("/api/view").json()
     m = load_machine("fivebar")
     for k, st in enumerate(view["strokes"]):
@@ -461,4 +533,4 @@ def test_fivebar_edits_replan(tmp_path):
                 f = r.json()["figures"]
                 assert f["worst_acceleration_ratio"] <= 1 + 1e-6 and f["worst_velocity_ratio"] <= 1 + 1e-6
                 assert f["max_between_samples_mm"] <= m.path_tolerance + 1e-3
-                assert c.post("/api/undo").status_code == 200
+                assert c.post("/api/undo", json={}).status_code == 200

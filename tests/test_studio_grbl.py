@@ -17,6 +17,7 @@ from pathlib import Path
 import pytest
 from fastapi.testclient import TestClient
 from grbl_received import check_received  # tests/ is on sys.path
+from test_studio_api import UPLOAD
 
 from doodlecam.link.grbl.protocol import pen_up_line, prepare
 from doodlecam.link.grbl.streamer import end_positions
@@ -24,6 +25,7 @@ from doodlecam.machine import load_machine
 from doodlecam.pipeline import Settings
 from doodlecam.studio.app import StudioConfig, create_app
 from doodlecam.studio.session import Session
+
 
 ROOT = Path(__file__).resolve().parents[1]
 PICTURE = ROOT / "samples" / "images" / "coins.png"
@@ -34,8 +36,8 @@ def studio(tmp_path_factory):
     session = Session(Settings(machine=load_machine("doodlebot")))
     folder = tmp_path_factory.mktemp("grbl")
     app = create_app(session, StudioConfig(token="tok", folders=(folder,)))
-    c = TestClient(app, headers={"x-doodlecam-token": "tok"})
-    assert c.post("/api/load?name=coins.png", content=PICTURE.read_bytes()).status_code == 200
+    c = TestClient(app, headers={"x-doodlecam-token": "tok"}, base_url="http://127.0.0.1")
+    assert c.post("/api/load?name=coins.png", content=PICTURE.read_bytes(), headers=UPLOAD).status_code == 200
     yield c
     app.state.sender.close()
 
@@ -152,7 +154,7 @@ def test_grbl_targets_and_controls_are_checked(studio):
     assert "no send is running" in one_line(studio.post("/api/send/control", json={"action": "pause"}))
     assert "speed" in one_line(studio.post("/api/send", json={"target": "grbl-simulator", "speed": -1}))
     # sending and machine control need the token even on the loopback interface
-    bare = TestClient(studio.app)
+    bare = TestClient(studio.app, base_url="http://127.0.0.1")
     assert bare.post("/api/send", json={"target": "grbl-simulator"}).status_code == 403
     assert bare.post("/api/machine", json={"action": "home"}).status_code == 403
     assert bare.post("/api/send/control", json={"action": "stop"}).status_code == 403
@@ -226,8 +228,8 @@ def test_closing_the_studio_during_a_grbl_send_stops_with_the_pen_up(tmp_path):
     mid-stroke with the pen down; the page being closed does not stop it (the send belongs to the server)."""
     session = Session(Settings(machine=load_machine("doodlebot")))
     app = create_app(session, StudioConfig(token="tok", folders=(tmp_path,)))
-    c = TestClient(app, headers={"x-doodlecam-token": "tok"})
-    assert c.post("/api/load?name=coins.png", content=PICTURE.read_bytes()).status_code == 200
+    c = TestClient(app, headers={"x-doodlecam-token": "tok"}, base_url="http://127.0.0.1")
+    assert c.post("/api/load?name=coins.png", content=PICTURE.read_bytes(), headers=UPLOAD).status_code == 200
     sender = app.state.sender
     assert c.post("/api/send", json={"target": "grbl-simulator", "speed": 4}).status_code == 200
     with c.stream("GET", "/api/send/events") as ev:  # a page follows, then goes away

@@ -14,8 +14,9 @@ import pytest
 
 from doodlecam.link.plc.protocol import Fault
 
-from test_studio_api import make_client, wait_state  # tests/ is on sys.path
+from test_studio_api import UPLOAD, make_client, wait_state  # tests/ is on sys.path
 from test_studio_grbl import control as answer
+
 
 ROOT = Path(__file__).resolve().parents[1]
 LAYERS = ROOT / "samples" / "vectors" / "layers.svg"
@@ -24,7 +25,7 @@ LAYERS = ROOT / "samples" / "vectors" / "layers.svg"
 @pytest.fixture(scope="module")
 def studio(tmp_path_factory):
     c = make_client(tmp_path_factory.mktemp("pens"))
-    assert c.post("/api/load?name=layers.svg", content=LAYERS.read_bytes()).status_code == 200
+    assert c.post("/api/load?name=layers.svg", content=LAYERS.read_bytes(), headers=UPLOAD).status_code == 200
     yield c
     c.app.state.sender.close()
 

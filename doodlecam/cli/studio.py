@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import socket
 from pathlib import Path
 
 import click
@@ -15,7 +16,7 @@ LOOPBACK = ("127.0.0.1", "localhost", "::1")
 @click.argument("file", required=False, type=click.Path(path_type=Path))
 @click.option("--port", type=click.IntRange(0, 65535), default=8765, show_default=True, help="Port to listen on (0 = any free one).")
 @click.option("--host", default="127.0.0.1", show_default=True,
-              help="Address to listen on. Any other than 127.0.0.1 requires the printed access token.")
+              help="Address to listen on (every request needs the printed access token, whatever the address).")
 @click.option("--no-browser", is_flag=True, help="Do not open a browser; only print the address.")
 @click.option("--folder", "folders", multiple=True, type=click.Path(path_type=Path),
               help="A folder the studio may open files from and export to (repeatable). Default: the current folder.")
@@ -23,7 +24,6 @@ LOOPBACK = ("127.0.0.1", "localhost", "::1")
 @job_options
 def studio(file, port, host, no_browser, folders, max_upload, **options):
     """Open a job in the browser: trace, edit curves, plan, simulate, export and send."""
-    import socket
     import threading
     import webbrowser
 
@@ -37,7 +37,7 @@ def studio(file, port, host, no_browser, folders, max_upload, **options):
 
     kw = job_kwargs(**options)
     settings = Settings(**{**kw, "machine": load_machine(kw["machine"])})
-    cfg = StudioConfig(require_token=host not in LOOPBACK, folders=check_folders(folders or (Path.cwd(),)))
+    cfg = StudioConfig(folders=check_folders(folders or (Path.cwd(),)), hosts=own_host_names(host))
     session = Session(settings, max_upload=int(max_upload * 1e6))
     if file is not None:  # checked (and traced) before the server starts: a bad file is one line, no server
         if not file.is_file():
@@ -56,7 +56,8 @@ def studio(file, port, host, no_browser, folders, max_upload, **options):
         raise InputError(f"cannot listen on {host}:{port} ({getattr(e, 'strerror', None) or e}); "
                          "pick another --port or --host") from None
     bound = sock.getsockname()[1]
-    server = uvicorn.Server(uvicorn.Config(create_app(session, cfg), log_level="warning"))
+    # a request still computing when Ctrl-C/SIGTERM arrives is not waited for beyond a second
+    server = uvicorn.Server(uvicorn.Config(create_app(session, cfg), log_level="warning", timeout_graceful_shutdown=1))
     url_host = "127.0.0.1" if host in ("0.0.0.0", "::") else (f"[{host}]" if ":" in host else host)
 
     def announce():
@@ -65,12 +66,26 @@ def studio(file, port, host, no_browser, folders, max_upload, **options):
                 return
             threading.Event().wait(0.05)
         url = f"http://{url_host}:{bound}/?token={cfg.token}"
-        need = "every request: listening beyond this computer" if cfg.require_token else "sending to a machine"
         click.echo(f"doodlecam studio: {url}")
-        click.echo(f"  access token {cfg.token} (needed for {need}); Ctrl-C stops")
+        click.echo(f"  access token {cfg.token} (every request needs it; open the URL above); Ctrl-C stops")
         if not no_browser:
             webbrowser.open(url)
 
     thread = threading.Thread(target=announce, daemon=True)
     thread.start()
     server.run(sockets=[sock])
+
+
+def own_host_names(host: str) -> tuple[str, ...]:
+    """The names a browser may use for this studio besides the loopback ones: the address it listens on,
+    and for a wildcard address this computer's name and addresses. Any other Host is refused."""
+    if host in LOOPBACK:
+        return ()
+    if host not in ("0.0.0.0", "::"):
+        return (host,)
+    names = {socket.gethostname(), socket.getfqdn()}
+    try:
+        names.update(str(a[4][0]) for a in socket.getaddrinfo(socket.gethostname(), None))
+    except OSError:
+        pass
+    return tuple(sorted(n for n in names if n))

@@ -1,10 +1,14 @@
 """The studio's web application: a FastAPI app over one Session, plus the static page.
 
-Safety (docs/studio.md): every /api request needs the access token when the
-server listens beyond the loopback interface, and starting or stopping a
-send always needs it; paths in requests resolve inside the folders the user
-chose or are refused; a failing request answers one line (JSON ``error``)
-and the server carries on.
+Safety (docs/studio.md): a local web server is reachable from every page the
+user visits, so every /api request needs the access token printed at start;
+the server answers only to its own host names (no DNS rebinding) and to
+same-origin requests; a request with a body must say it is JSON (or a file
+upload), never a type a cross-site form can send without a preflight; paths
+in requests resolve inside the folders the user chose or are refused; an
+export never replaces a file the studio did not write unless the user says
+so; a failing request answers one line (JSON ``error``) and the server
+carries on.
 """
 
 from __future__ import annotations
@@ -32,11 +36,54 @@ STATIC = Path(__file__).parent / "static"
 TOKEN_HEADER = "x-doodlecam-token"
 
 
+# the host names a loopback studio answers to; any other Host header is a DNS-rebinding attempt
+LOOPBACK_HOSTS = ("127.0.0.1", "localhost", "::1")
+# the content types a cross-site page may POST without a CORS preflight: never accepted with a body
+SIMPLE_TYPES = ("", "text/plain", "application/x-www-form-urlencoded", "multipart/form-data")
+
+
 @dataclass
 class StudioConfig:
     token: str = field(default_factory=lambda: secrets.token_urlsafe(24))
-    require_token: bool = False  # True when listening beyond 127.0.0.1
+    require_token: bool = True  # kept for callers: the token is needed on every /api request whatever the address
     folders: tuple[Path, ...] = ()  # the only places files are read from or written to by path
+    hosts: tuple[str, ...] = ()  # host names the studio answers to besides the loopback ones (the bound address)
+
+
+def host_name(header: str) -> str:
+    """The host name of a Host (or Origin authority) header, without port or IPv6 brackets, lower case."""
+    h = header.strip().lower()
+    if h.startswith("["):
+        return h[1:h.find("]")] if "]" in h else h
+    return h.rsplit(":", 1)[0] if h.count(":") == 1 else h
+
+
+def refusal(request: Request, config: StudioConfig) -> str | None:
+    """Why a request must be refused (a one-line answer), or None: the studio's own host only,
+    same-origin only, the token on every /api request, and no body a cross-site form could send."""
+    host = request.headers.get("host", "")
+    if host_name(host) not in LOOPBACK_HOSTS + tuple(h.lower() for h in config.hosts):
+        return (f"this studio answers only to its own address, not to host '{host[:60]}'; "
+                "open the URL it printed at start")
+    if not request.url.path.startswith("/api/"):
+        return None
+    origin = request.headers.get("origin")
+    if origin is not None and origin.rstrip("/").lower() != f"{request.url.scheme}://{host}".lower():
+        return "cross-origin requests are refused; use the studio's own page (the URL it printed at start)"
+    if request.headers.get("sec-fetch-site") in ("cross-site", "same-site"):
+        return "cross-site requests are refused; use the studio's own page (the URL it printed at start)"
+    given = request.headers.get(TOKEN_HEADER) or ""
+    if not given and request.method == "GET":  # EventSource and downloads cannot set headers
+        given = request.query_params.get("token") or ""
+    if not secrets.compare_digest(given.encode(), config.token.encode()):
+        return ("this request needs the access token the studio printed at start "
+                "(open the printed URL, or add ?token=...)")
+    if request.method not in ("GET", "HEAD", "OPTIONS"):
+        kind = request.headers.get("content-type", "").split(";")[0].strip().lower()
+        if kind in SIMPLE_TYPES:
+            return ("send the request as JSON (content-type application/json) or a file upload "
+                    "(application/octet-stream); form and text bodies are refused")
+    return None
 
 
 def inside(folders: tuple[Path, ...], text: Any, what: str = "path") -> Path:
@@ -75,23 +122,24 @@ def _error(status: int, message: str) -> JSONResponse:
     return JSONResponse({"error": message}, status_code=status)
 
 
+class Conflict(OutputError):
+    """A request that would replace something the user did not ask to replace: the page asks first."""
+
+
 def create_app(session: Session, config: StudioConfig | None = None) -> FastAPI:
     config = config or StudioConfig()
     app = FastAPI(title="doodlecam studio", docs_url=None, redoc_url=None, openapi_url=None)
     app.state.session, app.state.config, app.state.sender = session, config, Sender()
     app.state.opened = None  # the input file opened by path, if any
+    app.state.written = set()  # files this studio wrote: an export may replace these without asking
     sender: Sender = app.state.sender
     app.router.add_event_handler("shutdown", sender.close)
 
     @app.middleware("http")
     async def guard(request: Request, call_next):
-        path = request.url.path
-        sending = (path.startswith("/api/send") and request.method == "POST") or path.startswith("/api/machine")
-        if path.startswith("/api/") and (config.require_token or sending):
-            given = request.headers.get(TOKEN_HEADER) or request.query_params.get("token") or ""
-            if not secrets.compare_digest(given.encode(), config.token.encode()):
-                return _error(403, "this request needs the access token the studio printed at start "
-                                   "(open the printed URL, or add ?token=...)")
+        why = refusal(request, config)
+        if why is not None:
+            return _error(403, why)
         try:
             return await call_next(request)
         except Exception as e:  # a request never kills the server: one line back
@@ -99,6 +147,8 @@ def create_app(session: Session, config: StudioConfig | None = None) -> FastAPI:
 
     @app.exception_handler(DoodleError)
     async def doodle_error(request: Request, e: DoodleError):
+        if isinstance(e, Conflict):  # the page asks the user, then repeats the request with its answer
+            return JSONResponse({"error": str(e), "confirm": True}, status_code=409)
         return _error(400, str(e))
 
     async def body(request: Request) -> bytes:
@@ -118,6 +168,9 @@ def create_app(session: Session, config: StudioConfig | None = None) -> FastAPI:
         return b"".join(chunks)
 
     async def payload(request: Request) -> dict:
+        kind = request.headers.get("content-type", "").split(";")[0].strip().lower()
+        if kind != "application/json":
+            raise InputError("send the request body as JSON (content-type application/json)")
         try:
             doc = json.loads(await body(request) or b"{}")
         except (UnicodeDecodeError, json.JSONDecodeError):
@@ -254,20 +307,30 @@ def create_app(session: Session, config: StudioConfig | None = None) -> FastAPI:
         from doodlecam.pipeline import write_outputs
 
         doc = await payload(request)
-        folder = inside(config.folders, doc.get("folder") or ".", "folder")
+        if not isinstance(doc.get("folder"), str) or not doc["folder"].strip():
+            raise InputError(f"choose the folder to export into (a folder inside {config.folders[0]})"
+                             if config.folders else "the studio was started without folders; start it with --folder DIR")
+        folder = inside(config.folders, doc["folder"], "folder")
         posts = doc.get("posts") or []
         if not isinstance(posts, list) or not posts or not all(isinstance(p, str) for p in posts):
             raise InputError("posts must be a list of post names, e.g. [\"gcode\"]")
+        overwrite = doc.get("overwrite") is True  # the user confirmed replacing files the studio did not write
 
         def run():
             stem = Path(session.name).stem or "job"
             outs = session.posts(tuple(posts))
             opened = app.state.opened
-            for _, ext, _ in outs:
-                if opened is not None and (folder / f"{stem}{ext}").resolve() == opened:
-                    raise OutputError(f"{folder / (stem + ext)} is the file the job was opened from; "
-                                      "export into another folder")
-            return write_outputs(folder, stem, outs)
+            targets = [(folder / f"{stem}{ext}").resolve() for _, ext, _ in outs]
+            for t in targets:
+                if opened is not None and t == opened:
+                    raise OutputError(f"{t} is the file the job was opened from; export into another folder")
+            foreign = [t for t in targets if t.exists() and t not in app.state.written]
+            if foreign and not overwrite:
+                raise Conflict(f"{foreign[0]} exists and was not written by the studio; "
+                               "confirm to replace it, or choose another folder")
+            written = write_outputs(folder, stem, outs)
+            app.state.written.update(p.resolve() for p in written)
+            return written
 
         return {"written": [str(p) for p in await run_in_threadpool(run)]}
 

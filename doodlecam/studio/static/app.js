@@ -11,12 +11,14 @@ const withToken = (url) => url + (url.includes("?") ? "&" : "?") + "token=" + en
 let pending = 0;
 async function api(path, { method = "GET", body, json } = {}) {
   const headers = { "x-doodlecam-token": token };
-  if (json !== undefined) { body = JSON.stringify(json); headers["content-type"] = "application/json"; }
+  // the server refuses bodies a cross-site form could send: JSON, or a file as octet-stream
+  if (body !== undefined) headers["content-type"] = "application/octet-stream";
+  else if (method !== "GET") { body = JSON.stringify(json === undefined ? {} : json); headers["content-type"] = "application/json"; }
   pending++; $("busy").hidden = false;
   try {
     const r = await fetch(path, { method, body, headers });
     const data = await r.json().catch(() => ({ error: `HTTP ${r.status}` }));
-    if (!r.ok) throw new Error(data.error || `HTTP ${r.status}`);
+    if (!r.ok) { const e = new Error(data.error || `HTTP ${r.status}`); e.data = data; throw e; }
     $("error").hidden = true;
     return data;
   } catch (e) {
@@ -456,7 +458,15 @@ async function posts() {
 $("download").addEventListener("click", (e) => { e.currentTarget.href = withToken(`/api/export/${$("post").value}`); });
 $("save").addEventListener("click", (e) => { e.currentTarget.href = withToken("/api/job"); });
 $("export").onclick = async () => {
-  const r = await api("/api/export", { method: "POST", json: { posts: [$("post").value], folder: $("export-folder").value } });
+  $("export-result").textContent = "";
+  const req = { posts: [$("post").value], folder: $("export-folder").value };
+  let r;
+  try {
+    r = await api("/api/export", { method: "POST", json: req });
+  } catch (e) {
+    if (!(e.data && e.data.confirm) || !window.confirm(e.message + "\n\nReplace it?")) return;
+    r = await api("/api/export", { method: "POST", json: { ...req, overwrite: true } });
+  }
   $("export-result").textContent = "wrote " + r.written.join(", ");
 };
 const GRBL_TARGETS = ["grbl-simulator", "serial"];
