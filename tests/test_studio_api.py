@@ -112,7 +112,7 @@ def test_move_control_point_replans_only_that_stroke(loaded, tmp_path):
     j = len(control) // 2
     control[j] += [4.0, -3.0]
     t0 = loaded.get("/api/state").json()["summary"]["job_time_s"]
-    r = loaded.post("/api/edit", json={"op": "move", "stroke": k, "control": control.tolist()})
+    r = edit(loaded, {"op": "move", "stroke": k, "control": control.tolist()})
     assert r.status_code == 200, r.text
     assert r.json()["can_undo"] and r.json()["job_time_s"] != t0
     new = loaded.get("/api/view").json()
@@ -168,7 +168,7 @@ def test_edit_with_a_patch_reply_equals_the_whole_view(loaded):
     k = len(view["strokes"]) // 2
     control = np.array(view["strokes"][k]["control"])
     control[len(control) // 2] += [0.5, 0.25]
-    r = loaded.post("/api/edit", json={"op": "move", "stroke": k, "control": control.tolist(), "reply": "patch"})
+    r = edit(loaded, {"op": "move", "stroke": k, "control": control.tolist(), "reply": "patch"})
     assert r.status_code == 200, r.text
     p = r.json()
     new = loaded.get("/api/view").json()
@@ -177,11 +177,13 @@ def test_edit_with_a_patch_reply_equals_the_whole_view(loaded):
     assert p["travels"] == new["travels"] and p["summary"] == new["summary"]
     assert p["figures"] == loaded.get(f"/api/stroke/{k}").json()
     # an edit that changes the number of strokes answers the summary: the page fetches the whole view
-    r = loaded.post("/api/edit", json={"op": "split", "stroke": k, "point": len(control) // 2, "reply": "patch"})
+    r = edit(loaded, {"op": "split", "stroke": k, "point": len(control) // 2, "reply": "patch"})
     assert r.status_code == 200 and "strokes" in r.json() and isinstance(r.json()["strokes"], int)
     for _ in range(2):
         loaded.post("/api/undo", json={})
-    assert loaded.get("/api/view").json() == view
+    after = loaded.get("/api/view").json()
+    assert after["summary"].pop("version") > view["summary"].pop("version")  # undone: the same job, a new version
+    assert after == view
 
 
 def test_structure_edits_and_their_errors(loaded):
@@ -189,34 +191,35 @@ def test_structure_edits_and_their_errors(loaded):
     view = loaded.get("/api/view").json()
     k = max(range(len(view["strokes"])), key=lambda i: len(view["strokes"][i]["control"]))
     ctrl = view["strokes"][k]["control"]
-    s = loaded.post("/api/edit", json={"op": "insert", "stroke": k, "point": 0}).json()
+    s = edit(loaded, {"op": "insert", "stroke": k, "point": 0}).json()
     assert s["control_points"] == s0["control_points"] + 1
-    s = loaded.post("/api/edit", json={"op": "delete_point", "stroke": k, "point": 1}).json()
+    s = edit(loaded, {"op": "delete_point", "stroke": k, "point": 1}).json()
     assert s["control_points"] == s0["control_points"]
-    s = loaded.post("/api/edit", json={"op": "reverse", "stroke": k}).json()
+    s = edit(loaded, {"op": "reverse", "stroke": k}).json()
     assert loaded.get("/api/view").json()["strokes"][k]["control"][0] == ctrl[-1]
-    s = loaded.post("/api/edit", json={"op": "split", "stroke": k, "point": len(ctrl) // 2}).json()
+    s = edit(loaded, {"op": "split", "stroke": k, "point": len(ctrl) // 2}).json()
     assert s["strokes"] == s0["strokes"] + 1 and s["control_points"] == s0["control_points"] + 1
-    s = loaded.post("/api/edit", json={"op": "reorder", "stroke": 0, "to": 2}).json()
+    s = edit(loaded, {"op": "reorder", "stroke": 0, "to": 2}).json()
     assert s["strokes"] == s0["strokes"] + 1
-    s = loaded.post("/api/edit", json={"op": "delete", "stroke": 0}).json()
+    s = edit(loaded, {"op": "delete", "stroke": 0}).json()
     assert s["strokes"] == s0["strokes"]
     for body, words in [({"op": "move", "stroke": k}, "control"), ({"op": "reverse", "stroke": 10_000}, "does not exist"),
                         ({"op": "fly", "stroke": 0}, "unknown edit"), ({"op": "move", "stroke": 0, "control": [[0, 0]]}, "at least"),
                         ({"op": "reverse", "stroke": 0, "colour": 1}, "unknown edit field"),
                         ({"op": "move", "stroke": 0, "control": [[0, 0], [1, 1], [2, "x"], [3, 3]]}, "mm")]:
-        r = loaded.post("/api/edit", json=body)
+        r = edit(loaded, body)
         assert r.status_code == 400 and words in one_line(r), (body, r.text)
     # a stroke dragged off the paper: the planner's one line, and the job stays as it was
     before = loaded.get("/api/view").json()
     far = np.array(before["strokes"][0]["control"])
     far[len(far) // 2] = [5000.0, 5000.0]
-    r = loaded.post("/api/edit", json={"op": "move", "stroke": 0, "control": far.tolist()})
+    r = edit(loaded, {"op": "move", "stroke": 0, "control": far.tolist()})
     assert r.status_code == 400 and "outside the 400 x 300 mm work area" in one_line(r)
     assert loaded.get("/api/view").json() == before
     while loaded.get("/api/state").json()["summary"]["can_undo"]:
         loaded.post("/api/undo", json={})
-    assert loaded.get("/api/state").json()["summary"] == {**s0, "can_redo": True}
+    same = lambda s: {k: v for k, v in s.items() if k != "version"}  # noqa: E731 (every change is a new version)
+    assert same(loaded.get("/api/state").json()["summary"]) == same({**s0, "can_redo": True})
 
 
 def test_paths_stay_inside_the_chosen_folders(loaded, tmp_path):
@@ -246,6 +249,29 @@ def test_paths_stay_inside_the_chosen_folders(loaded, tmp_path):
     assert r.status_code == 400 and "nope" in one_line(r)
 
 
+def test_stale_edits_are_refused(loaded):
+    """Tab A shows the job at some version; tab B opens another file or edits: A's edit is refused, not applied."""
+    a = loaded.get("/api/state").json()["summary"]
+    stroke0 = loaded.get("/api/view").json()["strokes"][0]["control"]
+    r = loaded.post("/api/edit", json={"op": "reverse", "stroke": 0})
+    assert r.status_code == 400 and "job and version" in one_line(r)
+    assert edit(loaded, {"op": "reverse", "stroke": 0}).status_code == 200  # tab B edits
+    for body in ({"op": "delete", "stroke": 0}, {"op": "move", "stroke": 0, "control": stroke0, "reply": "patch"}):
+        r = loaded.post("/api/edit", json={**body, "job": a["job"], "version": a["version"]})  # tab A, one version behind
+        assert r.status_code == 409 and r.json()["stale"] and one_line(r) == "the job changed in another tab; reload"
+    r = loaded.post("/api/undo", json={"job": a["job"], "version": a["version"]})
+    assert r.status_code == 409 and "another tab" in one_line(r)
+    b = loaded.get("/api/state").json()["summary"]
+    assert b["strokes"] == a["strokes"] and b["version"] == a["version"] + 1 and b["can_undo"]
+    # another file opened in tab B: the old job's id is refused whatever its version
+    assert loaded.post("/api/load?name=coins.png", content=PICTURE.read_bytes(), headers=UPLOAD).status_code == 200
+    c = loaded.get("/api/state").json()["summary"]
+    assert c["job"] != b["job"]
+    r = loaded.post("/api/edit", json={"op": "delete", "stroke": 0, "job": b["job"], "version": c["version"]})
+    assert r.status_code == 409
+    assert loaded.get("/api/state").json()["summary"]["strokes"] == c["strokes"]
+
+
 def test_export_never_replaces_a_foreign_file_without_asking(loaded):
     folder = Path(loaded.app.state.config.folders[0])
     r = loaded.post("/api/export", json={"posts": ["gcode"]})
@@ -272,6 +298,12 @@ def test_saved_job_errors(loaded):
         r = loaded.post("/api/job?name=bad.json", content=data, headers=UPLOAD)
         assert r.status_code == 400 and words in one_line(r), (data, r.text)
     assert loaded.get("/api/state").json()["loaded"]
+
+
+def edit(c: TestClient, body: dict):
+    """An edit as the page makes it: on the job and version the page shows."""
+    s = c.get("/api/state").json()["summary"]
+    return c.post("/api/edit", json={**body, "job": s["job"], "version": s["version"]})
 
 
 def studio_routes(app) -> list[tuple[str, str]]:
@@ -528,7 +560,7 @@ def test_fivebar_edits_replan(tmp_path):
             for d in ([0.05, 0.0], [0.0, -0.05]):
                 control = c0.copy()
                 control[j] += d
-                r = c.post("/api/edit", json={"op": "move", "stroke": k, "control": control.tolist(), "reply": "patch"})
+                r = edit(c, {"op": "move", "stroke": k, "control": control.tolist(), "reply": "patch"})
                 assert r.status_code == 200, (k, j, d, r.text)
                 f = r.json()["figures"]
                 assert f["worst_acceleration_ratio"] <= 1 + 1e-6 and f["worst_velocity_ratio"] <= 1 + 1e-6

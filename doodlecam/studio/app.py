@@ -30,7 +30,7 @@ from doodlecam.errors import DoodleError, InputError, OutputError
 from doodlecam.studio import motion as studio_motion
 from doodlecam.studio import grbl as studio_grbl
 from doodlecam.studio.sending import ACTIVE, Sender
-from doodlecam.studio.session import Session
+from doodlecam.studio.session import Session, StaleEdit
 
 STATIC = Path(__file__).parent / "static"
 TOKEN_HEADER = "x-doodlecam-token"
@@ -149,6 +149,8 @@ def create_app(session: Session, config: StudioConfig | None = None) -> FastAPI:
     async def doodle_error(request: Request, e: DoodleError):
         if isinstance(e, Conflict):  # the page asks the user, then repeats the request with its answer
             return JSONResponse({"error": str(e), "confirm": True}, status_code=409)
+        if isinstance(e, StaleEdit):  # the page reloads the job it shows
+            return JSONResponse({"error": str(e), "stale": True}, status_code=409)
         return _error(400, str(e))
 
     async def body(request: Request) -> bytes:
@@ -260,15 +262,20 @@ def create_app(session: Session, config: StudioConfig | None = None) -> FastAPI:
         op = doc.pop("op", None)
         i = doc.pop("stroke", None)
         patch = doc.pop("reply", None) == "patch"
+        if "job" not in doc or "version" not in doc:
+            raise InputError("an edit names the job and version it was made on ('job', 'version' from the summary)")
+        job_id, version = doc.pop("job"), doc.pop("version")
         allowed = {"control", "point", "to"}
         extra = set(doc) - allowed
         if extra:
-            raise InputError(f"unknown edit field '{sorted(extra)[0]}'; use op, stroke, control, point, to, reply")
+            raise InputError(f"unknown edit field '{sorted(extra)[0]}'; use op, stroke, control, point, to, reply, "
+                             "job, version")
 
         def run():
             w0, c0, q0 = time.perf_counter(), time.thread_time(), _run_queue_wait()
             with session.lock:  # the edit and what it changed, with no other request in between
                 w1 = time.perf_counter()
+                session.expect(job_id, version)
                 summary = session.edit(str(op), i, **doc)
                 # reply=patch: what changed, in the same answer (the page's re-plan after a drag)
                 r = _json(session.patch() if patch and session.last_changed else summary)
@@ -284,13 +291,24 @@ def create_app(session: Session, config: StudioConfig | None = None) -> FastAPI:
 
         return await run_in_threadpool(run)
 
+    async def step(request: Request, which: str):
+        doc = await payload(request)
+
+        def run():
+            with session.lock:
+                if "version" in doc:  # the page says which version it undoes; another tab's change is not undone
+                    session.expect(doc.get("job"), doc["version"])
+                return getattr(session, which)()
+
+        return await run_in_threadpool(run)
+
     @app.post("/api/undo")
-    def undo():
-        return session.undo()
+    async def undo(request: Request):
+        return await step(request, "undo")
 
     @app.post("/api/redo")
-    def redo():
-        return session.redo()
+    async def redo(request: Request):
+        return await step(request, "redo")
 
     @app.get("/api/timeline")
     def timeline():

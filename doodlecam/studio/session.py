@@ -10,6 +10,7 @@ whole edited job would give. Units: mm and s.
 from __future__ import annotations
 
 import json
+import secrets
 import tempfile
 import threading
 from dataclasses import replace
@@ -33,6 +34,10 @@ def _settings_machine(settings: Settings):
     return m if settings.path_tolerance is None else replace(m, path_tolerance=float(settings.path_tolerance))
 
 
+class StaleEdit(InputError):
+    """An edit made on a view the job has moved on from (another tab, another file)."""
+
+
 class Session:
     """One user's job. Methods raise DoodleErrors (one line each) on bad input."""
 
@@ -51,6 +56,10 @@ class Session:
         self._checks: dict[int, tuple] = {}  # id(stroke) -> (stroke, acc ratio, vel ratio, deviation per period), cached
         self._views: dict[int, tuple] = {}  # id(stroke) -> (stroke, samples, its /api/view entry without "i"), cached
         self.last_changed: tuple[int, ...] = ()  # strokes the last edit re-planned (the count of strokes unchanged)
+        # every job gets a fresh id and every change a new version: an edit made on an older view (another tab
+        # opened another file, or changed this one) is refused instead of being applied to a job it was not made on
+        self.job_id = ""
+        self.version = 0
 
     # ------------------------------------------------------------ tracers
 
@@ -259,7 +268,15 @@ class Session:
             self.last_changed = tuple(sorted(changed)) if len(strokes) == len(job.strokes) else ()
             return self.summary()
 
+    def expect(self, job_id: Any, version: Any) -> None:
+        """Refuse a change made on a view of another job or of an older version of this one."""
+        if job_id != self.job_id or version != self.version:
+            raise StaleEdit("the job changed in another tab; reload")
+
     def _set(self, job: Job, keep_history: bool = True) -> None:
+        self.version += 1
+        if not keep_history:
+            self.job_id = secrets.token_hex(6)
         if keep_history and self.job is not None:
             self.undo_stack = (self.undo_stack + [self.job])[-HISTORY:]
         elif not keep_history:
@@ -281,6 +298,7 @@ class Session:
                 raise InputError(f"nothing to {what}")
             other.append(self._require())
             self.job = source.pop()
+            self.version += 1
             return self.summary()
 
     # ------------------------------------------------------------ views
@@ -294,7 +312,8 @@ class Session:
                 "worst_acceleration_ratio": round(job.meta.get("worst_acceleration_ratio", 0.0), 6),
                 "worst_velocity_ratio": round(job.meta.get("worst_velocity_ratio", 0.0), 6),
                 "tracer": self.tracer, "tracer_options": self.tracer_options,
-                "can_undo": bool(self.undo_stack), "can_redo": bool(self.redo_stack)}
+                "can_undo": bool(self.undo_stack), "can_redo": bool(self.redo_stack),
+                "job": self.job_id, "version": self.version}
 
     def view(self) -> dict:
         """Everything the page draws: the work area, each stroke as executed (positions

@@ -18,7 +18,11 @@ async function api(path, { method = "GET", body, json } = {}) {
   try {
     const r = await fetch(path, { method, body, headers });
     const data = await r.json().catch(() => ({ error: `HTTP ${r.status}` }));
-    if (!r.ok) { const e = new Error(data.error || `HTTP ${r.status}`); e.data = data; throw e; }
+    if (!r.ok) {
+      const e = new Error(data.error || `HTTP ${r.status}`); e.data = data;
+      if (data.stale) setTimeout(refresh, 0); // another tab changed the job: show it as it is now
+      throw e;
+    }
     $("error").hidden = true;
     return data;
   } catch (e) {
@@ -243,7 +247,7 @@ window.addEventListener("mouseup", async (e) => {
     const t0 = performance.now();
     try {
       // one request: the edit answers with what it changed (the stroke, travels, summary, figures)
-      const r = await api("/api/edit", { method: "POST", json: { op: "move", stroke: S.selected, control: d.control, reply: "patch" } });
+      const r = await api("/api/edit", { method: "POST", json: { op: "move", stroke: S.selected, control: d.control, reply: "patch", ...onJob() } });
       const t1 = performance.now();
       S.drag = null;
       if (r.strokes) await applyPatch(r); else await refresh();
@@ -283,8 +287,11 @@ paper.addEventListener("contextmenu", async (e) => {
   await edit({ op, point: k });
 });
 
+// the job and version this page shows: an edit made on an older view is refused by the server
+const onJob = () => ({ job: S.view.summary.job, version: S.view.summary.version });
+
 async function edit(fields) {
-  await api("/api/edit", { method: "POST", json: { stroke: S.selected, ...fields } });
+  await api("/api/edit", { method: "POST", json: { stroke: S.selected, ...fields, ...onJob() } });
   await refresh();
 }
 
@@ -304,7 +311,15 @@ $("stroke-tools").addEventListener("click", async (e) => {
   }
 });
 
-async function undoRedo(which) { await api(`/api/${which}`, { method: "POST" }); await refresh(); }
+async function undoRedo(which) { await api(`/api/${which}`, { method: "POST", json: onJob() }); await refresh(); }
+
+// open tabs follow the job: another tab's load or edit shows here within a few seconds
+setInterval(async () => {
+  if (!S.view || S.drag || pending > 0 || document.hidden) return;
+  const st = await fetch("/api/state", { headers: { "x-doodlecam-token": token } }).then((r) => r.json()).catch(() => null);
+  const s = st && st.summary;
+  if (s && (s.job !== S.view.summary.job || s.version !== S.view.summary.version)) await refresh();
+}, 2000);
 $("undo").onclick = () => undoRedo("undo");
 $("redo").onclick = () => undoRedo("redo");
 window.addEventListener("keydown", (e) => {
