@@ -9,6 +9,7 @@ convert``'s and with a fresh plan of the saved job.
 from __future__ import annotations
 
 import json
+import math
 import os
 import time
 from pathlib import Path
@@ -272,6 +273,31 @@ def test_stale_edits_are_refused(loaded):
     assert loaded.get("/api/state").json()["summary"]["strokes"] == c["strokes"]
 
 
+def test_costly_or_broken_jobs_are_refused_at_once_while_the_view_answers(loaded):
+    """A 6 KB job of degree 500 once held the session for minutes: every saved job is checked before any work."""
+    import json
+    import threading
+
+    saved = json.loads(loaded.get("/api/job").content)
+    line = [[10.0 + i, 20.0 + (i % 2)] for i in range(501)]
+    bad = {"degree 500": [{"degree": 500, "control": line}], "degree 2.5": [{"degree": 2.5, "control": line[:4]}],
+           "NaN": [{"degree": 3, "control": [[0, 0], [1, "NaN"], [2, 0], [3, 0]]}],
+           "infinite": [{"degree": 3, "control": [[0, 0], [1, 1e999], [2, 0], [3, 0]]}],
+           "far outside": [{"degree": 3, "control": [[0, 0], [1e6, 0], [2, 0], [3, 0]]}],
+           "huge": [{"degree": 3, "control": [[1.0, 1.0]] * 200_001}],
+           "not pairs": [{"degree": 3, "control": [[0, 0, 0]] * 4}]}
+    answers = []
+    view = threading.Thread(target=lambda: answers.extend(loaded.get("/api/state").status_code for _ in range(20)))
+    view.start()
+    for what, strokes in bad.items():
+        data = json.dumps({**saved, "strokes": strokes}).encode()
+        r = loaded.post("/api/job?name=bad.job.json", content=data, headers=UPLOAD)
+        assert r.status_code == 400 and "malformed" in one_line(r) and "\n" not in r.json()["error"], (what, r.text)
+    view.join(60)
+    assert answers == [200] * 20
+    assert loaded.get("/api/state").json()["summary"]["strokes"] == len(saved["strokes"])
+
+
 def test_export_never_replaces_a_foreign_file_without_asking(loaded):
     folder = Path(loaded.app.state.config.folders[0])
     r = loaded.post("/api/export", json={"posts": ["gcode"]})
@@ -428,6 +454,54 @@ def test_stop_ends_at_a_stroke_boundary_with_the_pen_up_and_resumes(loaded):
     assert sorted(ran) == list(range(1, len(records) + 1))  # every command once, none repeated
     assert "no send is running" in one_line(loaded.post("/api/send/stop", json={}))
     assert "HOST:PORT" in one_line(loaded.post("/api/send", json={"target": "plc-without-port:x"}))
+
+
+def test_one_send_at_a_time_and_a_resume_belongs_to_its_target(tmp_path):
+    """Two Sends at once (a double-click, two tabs): exactly one starts. A job stopped on one PLC, then sent to
+    another, starts there at command 1 (its lines were never drawn there), and the first PLC still resumes it."""
+    import threading
+
+    from doodlecam.link.plc.simulator import PlcConfig, PlcSimulator
+
+    c = make_client(tmp_path)
+    assert c.post("/api/load?name=coins.png", content=PICTURE.read_bytes(), headers=UPLOAD).status_code == 200
+    sender = c.app.state.sender
+    for _ in range(3):
+        clients = [TestClient(c.app, base_url="http://127.0.0.1", headers={"x-doodlecam-token": "secret-token"})
+                   for _ in range(2)]
+        go, codes = threading.Barrier(2), []
+
+        def send(client):
+            go.wait()
+            codes.append(client.post("/api/send", json={"target": "simulator", "speed": 20, "again": True}).status_code)
+
+        threads = [threading.Thread(target=send, args=(cl,)) for cl in clients]
+        for t in threads:
+            t.start()
+        for t in threads:
+            t.join(60)
+        assert sorted(codes) == [200, 400], codes
+        wait_state(c, lambda s: s["executed"] > 5)
+        assert c.post("/api/send/stop", json={}).status_code == 200
+        s = wait_state(c, lambda s: s["state"] not in ("sending", "stopping"))
+        assert s["state"] == "stopped", s
+    other = PlcSimulator(PlcConfig.from_machine(c.app.state.session.machine, speed=math.inf)).start()
+    try:
+        host, port = other.address
+        assert c.post("/api/send", json={"target": f"{host}:{port}"}).status_code == 200
+        s = wait_state(c, lambda s: s["state"] not in ("sending", "stopping"))
+        assert s["state"] == "done" and "resumed" not in s["message"], s
+        job = sender._sender.job_id
+        assert sorted(k for j, k in other.executed_log if j == job) == list(range(1, s["total"] + 1))
+    finally:
+        other.stop()
+    # back on the first PLC the stopped job resumes where it stopped, or is abandoned with the page's button
+    s = wait_state(c, lambda s: True)
+    r = c.post("/api/send/abandon", json={"target": "simulator"})
+    assert r.status_code == 200 and "abandoned" in r.json()["message"], r.text
+    assert c.post("/api/send", json={"target": "simulator", "speed": 20}).status_code == 200
+    s = wait_state(c, lambda s: s["state"] not in ("sending", "stopping"))
+    assert s["state"] == "done" and "resumed" not in s["message"], s
 
 
 def test_motion_design_routes(tmp_path):

@@ -86,7 +86,7 @@ def test_grbl_send_waits_at_each_m0(studio):
         wait(studio, lambda s: s["state"] != "waiting")
     s = wait(studio, lambda s: s["state"] in ("done", "failed", "stopped"))
     assert s["state"] == "done", s
-    gcode = (Path(sender._records.name) / "studio.gcode").read_text()
+    gcode = (sender.record_dir("grbl-simulator") / "studio.gcode").read_text()
     assert emu.received[before:] == [ln.text.upper() for ln in prepare(gcode)]  # every line once, in order
     assert emu.pauses >= 2
 

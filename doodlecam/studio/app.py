@@ -410,9 +410,19 @@ def create_app(session: Session, config: StudioConfig | None = None) -> FastAPI:
                 return sender.start_grbl(data, session.machine, target, doc.get("speed"),
                                          restart=doc.get("restart") is True, plugin_dirs=session.settings.plugin_dirs)
             _, data = session.export("plc")
-            return sender.start(data, session.machine, target, doc.get("speed"), again=doc.get("again") is True)
+            return sender.start(data, session.machine, target, doc.get("speed"), again=doc.get("again") is True,
+                                restart=doc.get("restart") is True)
 
         return await run_in_threadpool(start)
+
+    @app.post("/api/send/abandon")
+    async def send_abandon(request: Request):
+        target = (await payload(request)).get("target") or "simulator"
+        if not isinstance(target, str):
+            raise InputError("target must be 'simulator' or HOST:PORT (PLC), 'grbl-simulator' or serial:PORT (GRBL)")
+        grbl = target == studio_grbl.EMULATOR or target.startswith(studio_grbl.SERIAL_PREFIX)
+        data = session.export("gcode" if grbl else "plc")[1]
+        return await run_in_threadpool(sender.abandon, target, data, session.machine)
 
     @app.post("/api/send/stop")
     def send_stop():

@@ -15,7 +15,9 @@ server, so a job it holds can be resumed too.
 
 from __future__ import annotations
 
+import hashlib
 import math
+import re
 import tempfile
 import threading
 import time
@@ -81,8 +83,26 @@ class Sender:
         # The sender's record (job id, owner token, progress): with it a stopped job resumes on the
         # PLC that holds it, which takes it only from the computer that started it (docs/protocol.md).
         self._records = tempfile.TemporaryDirectory(prefix="doodlecam-studio-")
+        # held from the check that no send runs to the end of the send: two requests (a double-click on
+        # Send, two tabs) can never both start one
+        self._one = threading.Lock()
+
+    def _claim(self, speed) -> None:
+        if speed is not None and not (isinstance(speed, (int, float)) and math.isfinite(speed) and speed > 0):
+            raise InputError(f"speed must be a positive number, got {speed!r}")
+        if not self._one.acquire(blocking=False):
+            raise InputError("a send is running; stop it or wait for it to finish")
+
+    def record_dir(self, target: str) -> Path:
+        """Where a target's resume record lives: a job stopped on one machine resumes on that machine only;
+        sent to another one it starts at the beginning (the record is also tied to the job's CRC)."""
+        d = Path(self._records.name) / hashlib.sha256(target.encode()).hexdigest()[:16]
+        d.mkdir(exist_ok=True)
+        return d
 
     def _update(self, **kw) -> None:
+        if isinstance(kw.get("message"), str):
+            kw["message"] = for_page(kw["message"])
         with self.changed:
             for k, v in kw.items():
                 setattr(self.s, k, v)
@@ -102,12 +122,6 @@ class Sender:
     @property
     def busy(self) -> bool:
         return self._thread is not None and self._thread.is_alive()
-
-    def _check_start(self, speed) -> None:
-        if self.busy:
-            raise InputError("a send is running; stop it or wait for it to finish")
-        if speed is not None and not (isinstance(speed, (int, float)) and math.isfinite(speed) and speed > 0):
-            raise InputError(f"speed must be a positive number, got {speed!r}")
 
     def grbl_port(self, target: str) -> str:
         """The port of a GRBL target for the machine panel; refused while a send uses GRBL."""
@@ -140,14 +154,22 @@ class Sender:
         self._operator.set()
         return self.snapshot()[1]
 
-    def start(self, plc_bytes: bytes, machine, target: str, speed: float | None = None, again: bool = False) -> dict:
+    def start(self, plc_bytes: bytes, machine, target: str, speed: float | None = None, again: bool = False,
+              restart: bool = False) -> dict:
+        self._claim(speed)
+        try:
+            return self._start_plc(plc_bytes, machine, target, speed, again, restart)
+        except BaseException:
+            self._one.release()
+            raise
+
+    def _start_plc(self, plc_bytes: bytes, machine, target: str, speed, again: bool, restart: bool) -> dict:
         """Send to ``target``: 'simulator' (a built-in PLC simulator, ``speed`` x real time;
         None = as fast as it can) or 'HOST:PORT' of a PLC. ``again``: run a job the PLC has
-        already finished once more (``doodlecam send --again``)."""
+        already finished once more (``doodlecam send --again``); ``restart``: start over instead of resuming."""
         from doodlecam.link.plc.sender import UdpSender, parse_target, planned_time_left
         from doodlecam.link.plc.simulator import PlcConfig, PlcSimulator
 
-        self._check_start(speed)
         sim = None
         if target == "simulator":
             want = speed or math.inf
@@ -167,8 +189,8 @@ class Sender:
             self._update(executed=executed, total=total, position_mm=pos,
                          time_left_s=float(left[min(executed, len(left) - 1)]))
 
-        sender = UdpSender(host, port, plc_bytes, "studio.plc", progress=progress, again=again,
-                           state_file=Path(self._records.name) / "send-record.json",
+        sender = UdpSender(host, port, plc_bytes, "studio.plc", progress=progress, again=again, restart=restart,
+                           state_file=self.record_dir(target) / "send-record.json",
                            pen_change=self._pen_change(machine))
         header = sender.plc_header
         left = planned_time_left(sender.records, header)
@@ -198,6 +220,7 @@ class Sender:
             end = dict(state="failed", message=f"send failed: {type(e).__name__}: {e}")
         self._thread = None  # the next send may start as soon as the state says this one ended
         self._update(**end)
+        self._one.release()
 
     def stop(self) -> dict:
         """PLC: stop at the end of the current stroke, pen up (the sender's Ctrl-C). GRBL: ``control('stop')``."""
@@ -215,6 +238,14 @@ class Sender:
 
     def start_grbl(self, gcode: bytes, machine, target: str, speed: float | None = None, restart: bool = False,
                    plugin_dirs: tuple = ()) -> dict:
+        self._claim(speed)
+        try:
+            return self._start_grbl(gcode, machine, target, speed, restart, plugin_dirs)
+        except BaseException:
+            self._one.release()
+            raise
+
+    def _start_grbl(self, gcode: bytes, machine, target: str, speed, restart: bool, plugin_dirs: tuple) -> dict:
         """Stream G-code to GRBL: ``target`` 'grbl-simulator' (the built-in emulator, ``speed`` x real time)
         or 'serial:PORT'. As ``doodlecam send --serial``: a stopped job resumes after its last executed
         line when sent again, unless ``restart``."""
@@ -223,7 +254,6 @@ class Sender:
         from doodlecam.link.grbl.streamer import end_positions
         from doodlecam.link.session import state_file_for
 
-        self._check_start(speed)
         try:
             text = gcode.decode("ascii")
         except UnicodeDecodeError:
@@ -236,7 +266,7 @@ class Sender:
         port, label = self._grbl.port(target, speed)
         cls = registry.get("transport", "serial", plugin_dirs)
         options = cls.resolve_options(machine.plugin_options.get("transport.serial", {}), {})
-        path = Path(self._records.name) / "studio.gcode"  # the resume record goes next to it (same CRC: resume)
+        path = self.record_dir(target) / "studio.gcode"  # the resume record goes next to it (same CRC: resume)
         path.write_bytes(gcode)
         if restart:
             state_file_for(path).unlink(missing_ok=True)
@@ -306,6 +336,7 @@ class Sender:
             end = dict(state="failed", message=f"send failed: {type(e).__name__}: {e}")
         self._thread = None
         self._update(**end)
+        self._one.release()
 
     def control(self, action: str) -> dict:
         """A control of the running GRBL send (``streamer.Streamer``'s): pause (GRBL finishes the lines it
@@ -336,6 +367,32 @@ class Sender:
         self._update(state=new, message=msg)
         return self.snapshot()[1]
 
+    def abandon(self, target: str, job: bytes, machine) -> dict:
+        """Forget a stopped job on ``target``: its resume record here, and for a PLC the job it holds
+        (only the computer that started it can cancel it). The next Send starts at the beginning."""
+        from doodlecam.link.plc.sender import UdpSender, parse_target
+        from doodlecam.link.session import state_file_for
+
+        self._claim(None)
+        try:
+            if target == "grbl-simulator" or target.startswith("serial:"):
+                state_file_for(self.record_dir(target) / "studio.gcode").unlink(missing_ok=True)
+                msg = "abandoned: the next send starts at the first line"
+            else:
+                if target == "simulator":
+                    if self._sim is None:
+                        raise InputError("the PLC simulator holds no job; press Send")
+                    host, port = self._sim.address
+                else:
+                    host, port = parse_target(target, 5005)
+                victim = UdpSender(host, port, job, "studio.plc", state_file=self.record_dir(target) / "send-record.json").cancel()
+                msg = f"abandoned job {victim}: the next send starts at the first command" if victim else \
+                    "the PLC holds no job; the next send starts at the first command"
+            self._update(state="idle", message=msg, executed=0, line=0)
+            return self.snapshot()[1]
+        finally:
+            self._one.release()
+
     def _close_plc_sim(self) -> None:
         if self._sim is not None:
             self._sim.stop()
@@ -357,6 +414,20 @@ class Sender:
             thread.join(timeout)
         self._close_plc_sim()
         self._grbl.close()
+
+
+# the links speak to a terminal; the page has buttons for the same choices
+_FOR_PAGE = ((re.compile(r"(?:send (?:it )?(?:again )?with|add) --restart to start over(?: \(that abandons it\))?"),
+              "press Start over to draw it from the beginning"),
+             (re.compile(r"(?:add --cancel to abandon it|cancel the job with --cancel)"), "press Abandon to cancel it"),
+             (re.compile(r"add --again"), "press Send again"))
+
+
+def for_page(message: str) -> str:
+    """A link's message with its command-line advice turned into the page's buttons."""
+    for pattern, words in _FOR_PAGE:
+        message = pattern.sub(words, message)
+    return message
 
 
 def _grbl_state(st) -> str:

@@ -90,8 +90,9 @@ class Session:
                              f"{self.max_upload / 1e6:.0f} MB; start it with a larger --max-upload")
         if not data:
             raise InputError(f"{name}: the file is empty; pick another")
+        # the slow part runs without the session lock: the view, the state and a send's controls keep answering
+        job = self._trace_plan(name, data, tracer, options or {})
         with self.lock:
-            job = self._trace_plan(name, data, tracer, options or {})
             self.name, self.data = name, data
             self.tracer, self.tracer_options = tracer, dict(options or {})
             self._set(job, keep_history=False)
@@ -110,9 +111,10 @@ class Session:
 
     def retrace(self, tracer: str | None, options: dict[str, Any]) -> dict:
         with self.lock:
-            if not self.data:
-                raise InputError("no file is loaded; open a picture or vector file first")
-            return self.load(self.name, self.data, tracer, options)
+            name, data = self.name, self.data
+        if not data:
+            raise InputError("no file is loaded; open a picture or vector file first")
+        return self.load(name, data, tracer, options)
 
     def _trace_plan(self, name: str, data: bytes, tracer: str | None, options: dict[str, Any]) -> Job:
         from doodlecam.trace.layout import fit_to_work_area
@@ -451,11 +453,11 @@ class Session:
 
     def open_job(self, data: bytes, name: str = "job.json") -> dict:
         """Load a saved job and plan it (no tracing)."""
-        strokes, source = read_job(data, name, self.machine.name)
+        strokes, source = read_job(data, name, self.machine.name, self.machine)
+        drawing = replace(_curves(strokes), source=source)
+        job = plan_job(drawing, self.machine, self.settings.solver or self.machine.solver, self.settings.plugin_dirs,
+                       smoothing=self.settings.smoothing, fitted=strokes)
         with self.lock:
-            drawing = replace(_curves(strokes), source=source)
-            job = plan_job(drawing, self.machine, self.settings.solver or self.machine.solver, self.settings.plugin_dirs,
-                           smoothing=self.settings.smoothing, fitted=strokes)
             self.name, self.data = source or name, b""
             self._set(job, keep_history=False)
             self._check_later(job)
@@ -468,8 +470,15 @@ def _curves(strokes: list[Stroke]) -> Drawing:
     return Drawing(tuple(st.spline(np.linspace(0.0, 1.0, 16 * len(st.spline.control))) for st in strokes), units="mm")
 
 
-def read_job(data: bytes, name: str, machine: str | None = None) -> tuple[list[Stroke], str]:
-    """Strokes and source name of a saved studio job (format version 1); one-line InputErrors."""
+# a saved job is an input like any other: what the fitter makes, nothing that costs more than it could
+DEGREES = range(2, 6)  # as the profiles' [fit] degree
+MAX_STROKE_CONTROL = 200_000  # control points in one stroke (a long continuous line)
+MAX_JOB_CONTROL = 2_000_000  # control points in the whole job
+
+
+def read_job(data: bytes, name: str, machine: str | None = None, profile=None) -> tuple[list[Stroke], str]:
+    """Strokes and source name of a saved studio job (format version 1); one-line InputErrors, all checked
+    before any work: the degree one the fitter makes, finite points near the work area, sizes capped."""
     try:
         doc = json.loads(data)
     except (UnicodeDecodeError, json.JSONDecodeError) as e:
@@ -481,13 +490,35 @@ def read_job(data: bytes, name: str, machine: str | None = None) -> tuple[list[S
     if machine is not None and doc.get("machine") != machine:
         raise InputError(f"{name}: saved for machine '{doc.get('machine')}', the studio runs '{machine}'; "
                          f"start it with --machine {doc.get('machine')}")
-    strokes = []
+    if not isinstance(doc.get("strokes"), list):
+        raise InputError(f"{name}: no list of strokes; give a job saved by the studio")
+    box = None
+    if profile is not None:  # a control point farther than one work area from it is no drawing of this machine
+        w, h = profile.width, profile.height
+        box = (-w, -h, 2 * w, 2 * h)
+    strokes, total = [], 0
     try:
-        for n, s in enumerate(doc["strokes"]):
-            strokes.append(Stroke(Spline(int(s["degree"]), np.asarray(s["control"], float)),
-                                  source_index=int(s.get("source_index", -1)), fit_error=float(s.get("fit_error", 0.0))))
-            if not np.isfinite(strokes[-1].spline.control).all():
+        for s in doc["strokes"]:
+            degree = s["degree"]
+            if not isinstance(degree, int) or isinstance(degree, bool) or degree not in DEGREES:
+                raise ValueError(f"degree {degree!r}; the studio plans degrees 2 to 5")
+            control = s["control"]
+            if not isinstance(control, list) or len(control) > MAX_STROKE_CONTROL:
+                raise ValueError(f"more than {MAX_STROKE_CONTROL} control points" if isinstance(control, list)
+                                 else "no list of control points")
+            total += len(control)
+            if total > MAX_JOB_CONTROL:
+                raise ValueError(f"the job has more than {MAX_JOB_CONTROL} control points")
+            pts = np.asarray(control, float)
+            if pts.ndim != 2 or pts.shape[1] != 2:
+                raise ValueError("control points must be [x, y] pairs in mm")
+            if not np.isfinite(pts).all():
                 raise ValueError("control points must be finite")
+            if box is not None and (pts[:, 0].min() < box[0] or pts[:, 1].min() < box[1]
+                                    or pts[:, 0].max() > box[2] or pts[:, 1].max() > box[3]):
+                raise ValueError("control points far outside the machine's work area")
+            strokes.append(Stroke(Spline(degree, pts), source_index=int(s.get("source_index", -1)),
+                                  fit_error=float(s.get("fit_error", 0.0))))
     except (KeyError, TypeError, ValueError) as e:
         raise InputError(f"{name}: stroke {len(strokes)} is malformed ({e}); give a job saved by the studio") from None
     if not strokes:

@@ -514,6 +514,9 @@ function showSend(s) {
   sendAgain = s.state === "done" || (s.state === "failed" && /again/.test(s.message || ""));
   // a stopped job resumes where it stopped (the PLC holds it; GRBL's resume record names the next line)
   $("send").textContent = s.state === "stopped" ? "Resume" : sendAgain ? "Send again" : "Send";
+  // where the link offers to start over or abandon (a stopped or refused job), the page has the buttons
+  const offer = !ACTIVE.includes(s.state) && /Start over|Abandon/.test(s.message || "") || s.state === "stopped";
+  $("start-over").hidden = $("abandon").hidden = !offer;
 }
 function follow() {
   const es = new EventSource(withToken("/api/send/events"));
@@ -524,6 +527,14 @@ $("send").onclick = async () => {
   const speed = $("send-speed").value ? Number($("send-speed").value) : null;
   showSend(await api("/api/send", { method: "POST", json: { target: sendTarget(), speed, again: sendAgain } }));
   follow();
+};
+$("start-over").onclick = async () => {
+  showSend(await api("/api/send", { method: "POST", json: { target: sendTarget(), restart: true } }));
+  follow();
+};
+$("abandon").onclick = async () => {
+  if (!window.confirm("Abandon the stopped job? The next Send starts at the beginning.")) return;
+  showSend(await api("/api/send/abandon", { method: "POST", json: { target: sendTarget() } }));
 };
 $("stop").onclick = async () => { showSend(await api("/api/send/control", { method: "POST", json: { action: "stop" } })); };
 for (const b of ["pause", "hold", "resume", "continue"]) { // continue: a job waiting for the operator (state "waiting")
