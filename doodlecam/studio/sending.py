@@ -93,6 +93,15 @@ class Sender:
         if not self._one.acquire(blocking=False):
             raise InputError("a send is running; stop it or wait for it to finish")
 
+    def _exclusive(self, speed, start, *args) -> dict:
+        """``start(*args)`` holding the one-send lock; released here if it fails, else when the send ends."""
+        self._claim(speed)
+        try:
+            return start(*args)
+        except BaseException:
+            self._one.release()
+            raise
+
     def record_dir(self, target: str) -> Path:
         """Where a target's resume record lives: a job stopped on one machine resumes on that machine only;
         sent to another one it starts at the beginning (the record is also tied to the job's CRC)."""
@@ -156,12 +165,7 @@ class Sender:
 
     def start(self, plc_bytes: bytes, machine, target: str, speed: float | None = None, again: bool = False,
               restart: bool = False) -> dict:
-        self._claim(speed)
-        try:
-            return self._start_plc(plc_bytes, machine, target, speed, again, restart)
-        except BaseException:
-            self._one.release()
-            raise
+        return self._exclusive(speed, self._start_plc, plc_bytes, machine, target, speed, again, restart)
 
     def _start_plc(self, plc_bytes: bytes, machine, target: str, speed, again: bool, restart: bool) -> dict:
         """Send to ``target``: 'simulator' (a built-in PLC simulator, ``speed`` x real time;
@@ -238,12 +242,7 @@ class Sender:
 
     def start_grbl(self, gcode: bytes, machine, target: str, speed: float | None = None, restart: bool = False,
                    plugin_dirs: tuple = ()) -> dict:
-        self._claim(speed)
-        try:
-            return self._start_grbl(gcode, machine, target, speed, restart, plugin_dirs)
-        except BaseException:
-            self._one.release()
-            raise
+        return self._exclusive(speed, self._start_grbl, gcode, machine, target, speed, restart, plugin_dirs)
 
     def _start_grbl(self, gcode: bytes, machine, target: str, speed, restart: bool, plugin_dirs: tuple) -> dict:
         """Stream G-code to GRBL: ``target`` 'grbl-simulator' (the built-in emulator, ``speed`` x real time)
