@@ -350,3 +350,56 @@ def test_cli_console_on_a_terminal(emu_factory):
     assert rc == 0, err
     assert "$J=G21G91X5.000Y0.000F3000" in emu.received and emu.pos[0] == pytest.approx(5.0)
     assert "$110=9000 (X-axis maximum rate, mm/min)" in out and "arrows jog" in out
+
+
+def test_a_soft_limit_alarm_during_send_leaves_grbl_reset_not_locked(emu_factory, tmp_path, capsys):
+    """GRBL 1.1h after ALARM:2 (protocol.c): 500 ms of delay, "[MSG:Reset to continue]", every reset sent
+    before it discarded, then silence (no status either) until a new reset. The emulator does the same;
+    send waits for the message, resets, and says so; `machine status` then answers at once."""
+    emu = emu_factory(speed=50.0, soft_limits=True, travel=(400.0, 300.0))
+    assert main(["machine", "--serial", emu.port, "home"]) == 0
+    bad = tmp_path / "bad.gcode"
+    bad.write_text("G21 G90\nG0 X10 Y10\nG0 X395 Y10\n")
+    resets = emu.resets
+    with pytest.raises(GrblError, match=r"ALARM:2 .*GRBL was reset and stays locked: .*unlock") as e:
+        bounded(lambda: send_gcode(emu.port, bad, state_file=None))
+    assert len(str(e.value).splitlines()) == 1 and emu.critical_since is None  # the block is lifted
+    assert emu.resets == resets + 2  # the one at the start of the send, the one after the alarm
+    capsys.readouterr()
+    assert main(["machine", "--serial", emu.port, "status"]) == 0
+    assert "Alarm" in capsys.readouterr().out  # reset after moving: locked until homed, as the firmware
+
+
+def test_the_emulator_is_as_deaf_as_the_firmware_after_a_limit_alarm(emu_factory, capsys):
+    """A reset within the 500 ms is lost and every command then meets silence; `machine reset` (and the
+    console) free it, where every other command says to run it."""
+    emu = emu_factory(speed=50.0, soft_limits=True, travel=(400.0, 300.0))
+    link, ctl = controller(emu)
+    try:
+        ctl.home()
+        link.write(b"G0X10Y10\n")
+        t0 = time.monotonic()
+        while not any(ev and ev[0] == "alarm" for ev in [link.next_event(0.05)]):
+            assert time.monotonic() - t0 < 5
+        link.realtime(b"\x18")  # too early: GRBL clears it before it waits for a reset
+        asked = len(emu.status_queries)
+        seen = [link.next_event(0.05) for _ in range(20)]  # 1 s, asking for status every 0.1 s meanwhile
+        assert ("msg", "Reset to continue") in seen and not [ev for ev in seen if ev and ev[0] == "status"]
+        assert emu.critical_since is not None and len(emu.status_queries) == asked  # not one status report
+    finally:
+        link.close()
+    assert main(["machine", "--serial", emu.port, "--timeout", "1", "status"]) != 0
+    assert "run 'doodlecam machine --serial" in capsys.readouterr().err
+    assert main(["machine", "--serial", emu.port, "reset"]) == 0
+    assert emu.critical_since is None and "Alarm" in capsys.readouterr().out
+    assert main(["machine", "--serial", emu.port, "status"]) == 0
+
+
+def test_homing_longer_than_the_answer_timeout(emu_factory, capsys):
+    """GRBL sends nothing during a homing cycle (limits_go_home serves no status request): `machine home`
+    waits for its ok up to the homing limit, saying it homes, instead of giving up after the answer timeout."""
+    emu = emu_factory(speed=1.0, soft_limits=True, travel=(400.0, 300.0), homing_time=2.5)
+    t0 = time.monotonic()
+    assert main(["machine", "--serial", emu.port, "--timeout", "1", "home"]) == 0
+    out = capsys.readouterr()
+    assert time.monotonic() - t0 >= 2.5 and "homing" in out.err and "Idle" in out.out

@@ -1,4 +1,4 @@
-"""``doodlecam machine --serial PORT home|unlock|jog X Y|zero|status|settings|console``: control a GRBL machine.
+"""``doodlecam machine --serial PORT home|unlock|reset|jog X Y|zero|status|settings|console``: control a GRBL machine.
 
 Registered lazily in cli.LAZY_COMMANDS. The commands are GRBL 1.1's own
 (``doodlecam.link.grbl.control``); every refusal prints GRBL's code and meaning.
@@ -23,14 +23,14 @@ def machine(ctx, port, baud, timeout):
 
 
 @contextlib.contextmanager
-def _controller(ctx):
+def _controller(ctx, reset_if_silent: bool = False):
     from doodlecam.link.grbl.control import Controller
     from doodlecam.link.grbl.port import GrblLink
 
     o = ctx.obj
     with GrblLink(o["port"], o["baud"], timeout=o["timeout"], log=lambda m: click.echo(m, err=True)) as link:
         ctl = Controller(link)
-        ctl.attach()
+        ctl.attach(reset_if_silent)
         with link.interrupts:
             yield ctl
 
@@ -54,6 +54,14 @@ def _simple(name: str, doc: str, action: str) -> None:
 _simple("home", "Run the homing cycle ($H; needs $22=1). Machine travel is then negative: -$130..0, -$131..0.", "home")
 _simple("unlock", "Leave the alarm state without homing ($X); the position may be off.", "unlock")
 _simple("status", "Print GRBL's state, machine and work position, feed and feed override.", "status")
+
+
+@machine.command()
+@click.pass_context
+def reset(ctx):
+    """Soft-reset GRBL (Ctrl-X): frees a controller that answers nothing after a limit alarm."""
+    with _controller(ctx, reset_if_silent=True) as ctl:
+        _show(ctl, ctl.reset())
 
 
 @machine.command()
@@ -99,7 +107,7 @@ def console(ctx, step, feed):
     if not sys.stdin.isatty():
         raise InputError("the console needs a terminal; use 'doodlecam machine --serial PORT status|jog|home' in scripts")
     # keys first: what is typed while the port opens waits, unechoed, for the console
-    with raw_keys() as getch, _controller(ctx) as ctl:
+    with raw_keys() as getch, _controller(ctx, reset_if_silent=True) as ctl:
         run_console(ctl, getch, lambda s: click.echo("\r" + s + "\x1b[K"), step=step, feed=feed)
 
 

@@ -98,9 +98,25 @@ class Controller:
 
     # ------------------------------------------------------------ basics
 
-    def attach(self) -> GrblStatus:
-        """Wait for GRBL's first status report; unlike ``send`` it takes any state (alarm too)."""
-        return self._seen(self.link.first_status())
+    def attach(self, reset_if_silent: bool = False) -> GrblStatus:
+        """Wait for GRBL's first status report; unlike ``send`` it takes any state (alarm too).
+        A GRBL blocked after a limit alarm answers nothing but a reset: ``reset_if_silent`` sends one."""
+        try:
+            return self._seen(self.link.first_status())
+        except LinkError:
+            if not reset_if_silent:
+                raise LinkError(f"no answer from GRBL on {self.link.port}; after a limit alarm GRBL answers nothing "
+                                f"until reset: run 'doodlecam machine --serial {self.link.port} reset' (else check the "
+                                "port, the baud rate and that the controller runs GRBL)") from None
+        return self.reset()
+
+    def reset(self) -> GrblStatus:
+        """Soft reset (Ctrl-X): frees a GRBL blocked after a limit alarm; motion stops, the position is kept
+        unless it was moving (then GRBL stays in alarm until homed or unlocked)."""
+        if not self.link.try_reset():
+            raise LinkError(f"GRBL on {self.link.port} did not restart after a soft reset; check the port and the "
+                            "baud rate, or power-cycle it")
+        return self.status()
 
     def _seen(self, st: GrblStatus) -> GrblStatus:
         wco = _field(st.raw, "WCO")
@@ -117,6 +133,17 @@ class Controller:
     def command(self, text: str, timeout: float | None = None, on_line: Callable[[str], None] | None = None) -> Reply:
         """Send one line and collect what GRBL prints until its ``ok`` or ``error:N``."""
         link = self.link
+        if text == "$H":  # GRBL answers nothing, not even status, until the homing cycle is over
+            link.log(f"homing (GRBL is silent until the cycle ends, up to {timeout or link.timeout:g} s) ...")
+            polling, link.polling = link.polling, False
+            try:
+                return self._command(text, timeout, on_line)
+            finally:
+                link.polling = polling
+        return self._command(text, timeout, on_line)
+
+    def _command(self, text: str, timeout: float | None, on_line: Callable[[str], None] | None) -> Reply:
+        link = self.link
         link.write((text + "\n").encode("ascii"))
         lines: list[str] = []
         end = time.monotonic() + (timeout if timeout is not None else link.timeout)
@@ -132,8 +159,8 @@ class Controller:
             if kind == "status":
                 self._seen(ev[1])
                 continue
-            if kind == "alarm":
-                raise GrblError(f"GRBL ALARM:{ev[1]} after '{text}': {alarm_text(ev[1])}; {alarm_advice(ev[1])}")
+            if kind == "alarm":  # a limit alarm: GRBL is reset as soon as it listens again
+                raise link.alarm_error(ev[1], f"after '{text}'")
             text_line = ev[1] if kind == "info" else (f"[MSG:{ev[1]}]" if kind == "msg" else str(ev[1]))
             lines.append(text_line)
             if on_line:

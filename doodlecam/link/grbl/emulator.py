@@ -49,6 +49,7 @@ RX_BUFFER_SIZE = 128  # the ring holds RX_BUFFER_SIZE - 1 bytes
 LINE_BUFFER_SIZE = 80  # at most 79 characters per line
 PLANNER_BLOCKS = 15  # usable blocks of the 16-block planner ring
 BANNER = "Grbl 1.1h ['$' for help]"
+CRITICAL_DELAY_S = 0.5  # report_alarm_message's delay_ms(500): a reset sent sooner is discarded
 
 _WORD = re.compile(r"([A-Z])([-+]?(?:\d+\.?\d*|\.\d+))")
 
@@ -156,6 +157,9 @@ class GrblEmulator:
         self.line_flags = set()
         self.pending: tuple | None = None  # a parsed line waiting for planner room / sync
         self.critical = False  # alarm that needs a reset
+        self.critical_since: float | None = None  # when a critical alarm was printed (resets count 500 ms after)
+        self.critical_said = False  # "[MSG:Reset to continue]" printed
+        self.status_owed = False  # a status request that arrived while homing
         self.hold = None  # None, or simulated s left until Hold:0
         self.m0_hold = False  # holding at an M0 line until a cycle start
         self.check = False
@@ -195,6 +199,10 @@ class GrblEmulator:
                     time.sleep(0.01)
                 for b in data:
                     self._on_byte(b)
+            if self.critical_since is not None and not self.critical_said and \
+                    time.monotonic() - self.critical_since >= CRITICAL_DELAY_S:
+                self.critical_said = True
+                self._reply("[MSG:Reset to continue]")
             self._advance()
             self._protocol()
             self._flush_out()
@@ -204,7 +212,18 @@ class GrblEmulator:
             self.master = -1
 
     def _on_byte(self, b: int) -> None:
-        # Real-time commands are picked off by the serial ISR before the ring.
+        # Real-time commands are picked off by the serial ISR before the ring; they only set flags that
+        # the main loop serves. Two places of the firmware's main loop serve none of them but a reset:
+        # the homing cycle (limits_go_home polls only reset, door and cycle stop) and the block after a
+        # critical alarm (protocol.c: ALARM:N, delay_ms(500) in report_alarm_message, then
+        # "[MSG:Reset to continue]", the reset flag cleared, and a loop that waits for a new one).
+        if self.critical_since is not None:
+            if b == 0x18 and time.monotonic() - self.critical_since >= CRITICAL_DELAY_S:
+                self._soft_reset()
+            return  # a reset within the 500 ms is cleared before the loop looks for one
+        if self.state == "Home" and b == ord("?"):
+            self.status_owed = True  # the flag stays set: the report comes when the cycle is over
+            return
         if b == 0x18:
             self._soft_reset()
         elif b == ord("?"):
@@ -381,9 +400,9 @@ class GrblEmulator:
         self.pending = None
         self.state = "Alarm"
         self._reply(f"ALARM:{code}")
-        if code in (1, 2):
+        if code in (1, 2):  # hard and soft limits: critical, only a reset (sent after the 500 ms) frees it
             self.critical = True
-            self._reply("[MSG:Reset to continue]")
+            self.critical_since = time.monotonic()
 
     def _dollar(self, line: str) -> None:
         busy = bool(self.planner) or self.state in ("Run", "Hold")
@@ -694,6 +713,9 @@ class GrblEmulator:
             self.pending = None
             self.state = "Idle"
             self._reply("ok")
+            if self.status_owed:
+                self.status_owed = False
+                self._reply(self._status())
             return True
         block, sync, dwell, end_prog, n = rest
         if self.check:

@@ -193,17 +193,40 @@ class GrblLink:
 
     def _unexpected(self, ev: tuple, during: str) -> None:
         if ev[0] == "alarm":
-            raise self._alarm_error(ev[1], during)
+            raise self.alarm_error(ev[1], during)
         if ev[0] == "banner":
             raise GrblError(f"GRBL on {self.port} reset itself while {during}; check its power and wiring, then send again")
 
-    def _alarm_error(self, code: int, where: str) -> GrblError:
-        if code in (1, 2, 10):  # critical: GRBL takes nothing until a soft reset
+    def alarm_error(self, code: int, where: str) -> GrblError:
+        done = ""
+        if code in CRITICAL_ALARMS:  # GRBL takes nothing until a soft reset
             try:
-                self.realtime(b"\x18")
+                done = ("GRBL was reset and stays locked: " if self.reset_after_alarm()
+                        else "GRBL did not restart after a reset; power-cycle it, then: ")
             except LinkError:
-                pass
-        return GrblError(f"GRBL ALARM:{code} {where}: {alarm_text(code)}; {alarm_advice(code)}")
+                done = "the port closed; reconnect, run 'doodlecam machine --serial PORT reset', then: "
+        return GrblError(f"GRBL ALARM:{code} {where}: {alarm_text(code)}; {done}{alarm_advice(code)}")
+
+    def reset_after_alarm(self) -> bool:
+        """After a critical alarm GRBL waits 500 ms (report_alarm_message's delay), prints "[MSG:Reset to
+        continue]", discards any reset that came meanwhile and answers nothing (not even status) until a new
+        one. So: wait for that message (or the 500 ms), then reset; True once GRBL has restarted."""
+        polling, self.polling = self.polling, False  # a silent GRBL is no dead cable here
+        try:
+            end = time.monotonic() + CRITICAL_DELAY_S + 1.0
+            while time.monotonic() < end:
+                ev = self.next_event(end - time.monotonic())
+                if ev is not None and ev[0] == "msg" and "Reset to continue" in ev[1]:
+                    break
+            return self.try_reset()  # (without the message the 500 ms are long over)
+        finally:
+            self.polling = polling
+
+    def try_reset(self) -> bool:
+        """A soft reset; True when GRBL prints its banner again."""
+        self.alarm_banner = False
+        self.realtime(b"\x18")
+        return self.wait_banner(self.connect_timeout)
 
     def wait_idle(self) -> GrblStatus:
         """Wait until GRBL reports Idle (motion done), failing on alarms or silence."""
@@ -238,9 +261,7 @@ class GrblLink:
         return False
 
     def soft_reset(self) -> None:
-        self.alarm_banner = False
-        self.realtime(b"\x18")
-        if not self.wait_banner(self.connect_timeout):
+        if not self.try_reset():
             raise LinkError(f"GRBL on {self.port} did not restart after a soft reset; power-cycle it")
 
     # ------------------------------------------------------------ session
@@ -284,6 +305,11 @@ class GrblLink:
             raise GrblError(f"GRBL on {self.port} starts in alarm state (homing enabled?); home it ($H: 'doodlecam "
                             f"machine --serial {self.port} home') or unlock it ($X: '... unlock'), then send again")
         return st
+
+
+# ALARM:1 (hard limit) and ALARM:2 (soft limit) block GRBL until a reset (protocol.c); 10 is grblHAL's e-stop
+CRITICAL_ALARMS = (1, 2, 10)
+CRITICAL_DELAY_S = 0.5  # GRBL's delay_ms(500) after printing a critical alarm
 
 
 def _code(line: str) -> int:

@@ -282,7 +282,7 @@ class Streamer:
                 self.progress(self.acked, len(self.lines), link.status)
             elif kind == "alarm":
                 i = self.inflight[0][0] if self.inflight else self.sent - 1
-                raise link._alarm_error(ev[1], f"near {self.where(i)}")
+                raise link.alarm_error(ev[1], f"near {self.where(i)}")
             elif kind == "banner":
                 near = self.where(min(self.acked, len(self.lines) - 1))
                 raise GrblError(f"GRBL reset itself during the job (near {near}); check its power and wiring, "
