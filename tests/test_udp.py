@@ -4,6 +4,7 @@ Every test is bounded in time (socket timeouts, subprocess timeouts, polling
 deadlines), so a broken link fails instead of hanging.
 """
 
+import math
 import os
 import signal
 import socket
@@ -459,3 +460,44 @@ def test_transports_are_plugins_listed_by_the_cli():
                        cwd=ROOT, timeout=60)
     block = r.stdout.split("Transports:")[1]
     assert "udp " in block and "serial " in block
+
+
+def edge_job(direction, brake: float, width=32000, height=24000, dt=0.04) -> bytes:
+    """One straight stroke towards an edge at 12000 steps/s, ending at rest 100 steps from it; its last
+    ramp brakes at ``brake`` steps/s^2 (the header's max_accel is 160000)."""
+    v, acc = 12000.0, 100000.0
+    up = [v * min(1.0, (k + 1) * acc * dt / v) for k in range(int(np.ceil(v / (acc * dt))))]
+    down = [max(0.0, v - (k + 1) * brake * dt) for k in range(int(np.ceil(v / (brake * dt))))]
+    speeds = up + [v] * 20 + down
+    travel = 0.5 * dt * np.sum(np.add([0.0] + speeds[:-1], speeds))  # linear ramps between the samples
+    d = np.array(direction, float)
+    size = np.array([width, height], float)
+    end = np.where(d > 0, size - 100, np.where(d < 0, 100, size / 2))
+    start = np.round(end - d * travel)
+    rows = [(MOVE, *start)] + [(DRAW, *(d * s)) for s in speeds] + [(MOVE, 0, 0)]
+    arr = np.zeros(len(rows), RECORD_DTYPE)
+    arr["command_no"] = np.arange(1, len(rows) + 1)
+    t = np.array(rows)
+    arr["type"], arr["x"], arr["y"] = t[:, 0], t[:, 1], t[:, 2]
+    return write_plc(PlcHeader(dt, len(rows), 160000, 160000, 12000, 12000, 80.0, 80.0), arr)
+
+
+@pytest.mark.parametrize("direction", [(1, 0), (-1, 0), (0, 1), (0, -1)])
+def test_a_starving_job_stops_inside_the_work_area_at_every_edge(sim_factory, direction):
+    """The sender withholds DATA while the pen heads for an edge: the PLC's own stop stays in the work area.
+    A ramp whose stop (braking at max_accel) would not fit is never run: a job that brakes harder than the
+    header says is refused before the edge, and one within its limits draws to the end."""
+    for brake, starve_at in ((150000.0, 12), (150000.0, None), (480000.0, None), (480000.0, 12)):
+        data = edge_job(direction, brake)
+        sim = sim_factory(starve_timeout=0.2, speed=math.inf)
+        s = _StallingSender(*sim.address, data, timeout=5.0, rto=0.05)
+        if starve_at is not None:
+            s.limit = starve_at  # moving at full speed towards the edge
+        try:
+            r = bounded(s.run)
+            assert brake < 160000.0 and r.commands == read_plc_array(data)[0].no_commands
+        except LinkError as e:
+            assert brake > 160000.0 and "boundary" in str(e), e
+        tr = sim.trajectory()
+        assert tr["x"].min() >= 0 and tr["x"].max() <= sim.cfg.width, (brake, starve_at)
+        assert tr["y"].min() >= 0 and tr["y"].max() <= sim.cfg.height, (brake, starve_at)

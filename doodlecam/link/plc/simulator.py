@@ -700,6 +700,13 @@ class PlcSimulator:
                 self.vel[:] = 0.0  # immediate stop, before the command runs
                 self._abort(Fault.BOUNDARY, c, now)
                 return False
+            # If the next command never comes (a sender that stalls or withholds DATA) the PLC brakes from
+            # (end, v1). Run a ramp only when that stop still fits inside the work area: then, by induction
+            # from rest, every stop the PLC may have to make stays inside, however the job starves.
+            if self.cfg.soft_limits and not self._inside(*np.sort([end, self._stop_point(end, v1, h)], axis=0)):
+                self._halt(now)  # from where it is now, which the previous command checked the same way
+                self._abort(Fault.BOUNDARY, c, now)
+                return False
             self._pen_to(True)
             self.t += dt
             if not self._inside(lo, hi, self.cfg.switch_margin):
@@ -711,12 +718,18 @@ class PlcSimulator:
         self._record(c, kind)
         return True
 
+    @staticmethod
+    def _stop_point(pos: np.ndarray, vel: np.ndarray, h: P.JobHeader) -> np.ndarray:
+        """Where the PLC comes to rest braking at max_accel per axis from ``pos`` at ``vel`` (steps)."""
+        acc = np.array([h.max_accel_x, h.max_accel_y], float)
+        return pos + vel * np.abs(vel) / (2 * acc)
+
     def _halt(self, now: float) -> None:
         """Decelerate to rest at max_accel (per axis) and lift the pen."""
         h = (self.job or self.held).h if (self.job or self.held) else None
         if np.any(self.vel != 0) and h is not None:
             acc = np.array([h.max_accel_x, h.max_accel_y], float)
-            self.pos += self.vel * np.abs(self.vel) / (2 * acc)
+            self.pos[:] = self._stop_point(self.pos, self.vel, h)
             self.t += float((np.abs(self.vel) / acc).max())
             self.vel[:] = 0.0
             self._record(0, STOP_ROW)
