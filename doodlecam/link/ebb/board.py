@@ -30,14 +30,17 @@ def accumulated(c0: int, rate: int, accel: int, t: int) -> int:
     return c0 + t * (rate - trunc_half(accel)) + accel * t * (t + 1) // 2
 
 
-def axis_move(rate: int, steps: int, accel: int, c0: int = 0, max_ticks: int = 1 << 34) -> tuple[int, int, int]:
+def axis_move(rate: int, steps: int, accel: int, c0: int | None = None, max_ticks: int = 1 << 34) -> tuple[int, int, int]:
     """Run one axis of an LM: (ticks until its last step, signed steps taken, final accumulator).
 
     ``steps`` < 0 with ``rate`` > 0 means the negative direction: the board flips the
     signs of Rate, Steps and Accel, so Accel acts on the speed as for a positive move.
+    ``c0`` is the accumulator before the move, None when the move clears it. Moving
+    backwards the board counts its accumulator down from 2^31 - 1 (as plotink's
+    ebb_calc models firmware 3); this returns it in that form.
     """
     if steps == 0 or (rate == 0 and accel == 0):
-        return 0, 0, c0
+        return 0, 0, (0 if c0 is None else c0)
     sign = 1
     if steps < 0:
         sign, steps = -1, -steps
@@ -45,6 +48,11 @@ def axis_move(rate: int, steps: int, accel: int, c0: int = 0, max_ticks: int = 1
             raise ValueError("negative Rate with negative Steps")
     elif rate < 0:  # deprecated form: the sign of Rate gives the direction
         sign, rate, accel = -1, -rate, -accel
+    t, c = _forward(rate, steps, accel, 0 if c0 is None else (c0 if sign > 0 else ACC - 1 - c0), max_ticks)
+    return t, sign * steps, c if sign > 0 else ACC - 1 - c
+
+
+def _forward(rate: int, steps: int, accel: int, c0: int, max_ticks: int) -> tuple[int, int]:
     goal = steps * ACC
     r1 = rate - trunc_half(accel) + accel
     t_zero = None
@@ -71,7 +79,7 @@ def axis_move(rate: int, steps: int, accel: int, c0: int = 0, max_ticks: int = 1
                 hi = mid
             else:
                 lo = mid
-        return hi, sign * steps, accumulated(c0, rate, accel, hi) - goal
+        return hi, accumulated(c0, rate, accel, hi) - goal
     # tick by tick, with the documented roll-over of a negative rate
     r, c, taken, t = rate - trunc_half(accel), c0, 0, 0
     while taken < steps:
@@ -85,4 +93,4 @@ def axis_move(rate: int, steps: int, accel: int, c0: int = 0, max_ticks: int = 1
         if c >= ACC:
             c -= ACC
             taken += 1
-    return t, sign * steps, c
+    return t, c

@@ -209,16 +209,9 @@ class EbbEmulator:
             self.pen_log.append((self.sim_t, mo.pen))
         if mo.lm is not None:
             r1, s1, a1, r2, s2, a2, clear = mo.lm
-            if clear & 1:
-                self.accum[0] = 0
-            if clear & 2:
-                self.accum[1] = 0
-            t1, d1, c1 = axis_move(r1, s1, a1, self.accum[0])
-            t2, d2, c2 = axis_move(r2, s2, a2, self.accum[1])
-            if s1:
-                self.accum[0] = c1
-            if s2:
-                self.accum[1] = c2
+            t1, d1, c1 = axis_move(r1, s1, a1, None if clear & 1 else self.accum[0])
+            t2, d2, c2 = axis_move(r2, s2, a2, None if clear & 2 else self.accum[1])
+            self.accum = [c1, c2]
             mo.steps = (d1, d2)
             mo.seconds = max(t1, t2) / TICK_HZ
             mo.extra["ticks"] = (t1, t2)

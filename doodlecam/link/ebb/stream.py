@@ -35,6 +35,7 @@ MAX_RATE = ACC - 1  # one step per tick
 # turns each motor one way): it moves straight from its rounded start to its rounded end, at most
 # this plus half a step from the plan mid-period (0.02 mm at 80 steps/mm).
 TURN_STEPS = 1.0
+CRUISE_MIN_S = 0.04  # a travel's constant-speed LM lasts at least this long (or is left out)
 
 
 @dataclass
@@ -124,15 +125,17 @@ def _ramp_lines(pos0: np.ndarray, times: np.ndarray, vel: np.ndarray, end: np.nd
             v_all.append(v0 + f * (v1 - v0))
         t_all.append(t1)
         v_all.append(v1)
-    t = np.asarray(t_all)
-    v = np.asarray(v_all)
-    # integer ticks for every instant (shared by both motors), then planned positions there
-    tick = np.round(t * TICK_HZ).astype(np.int64)
+    # integer ticks for every instant (shared by both motors); the velocities at a split's whole tick are
+    # the period's ramp there, so every piece keeps the period's acceleration
+    tick = np.round(np.asarray(t_all) * TICK_HZ).astype(np.int64)
     keep = np.concatenate([[True], np.diff(tick) > 0])
     keep[-1] = True
-    t, v, tick = t[keep], v[keep], tick[keep]
+    tick = tick[keep]
     if len(tick) > 1 and tick[-1] <= tick[-2]:
         tick[-1] = tick[-2] + 1
+    t = tick / TICK_HZ
+    base = np.round(times * TICK_HZ) / TICK_HZ
+    v = np.column_stack([np.interp(t, base, vel[:, i]) for i in range(2)])
     dt = np.diff(t)
     inc = 0.5 * dt[:, None] * (v[1:] + v[:-1])
     planned = pos0[None, :] + np.vstack([np.zeros((1, 2)), np.cumsum(inc, axis=0)])
@@ -195,6 +198,8 @@ class EbbWriter:
             v = math.sqrt(L * a)
             ta = v / a
         tc = L / v - ta
+        if 0 < tc < CRUISE_MIN_S:  # no cruise shorter than a period: whole steps would shift its short LM's rate
+            ta, tc = L / v, 0.0  # (1 step over its length); reach v with a gentler acceleration instead
         Ta = int(math.ceil(ta * TICK_HZ - 1e-9)) or 1
         Tc = max(0, int(math.ceil(tc * TICK_HZ - 1e-9))) if tc > 1e-9 else 0
         vv = L / ((Ta + Tc) / TICK_HZ)  # the cruise speed the whole ticks give (<= v)
