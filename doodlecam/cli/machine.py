@@ -124,3 +124,8 @@ def raw_keys():
         yield getch
     finally:
         termios.tcsetattr(fd, termios.TCSADRAIN, old)
+
+
+from doodlecam.cli.ebb import machine_ebb  # noqa: E402  (EiBotBoard controls: machine --serial PORT ebb ...)
+
+machine.add_command(machine_ebb)

@@ -79,8 +79,8 @@ class EbbEmulator:
         self.current: _Motion | None = None
         self.left = 0.0  # simulated s of the current command still to run
         self.sim_t = 0.0
-        self._rx = bytearray()
-        self._out = bytearray()
+        self._rx = b""
+        self._out = b""
         self._waiting: tuple[str, _Motion] | None = None  # a motion command that did not fit the FIFO yet
         self._stop = threading.Event()
         self._thread: threading.Thread | None = None
@@ -89,6 +89,8 @@ class EbbEmulator:
     # ------------------------------------------------------------ lifecycle
 
     def start(self) -> "EbbEmulator":
+        if self._thread is not None:  # already running (``with EbbEmulator(...).start()``)
+            return self
         self._thread = threading.Thread(target=self._run, name="ebbsim", daemon=True)
         self._thread.start()
         return self
@@ -132,7 +134,10 @@ class EbbEmulator:
             self._flush()
         if self.vanished:
             self._flush()
-            os.close(self.master)
+            try:
+                os.close(self.master)
+            except OSError:
+                pass
             self.master = -1
 
     def _flush(self) -> None:
@@ -142,20 +147,19 @@ class EbbEmulator:
             except BlockingIOError:
                 return
             except OSError:
-                self._out.clear()
+                self._out = b""
                 return
-            del self._out[:n]
+            self._out = self._out[n:]
 
     def _say(self, text: str) -> None:
-        self._out += text.encode("ascii")
+        self._out = self._out + text.encode("ascii")
 
     def _parse_input(self) -> None:
         while self._waiting is None and not self.vanished:
             m = re.search(rb"[\r\n]", self._rx)
             if not m:
                 return
-            raw = bytes(self._rx[:m.start()])
-            del self._rx[:m.end()]
+            raw, self._rx = self._rx[:m.start()], self._rx[m.end():]
             if not raw.strip():
                 continue
             line = raw.decode("ascii", "replace").strip()
@@ -334,7 +338,7 @@ class EbbEmulator:
                 self.pen_up = 1
                 self.pen_log.append((self.sim_t, 1))
                 return "OK\r\n"
-            return self._queue(_Motion(n, line, (a[1] if len(a) > 1 else 0) / 1000, pen=1 - a[0] if a[0] in (0, 1) else 1))
+            return self._queue(_Motion(n, line, (a[1] if len(a) > 1 else 0) / 1000, pen=a[0]))
         if name == "EM":
             self._count(a, 1, 2)
             if not 0 <= a[0] <= 5 or (len(a) > 1 and not 0 <= a[1] <= 5):

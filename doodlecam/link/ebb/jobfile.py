@@ -71,7 +71,7 @@ def read_ebb(data: bytes, name: str = "EBB job") -> EbbJob:
     for n, row in enumerate(rows, 1):
         if row.startswith(";"):
             key, sep, value = row[1:].partition(":")
-            if sep and not lines:
+            if sep and not lines and re.fullmatch(r"[a-z_0-9]+", key.strip()):
                 header[key.strip()] = value.strip()
             continue
         why = check_line(row)

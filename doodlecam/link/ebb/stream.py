@@ -277,7 +277,7 @@ def header(job, kinematics, c: Counter, options: dict, body: list[str]) -> list[
     return [
         f"; doodlecam EBB job, format {FORMAT} (docs/ebb.md): one command per line, '@PAUSE,<pen>' is a pen change",
         f"; machine: {m.name}",
-        f"; firmware: 2.7.0 or newer (LM)",
+        "; firmware: 2.7.0 or newer (LM)",
         f"; steps_per_mm: {kinematics.steps_per_mm:g}",
         f"; delta_time: {m.delta_time:g}",
         f"; motor_velocity: {vmax[0]:g} {vmax[1]:g}",
