@@ -1,6 +1,6 @@
-"""The EiBotBoard (AxiDraw) parts of the CLI: ``send job.ebb --serial PORT``, ``sim ebb``,
-``machine --serial PORT ebb ...`` and ``inspect job.ebb``. Hooked into send/machine/inspect
-by a line each, so those modules stay about their own links.
+"""The EiBotBoard (AxiDraw) parts of ``send job.ebb --serial PORT`` and ``inspect job.ebb``, hooked
+into send/inspect by a line each (``sim ebb`` lives with the other simulators in cli/send.py, the
+``machine --serial PORT ebb ...`` controls in cli/machine.py).
 """
 
 from __future__ import annotations
@@ -14,7 +14,7 @@ EBB_KEYS = {"p": "pause", " ": "pause", "r": "resume", "s": "stop"}
 
 
 def send_ebb(job: Path, port: str, restart: bool, machine: str | None, timeout: float | None, transport_opt,
-             no_progress: bool, bar_cls, pen_changes) -> None:
+             no_progress: bool, bar_cls, pen_changes, raw_keys) -> None:
     """``doodlecam send JOB.ebb --serial PORT`` (PORT 'auto' finds the board by its USB id)."""
     from doodlecam import registry
     from doodlecam.cli.options import _pairs
@@ -43,7 +43,7 @@ def send_ebb(job: Path, port: str, restart: bool, machine: str | None, timeout: 
     bar = bar_cls(len(ebb.lines), "EBB", "cmd", lambda k: left[min(max(k, 0), len(left) - 1)], not no_progress)
     transport = cls()
     try:
-        with _keys(bar.log) as keys:
+        with _keys(bar.log, raw_keys) as keys:
             extra = pen_changes(transport, profile, bar, keys.pop("getch", None))
             r = transport.send(job, port, options, restart=restart, progress=bar, log=bar.log, **keys, **extra)
     except Paused as e:
@@ -60,17 +60,15 @@ def send_ebb(job: Path, port: str, restart: bool, machine: str | None, timeout: 
 class _keys:
     """p/space pause (at the stroke's end, pen up), r resume, s stop: from a terminal only."""
 
-    def __init__(self, log):
-        self.log = log
+    def __init__(self, log, raw_keys):
+        self.log, self.raw_keys = log, raw_keys
         self.cm = None
 
     def __enter__(self) -> dict:
         if not sys.stdin.isatty():
             return {}
-        from doodlecam.cli.machine import raw_keys
-
         self.log("keys: p pause (at the stroke's end, pen up) | r resume | s stop (resumable)")
-        self.cm = raw_keys()
+        self.cm = self.raw_keys()
         getch = self.cm.__enter__()
         return {"controls": lambda: EBB_KEYS.get(getch() or ""), "getch": getch}
 
@@ -78,100 +76,6 @@ class _keys:
         if self.cm is not None:
             self.cm.__exit__(*exc)
         return False
-
-
-@click.command("ebb")
-@click.option("--speed", type=float, default=1.0, show_default=True, help="Motion runs this many times faster than real time.")
-@click.option("--fifo", type=int, default=1, show_default=True, help="Motion commands queued behind the executing one.")
-@click.option("--firmware", default="3.0.2", show_default=True, help="Version the board reports to V.")
-@click.option("--vanish-at", type=int, metavar="N", help="Close the port after the N-th received command.")
-@click.option("--link", "link_path", type=click.Path(path_type=Path), help="Also make a symlink with this name to the port.")
-def sim_ebb(speed, fifo, firmware, vanish_at, link_path):
-    """Emulate an EiBotBoard (AxiDraw) on a pseudo-terminal; prints the port to use."""
-    from doodlecam.cli.send import serve_emulator
-    from doodlecam.link.ebb.emulator import EbbConfig, EbbEmulator
-
-    emu = EbbEmulator(EbbConfig(version=firmware, speed=speed, fifo=fifo, vanish_at=vanish_at),
-                      log=lambda m: click.echo(f"[ebb] {m}", err=True))
-    serve_emulator(emu, link_path, "EiBotBoard emulator", "", lambda: (
-        f"EiBotBoard emulator stopped: {len(emu.received)} commands received, {len(emu.executed)} executed, "
-        f"{len(emu.errors)} refused, motors at {tuple(emu.pos)} steps"))
-
-
-# ---------------------------------------------------------------- machine --serial PORT ebb ...
-
-@click.group("ebb")
-@click.pass_context
-def machine_ebb(ctx):
-    """Manual controls of an EiBotBoard (AxiDraw): pen up/down, motors off, jog, home, status."""
-
-
-def _board(ctx):
-    from doodlecam.link.ebb.jobfile import EbbJob
-    from doodlecam.link.ebb.sender import EbbSender, find_port
-
-    o = ctx.obj or {}
-    port = o.get("port")
-    s = EbbSender(find_port() if port in (None, "auto") else port, EbbJob({}, ()), "manual",
-                  timeout=o.get("timeout", 5.0))
-    s._open()
-    s.handshake()
-    return s
-
-
-def _run(ctx, commands: list[str], wait: bool = True) -> None:
-    s = _board(ctx)
-    try:
-        for c in commands:
-            s._ask(c, s.timeout)
-        if wait:
-            s.wait_idle(600)
-        pos = s._ask("QS", s.timeout).split("\n")[0]
-        click.echo(f"EiBotBoard firmware {s.version} on {s.port_name}: motors at {pos} steps")
-    finally:
-        s.ser.close()
-
-
-@machine_ebb.command("pen")
-@click.argument("state", type=click.Choice(["up", "down"]))
-@click.pass_context
-def ebb_pen(ctx, state):
-    """Raise or lower the pen (SP)."""
-    _run(ctx, [f"SP,{1 if state == 'up' else 0},200"])
-
-
-@machine_ebb.command("motors-off")
-@click.pass_context
-def ebb_off(ctx):
-    """Switch the motors off so the carriage moves by hand (EM,0,0); the position is forgotten."""
-    _run(ctx, ["EM,0,0"])
-
-
-@machine_ebb.command("jog")
-@click.argument("x", type=float)
-@click.argument("y", type=float)
-@click.option("--speed", type=float, default=50.0, show_default=True, help="mm/s.")
-@click.pass_context
-def ebb_jog(ctx, x, y, speed):
-    """Move the pen up by X Y mm on the page (y away from home), with XM (motor 1 = x + y, motor 2 = x - y)."""
-    k = 80.0
-    a, b = round(x * k), round(y * k)
-    ms = max(1, round(1000 * max(abs(x), abs(y), 1e-9) / speed))
-    _run(ctx, ["SP,1,200", f"XM,{ms},{a},{b}"])
-
-
-@machine_ebb.command("home")
-@click.pass_context
-def ebb_home(ctx):
-    """Pen up, then back to where the motors were switched on (the start corner: HM)."""
-    _run(ctx, ["SP,1,200", "HM,4000"])
-
-
-@machine_ebb.command("status")
-@click.pass_context
-def ebb_status(ctx):
-    """Firmware version and step position (V, QS)."""
-    _run(ctx, [], wait=False)
 
 
 # ---------------------------------------------------------------- inspect

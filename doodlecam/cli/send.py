@@ -107,8 +107,10 @@ def send(job, udp, serial_port, baud, check, restart, cancel, again, machine, fr
             raise click.UsageError("--check, --from-line, --baud, --cancel and --again are not for .ebb jobs")
         from doodlecam.cli.ebb import send_ebb
 
+        from doodlecam.cli.machine import raw_keys
+
         return send_ebb(job, serial_port, restart, machine, timeout, transport_opt, no_progress, _Progress,
-                        _pen_changes)
+                        _pen_changes, raw_keys)
     kind = "udp" if udp else "serial"
     if kind == "udp" and (check or from_line or baud):
         raise click.UsageError("--check, --from-line and --baud are for --serial (GRBL)")
@@ -423,6 +425,18 @@ def serve_emulator(emu, link_path, name: str, extra: str, summary) -> None:
         click.echo(summary(), err=True)
 
 
-from doodlecam.cli.ebb import sim_ebb  # noqa: E402  (the EiBotBoard emulator: doodlecam sim ebb)
+@sim.command("ebb")
+@click.option("--speed", type=float, default=1.0, show_default=True, help="Motion runs this many times faster than real time.")
+@click.option("--fifo", type=int, default=1, show_default=True, help="Motion commands queued behind the executing one.")
+@click.option("--firmware", default="3.0.2", show_default=True, help="Version the board reports to V.")
+@click.option("--vanish-at", type=int, metavar="N", help="Close the port after the N-th received command.")
+@click.option("--link", "link_path", type=click.Path(path_type=Path), help="Also make a symlink with this name to the port.")
+def sim_ebb(speed, fifo, firmware, vanish_at, link_path):
+    """Emulate an EiBotBoard (AxiDraw) on a pseudo-terminal; prints the port to use."""
+    from doodlecam.link.ebb.emulator import EbbConfig, EbbEmulator
 
-sim.add_command(sim_ebb)
+    emu = EbbEmulator(EbbConfig(version=firmware, speed=speed, fifo=fifo, vanish_at=vanish_at),
+                      log=lambda m: click.echo(f"[ebb] {m}", err=True))
+    serve_emulator(emu, link_path, "EiBotBoard emulator", "", lambda: (
+        f"EiBotBoard emulator stopped: {len(emu.received)} commands received, {len(emu.executed)} executed, "
+        f"{len(emu.errors)} refused, motors at {tuple(emu.pos)} steps"))
