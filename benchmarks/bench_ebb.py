@@ -3,8 +3,8 @@
 For each input, doodlecam traces/reads it for an AxiDraw V3 with saxi's default AxiDraw
 limits (pen-down 50 mm/s and 200 mm/s^2, pen-up 200 mm/s and 400 mm/s^2, pen drop and lift
 0.12 s each) and writes the .ebb stream; its planned time is the stream's exact executed time
-(every LM on the board's 25 kHz clock) plus the pen delays. doodlecam keeps each motor's
-acceleration <= 200 mm/s^2, so the pen's acceleration is <= 200 mm/s^2 in every direction,
+(every LM on the board's 25 kHz clock) plus the pen delays. doodlecam keeps the pen's
+acceleration <= 200 mm/s^2 in every direction (the axidraw plugin's pen_acceleration),
 including across the path on curves; saxi bounds only the acceleration along each segment
 and turns corners with a velocity jump (its cornering factor 0.127 mm).
 
@@ -46,7 +46,8 @@ def bench_profile(down_accel: float = LIMITS["down_accel"]) -> str:
     text = (ROOT / "doodlecam" / "machines" / "axidraw-v3.toml").read_text()
     subs = {
         r'name = "axidraw-v3"': 'name = "axidraw-v3-saxi"',
-        r"max_acceleration = \[762.0, 762.0\]": f"max_acceleration = [{down_accel}, {down_accel}]",
+        r"max_acceleration = \[1077.0, 1077.0\]": f"max_acceleration = [{down_accel * 2 ** 0.5:.1f}, {down_accel * 2 ** 0.5:.1f}]",
+        r"pen_acceleration = 762.0": f"pen_acceleration = {down_accel}",
         r"max_velocity = 165.7": f"max_velocity = {LIMITS['up_speed']}",
         r"max_acceleration = 1143.0": f"max_acceleration = {LIMITS['up_accel']}",
         r"up_delay = 0.13": f"up_delay = {LIMITS['pen_up_s']}",

@@ -18,6 +18,12 @@ Cartesian machine. The EBB post executes one constant-acceleration ``LM`` per
 velocity-sample period in whole motor steps; the shift that puts each period on
 whole steps changes a motor's rate by at most 1 step / delta_time, so the limits
 given to the planner are the profile's less that (docs/ebb.md).
+
+``pen_acceleration`` (optional): the AxiDraw driver's acceleration limit is on the
+pen's path, not on a motor. With it the map gains four rows, the pen's acceleration
+along 0, 45, 90 and 135 degrees, each within pen_acceleration x cos 22.5 deg, so the
+pen accelerates at most pen_acceleration in every direction (a regular octagon in the
+circle; per-motor limits alone are a diamond, 29 % short of the circle on the diagonals).
 """
 
 from __future__ import annotations
@@ -30,6 +36,12 @@ from doodlecam.api import Kinematics
 from doodlecam.errors import MachineError, PlanError
 
 _KEYS = ("steps_per_mm", "max_velocity", "max_acceleration")
+_OPTIONAL = ("pen_acceleration",)
+MOTORS = np.array([[1.0, -1.0], [1.0, 1.0]])  # work area (x, y up) -> (x + y_page, x - y_page)
+# pen acceleration <= A in every direction: its components along 0, 45, 90, 135 degrees within
+# A cos(22.5 deg) (a regular octagon inside the circle of radius A)
+_S = np.sqrt(0.5)
+OCTAGON = np.array([[1.0, 0.0], [0.0, 1.0], [_S, _S], [_S, -_S]])
 EBB_MAX_STEP_RATE = 25000.0  # steps/s: one step per 40 us tick at most
 
 
@@ -39,15 +51,16 @@ class AxiDraw(Kinematics):
 
     actuator_names = ("motor1", "motor2")
     actuator_units = "mm"
-    linear_map = np.array([[1.0, -1.0], [1.0, 1.0]])  # work area (x, y up) -> (x + y_page, x - y_page)
+    linear_map = MOTORS
 
     def __init__(self, machine, params: dict[str, Any]):
         super().__init__(machine, params)
         where = f"{getattr(machine, 'source', '') or getattr(machine, 'name', '') or '<profile>'}: [kinematics]"
         params = dict(params or {})
         for key in params:
-            if key not in _KEYS:
-                raise MachineError(f"{where} has unknown key '{key}'; the axidraw plugin reads {', '.join(_KEYS)}")
+            if key not in _KEYS + _OPTIONAL:
+                raise MachineError(f"{where} has unknown key '{key}'; the axidraw plugin reads "
+                                   f"{', '.join(_KEYS + _OPTIONAL)}")
         for key in _KEYS:
             if key not in params:
                 raise MachineError(f"{where} is missing '{key}'; the axidraw plugin needs {', '.join(_KEYS)} "
@@ -56,6 +69,11 @@ class AxiDraw(Kinematics):
         self.vmax = np.array([self._positive(where, "max_velocity", v) for v in self._pair(where, params, "max_velocity")])
         self.amax = np.array([self._positive(where, "max_acceleration", v)
                               for v in self._pair(where, params, "max_acceleration")])
+        self.pen_accel = (self._positive(where, "pen_acceleration", params["pen_acceleration"])
+                          if "pen_acceleration" in params else None)
+        if self.pen_accel is not None:  # the maker's limit is on the pen's path: rows for it after the motors'
+            self.linear_map = np.vstack([MOTORS, OCTAGON])
+            self.actuator_names = ("motor1", "motor2", "pen x", "pen y", "pen x+y", "pen x-y")
         top = EBB_MAX_STEP_RATE / self.steps_per_mm
         if (self.vmax > top).any():
             raise MachineError(f"{where} max_velocity {self.vmax.max():g} mm/s is above the EiBotBoard's 25000 steps/s "
@@ -86,7 +104,11 @@ class AxiDraw(Kinematics):
         v = self.vmax - self.margin()
         if (v <= 0).any():
             raise MachineError("the axidraw motors' max_velocity is below one step per sample period; raise it")
-        return v, self.amax.copy()
+        if self.pen_accel is None:
+            return v, self.amax.copy()
+        # the pen rows bound acceleration only (the pen-speed cap and the motors bound speed)
+        a_pen = self.pen_accel * np.cos(np.pi / 8)
+        return np.concatenate([v, np.full(4, 10 * self.vmax.max())]), np.concatenate([self.amax, np.full(4, a_pen)])
 
     def page(self, xy) -> np.ndarray:
         """Work-area points (mm, y up) as the AxiDraw's page coordinates (mm from home, y down)."""

@@ -52,13 +52,15 @@ def test_executed_motion_keeps_limits_path_and_paper(converted):
     # motors: velocity (every tick) and acceleration (every LM) within the profile's limits
     vmax = np.array(kin["max_velocity"]) * k
     amax = np.array(kin["max_acceleration"]) * k
+    to_pen = np.array([[0.5, 0.5], [0.5, -0.5]])  # motor steps -> pen steps (x, y on the page)
     for r in draw:
         assert (np.abs(r.rate).max(axis=0) <= vmax * (1 + 1e-9)).all(), r.line
         assert (np.abs(r.accel) <= amax * (1 + 1e-6)).all(), r.line
+        # the pen's acceleration (the maker's limit is on the path) in every direction
+        assert np.linalg.norm(np.array(r.accel) @ to_pen) / k <= kin["pen_acceleration"] * (1 + 1e-6), r.line
     # pen speed: the planner's cap; whole steps shift an LM's rates by at most 1 step over its duration tau
     # per motor, which moves the pen by at most 1 / (k tau) mm/s: 0.31 mm/s for a whole period (docs/ebb.md)
     margin = 1.0 / (k * dt)
-    to_pen = np.array([[0.5, 0.5], [0.5, -0.5]])
     for r in draw:
         pen_speed = np.linalg.norm(r.rate @ to_pen, axis=1).max() / k
         assert pen_speed <= m.pen.max_speed + 1.0 / (k * len(r.rate) * 40e-6) + 1e-9, r.line
@@ -168,7 +170,9 @@ def test_axidraw_kinematics_map_and_profiles():
         assert (m.width, m.height) == (w, h)
         # a move right turns both motors forward; a move away from home (down the page) turns motor 1
         # forward and motor 2 back (plotink: motor_dist1 = dx + dy, motor_dist2 = dx - dy)
-        assert kin.inverse(np.array([[1.0, 0.0]])).tolist() == [[1.0, 1.0]]
-        assert kin.inverse(np.array([[0.0, -1.0]])).tolist() == [[1.0, -1.0]]
+        assert kin.inverse(np.array([[1.0, 0.0]]))[:, :2].tolist() == [[1.0, 1.0]]
+        assert kin.inverse(np.array([[0.0, -1.0]]))[:, :2].tolist() == [[1.0, -1.0]]
         v, a = kin.actuator_limits()
-        assert (v < 312.5).all() and (a > 0).all()
+        assert (v[:2] < 312.5).all() and (a > 0).all()
+        # the pen's rows: acceleration along 0, 45, 90, 135 degrees within 762 cos 22.5
+        assert kin.linear_map.shape == (6, 2) and np.allclose(a[2:], 762 * np.cos(np.pi / 8))

@@ -163,7 +163,7 @@ class EbbWriter:
         self.m = machine
         self.kin = kinematics
         self.k = float(kinematics.steps_per_mm)
-        self.M = np.asarray(kinematics.linear_map, float)
+        self.M = np.asarray(kinematics.linear_map, float)[:2]  # the motors' rows (more may bound the pen)
         self.servo = (servo_up, servo_down, rate_up, rate_down)
         self.c = Counter()
         self.lines: list[str] = []
