@@ -27,7 +27,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from doodlecam.errors import OutputError
-from doodlecam.link.ebb.board import ACC, TICK_HZ, axis_move, trunc_half
+from doodlecam.link.ebb.board import ACC, TICK_HZ, accumulated, axis_move, trunc_half
 
 FORMAT = 1
 MAX_RATE = ACC - 1  # one step per tick
@@ -36,6 +36,11 @@ MAX_RATE = ACC - 1  # one step per tick
 # this plus half a step from the plan mid-period (0.02 mm at 80 steps/mm).
 TURN_STEPS = 1.0
 CRUISE_MIN_S = 0.04  # a travel's constant-speed LM lasts at least this long (or is left out)
+# Consecutive periods whose ramps one LM reproduces (every instant within half a step of the plan,
+# on the board's arithmetic) are sent as one LM, up to this many (a stop waits for at most that).
+MERGE_MAX = 8
+BULGE_STEPS = 0.25  # ... and stray at most this far from the plan's ramps between the instants
+TO_PEN = np.array([[0.5, 0.5], [0.5, -0.5]])  # motor steps -> pen steps on the page
 
 
 @dataclass
@@ -100,7 +105,7 @@ def segment(ticks: int, n, vs, ve) -> tuple[str, int]:
 
 
 def _ramp_lines(pos0: np.ndarray, times: np.ndarray, vel: np.ndarray, end: np.ndarray | None, out: list[str],
-                c: Counter) -> int:
+                c: Counter, caps=None, merge: bool = True) -> int:
     """LMs for a motion whose motor velocities (steps/s, (N + 1, 2)) ramp linearly between
     instants ``times`` (s, N + 1); ``pos0`` integer start; ``end`` the exact integer end (or None).
     Periods in which a motor reverses are split there. Returns the ticks executed."""
@@ -145,15 +150,55 @@ def _ramp_lines(pos0: np.ndarray, times: np.ndarray, vel: np.ndarray, end: np.nd
         if np.abs(planned[-1] - end).max() > 0.5 + 1e-6:
             raise OutputError("a stroke's samples do not end on its last point; re-plan the job")
         whole[-1] = end
-    n = np.diff(whole, axis=0)
     total = 0
-    for j in range(len(n)):
-        line, took = segment(int(tick[j + 1] - tick[j]), n[j], v[j], v[j + 1])
+    j = 0
+    last = len(tick) - 1
+    while j < last:
+        # one LM over as many instants as keep every instant inside it within half a step of the plan
+        b = j + 1
+        while merge and b < last and b - j < MERGE_MAX and _holds(tick, whole, planned, v, j, b + 1, caps):
+            b += 1
+        line, took = segment(int(tick[b] - tick[j]), whole[b] - whole[j], v[j], v[b])
         out.append(line)
         total += took
         c.lm += line.startswith("LM")
+        j = b
     c.pos = whole[-1].copy()
     return total
+
+
+def _holds(tick, whole, planned, v, a: int, b: int, caps=None) -> bool:
+    """Whether one LM from instant a to instant b (the whole steps between them, the ramp's end rates)
+    passes every instant in between within half a step of the planned position, on the board's
+    arithmetic; turns each motor one way; and shifts its rates by at most 1 step over its length."""
+    n = whole[b] - whole[a]
+    T = int(tick[b] - tick[a])
+    # between the instants the merged ramp must not bulge away from the planned one: a constant
+    # acceleration differing by da over h strays by up to da h^2 / 8
+    h = np.diff(tick[a:b + 1]) / TICK_HZ
+    acc_plan = np.diff(v[a:b + 1], axis=0) / h[:, None]
+    acc_lm = (v[b] - v[a]) / (T / TICK_HZ)
+    if (np.abs(acc_plan - acc_lm) * (h ** 2)[:, None] / 8 > BULGE_STEPS).any():
+        return False
+    if caps is not None:  # the rates the shift gives at both ends keep the bounds one period has
+        shift = n * TICK_HZ / T - 0.5 * (v[a] + v[b])
+        for end in (v[a] + shift, v[b] + shift):
+            if (np.abs(end) > caps[1]).any() or (caps[0] is not None and np.hypot(*(TO_PEN @ end)) > caps[0]):
+                return False
+    for i in range(2):
+        if v[a, i] * v[b, i] < 0 or any(v[k, i] * v[a, i] < 0 or v[k, i] * v[b, i] < 0 for k in range(a + 1, b)):
+            return False
+        try:
+            rate, steps, accel = axis_params(int(n[i]), v[a, i], v[b, i], T)
+        except OutputError:  # faster than the board steps: not as one LM
+            return False
+        for k in range(a + 1, b):
+            t = int(tick[k] - tick[a])
+            done = 0 if steps == 0 else min(accumulated(0, rate, accel, t) // ACC, abs(steps))
+            pos = whole[a, i] + (done if steps >= 0 else -done)
+            if abs(pos - planned[k, i]) > 0.5:
+                return False
+    return True
 
 
 class EbbWriter:
@@ -208,10 +253,11 @@ class EbbWriter:
         if Tc == 0:
             times, speeds = times[[0, 1, 3]], speeds[[0, 1, 3]]
         vel = speeds[:, None] * u[None, :] * self.k
-        ticks = _ramp_lines(self.c.pos.copy(), times, vel, target, self.lines, self.c)
+        ticks = _ramp_lines(self.c.pos.copy(), times, vel, target, self.lines, self.c, merge=False)
         self.c.travel_s += ticks / TICK_HZ
 
-    def stroke(self, samples) -> None:
+    def stroke(self, samples, pen_cap: float | None = None) -> None:
+        self.pen_cap = pen_cap
         k, M = self.k, self.M
         vel_xy = np.vstack([np.zeros((1, 2)), np.asarray(samples.velocity, float)])
         # motor rates in steps/s; the page's y is down, which linear_map already accounts for
@@ -222,7 +268,10 @@ class EbbWriter:
         end = np.round(start + np.sum(0.5 * samples.delta_time * (vel[1:] + vel[:-1]), axis=0)).astype(np.int64)
         times = samples.delta_time * np.arange(len(vel))
         before = self.c.lm
-        ticks = _ramp_lines(start, times, vel, end, self.lines, self.c)
+        # merged periods may shift their rates as much as one period may: 1 step / delta_time
+        allow = 1.0 / samples.delta_time
+        cap = None if self.pen_cap is None else self.pen_cap * k + allow
+        ticks = _ramp_lines(start, times, vel, end, self.lines, self.c, (cap, self.kin.vmax * k))
         self.c.draw_lm += self.c.lm - before
         self.c.draw_s += ticks / TICK_HZ
 
@@ -262,7 +311,7 @@ def job_lines(job, kinematics, options: dict) -> tuple[list[str], Counter]:
         if lift:
             w.travel(w.motor(stroke_samples.start)[0])
             w.pen(True, pen.down_delay)
-        w.stroke(stroke_samples)
+        w.stroke(stroke_samples, pen.max_speed)
         if i + 1 == len(job.samples) or lifts[i + 1]:
             w.pen(False, pen.up_delay)
     w.travel(w.motor(job.travels[-1].end if job.travels else m.home)[0])
