@@ -302,3 +302,32 @@ def test_cli_send_inspect_and_machine_controls(jobs, tmp_path):
         assert r.returncode == 0 and tuple(emu.pos) == (0, 0)
         r = _cli("machine", "--serial", emu.port, "ebb", "pen", "down")
         assert r.returncode == 0 and emu.pen_up == 0
+
+
+def test_ctrl_c_stops_at_the_stroke_end_and_sending_again_resumes(jobs, tmp_path):
+    import signal
+
+    job = tmp_path / "badge.ebb"
+    job.write_bytes((jobs / "badge.ebb").read_bytes())
+    lines = list(read_ebb(job.read_bytes()).lines)
+    with _emulator(speed=4.0) as emu:
+        p = subprocess.Popen([sys.executable, "-m", "doodlecam", "send", str(job), "--serial", emu.port, "--no-progress"],
+                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=ENV, cwd=ROOT)
+        deadline = time.monotonic() + 60
+        while len(_commands(emu)) < 40 and time.monotonic() < deadline:  # drawing its first strokes
+            time.sleep(0.05)
+        p.send_signal(signal.SIGINT)
+        out, err = p.communicate(timeout=120)
+        assert p.returncode == 130, err
+        said = err.strip().splitlines()  # what it does, then one line saying where it stopped
+        assert "stopping at the end of the stroke" in said[0] and "stopped at command" in said[-1] and "pen up" in said[-1]
+        first = _commands(emu)
+        assert first == lines[:len(first)] and first[-1].startswith("SP,1") and emu.idle and emu.pen_up == 1
+        assert Path(str(job) + ".send.json").exists()
+        emu.cfg.speed = 400.0
+        r = _cli("send", str(job), "--serial", emu.port, "--no-progress")
+        assert r.returncode == 0, r.stderr
+        assert f"resumed at command {len(first) + 1}" in r.stdout
+        rest = _commands(emu)[len(first):]
+        assert rest[-(len(lines) - len(first)):] == lines[len(first):]
+        assert tuple(emu.pos) == (0, 0) and not Path(str(job) + ".send.json").exists()
