@@ -13,8 +13,9 @@ import pytest
 from ebb_reader import execute
 
 ROOT = Path(__file__).resolve().parents[1]
-INPUTS = ["samples/vectors/badge.svg", "samples/vectors/layers.svg", "samples/images/text.png",
-          "samples/images/camera.png"]
+INPUTS = [("samples/vectors/badge.svg", "axidraw-v3"), ("samples/vectors/layers.svg", "axidraw-v3"),
+          ("samples/images/text.png", "axidraw-v3"), ("samples/images/camera.png", "axidraw-v3"),
+          ("samples/images/horse.png", "axidraw-se-a3")]
 
 
 def _convert(src: str, machine: str, out: Path):
@@ -26,9 +27,9 @@ def _convert(src: str, machine: str, out: Path):
     return r.job, r.outputs[0].read_text()
 
 
-@pytest.fixture(scope="module", params=INPUTS)
+@pytest.fixture(scope="module", params=INPUTS, ids=lambda p: f"{Path(p[0]).name}-{p[1]}")
 def converted(request, tmp_path_factory):
-    return _convert(request.param, "axidraw-v3", tmp_path_factory.mktemp("ebb"))
+    return _convert(*request.param, tmp_path_factory.mktemp("ebb"))
 
 
 def _motor(job, xy):
@@ -96,7 +97,9 @@ def test_executed_motion_keeps_limits_path_and_paper(converted):
         assert (pos[-1] == end).all()
         # the pen within the path tolerance of the curves at every tick (and at the move ends: half a step
         # from the planned instants, below)
-        curve = np.vstack([_motor(job, job.strokes[s].spline(np.linspace(0, 1, 4000))) for s in members])
+        curve = np.vstack([_motor(job, job.strokes[s].spline(np.linspace(0, 1, max(4000, int(job.strokes[s].spline.length
+                                                                                          / 0.01)))))
+                           for s in members])  # points 0.01 mm apart: the nearest is within 0.005 mm of the curve
         from scipy.spatial import cKDTree
 
         d, _ = cKDTree(curve / k).query(pos / k)  # motor mm; pen mm = motor mm / sqrt(2) at most... exact:

@@ -269,6 +269,16 @@ def test_damaged_ebb_line_is_refused_before_the_port_opens(jobs, tmp_path):
         assert emu.received == []
 
 
+def test_a_grbl_is_not_taken_for_an_ebb(jobs):
+    from doodlecam.link.grbl.emulator import GrblEmulator
+
+    with GrblEmulator() as grbl:  # doodlecam's GRBL 1.1 emulator: it greets, then answers V with an error
+        r = _cli("send", str(jobs / "badge.ebb"), "--serial", grbl.port)
+        lines = r.stderr.strip().splitlines()
+        assert r.returncode != 0 and len(lines) == 1 and "not an EiBotBoard" in lines[0] and "error:" in lines[0]
+        assert grbl.executed == []
+
+
 @pytest.mark.parametrize("answer,expect", [("grbl", "answered 'error:1'"), ("silent", "did not answer")])
 def test_a_board_that_is_not_an_ebb_is_refused(jobs, answer, expect):
     with _emulator(answer=answer) as emu:
