@@ -200,9 +200,10 @@ def test_emulator_answers_as_the_reference_says():
         assert emu.pos == [10, -20] and len(emu.errors) == 8
 
 
-def test_refused_command_is_reported_in_one_line(tmp_path):
+@pytest.mark.parametrize("error_end", ["ok-line", "inline", "bare"])
+def test_refused_command_is_reported_in_one_line(tmp_path, error_end):
     lines = ("EM,1,1", "SP,1,10", "LM,85899346,10,0,17180814,2,0,3", "SC,4,70000", "LM,85899346,10,0,0,0,0,3")
-    with _emulator() as emu:
+    with _emulator(error_end=error_end) as emu:
         sender = EbbSender(emu.port, EbbJob({}, lines), "bad.ebb", state_file=tmp_path / "s.json")
         with pytest.raises(LinkError) as ei:
             sender.run()

@@ -39,6 +39,9 @@ class EbbConfig:
     fifo: int = 1  # motion commands queued behind the executing one (the board boots with 1)
     vanish_at: int | None = None  # close the port after receiving this many commands
     answer: str = "ebb"  # "ebb", or "grbl" (answers as a GRBL would) / "silent" (answers nothing)
+    # how a legacy-mode error ends: "ok-line" (an OK line after it), "inline" (the reference's
+    # 'OK\r\n' line ending), "bare" (firmware 3.0's source: '\r\n')
+    error_end: str = "ok-line"
 
 
 @dataclass
@@ -250,7 +253,7 @@ class EbbEmulator:
         except _Err as e:
             self.errors.append((line, str(e)))
             self.log(f"refused {line!r}: {e}")
-            self._say(f"{e}\r\nOK\r\n")
+            self._say(f"{e}" + {"ok-line": "\r\nOK\r\n", "inline": "OK\r\n", "bare": "\r\n"}[self.cfg.error_end])
             return
         if reply is not None:
             self._say(reply)
