@@ -13,10 +13,14 @@ import click
 @click.option("--csv", "as_csv", is_flag=True, help="Print the commands as CSV.")
 @click.option("--limit", default=20, show_default=True, help="Commands to show (0 = all).")
 def inspect(file, as_csv, limit):
-    """Print a PLC packet file: header and commands."""
+    """Print a PLC packet file (or an EiBotBoard .ebb job): header and commands."""
     from doodlecam.errors import InputError
     from doodlecam.link.plc.packetfile import read_plc, to_csv
 
+    if file.suffix.lower() == ".ebb":  # an EiBotBoard command stream (doodlecam convert --post ebb)
+        from doodlecam.cli.ebb import inspect_ebb
+
+        return inspect_ebb(file, limit)
     try:
         data = file.read_bytes()
     except OSError as e:

@@ -132,3 +132,79 @@ def raw_keys():
         yield getch
     finally:
         termios.tcsetattr(fd, termios.TCSADRAIN, old)
+
+
+# ---------------------------------------------------------------- machine --serial PORT ebb ...
+
+@machine.group("ebb")
+@click.pass_context
+def machine_ebb(ctx):
+    """Manual controls of an EiBotBoard (AxiDraw): pen up/down, motors off, jog, home, status."""
+
+
+def _board(ctx):
+    from doodlecam.link.ebb.jobfile import EbbJob
+    from doodlecam.link.ebb.sender import EbbSender, find_port
+
+    o = ctx.obj or {}
+    port = o.get("port")
+    s = EbbSender(find_port() if port in (None, "auto") else port, EbbJob({}, ()), "manual",
+                  timeout=o.get("timeout", 5.0))
+    s._open()
+    s.handshake()
+    return s
+
+
+def _run(ctx, commands: list[str], wait: bool = True) -> None:
+    s = _board(ctx)
+    try:
+        for c in commands:
+            s._ask(c, s.timeout)
+        if wait:
+            s.wait_idle(600)
+        pos = s._ask("QS", s.timeout).split("\n")[0]
+        click.echo(f"EiBotBoard firmware {s.version} on {s.port_name}: motors at {pos} steps")
+    finally:
+        s.ser.close()
+
+
+@machine_ebb.command("pen")
+@click.argument("state", type=click.Choice(["up", "down"]))
+@click.pass_context
+def ebb_pen(ctx, state):
+    """Raise or lower the pen (SP)."""
+    _run(ctx, [f"SP,{1 if state == 'up' else 0},200"])
+
+
+@machine_ebb.command("motors-off")
+@click.pass_context
+def ebb_off(ctx):
+    """Switch the motors off so the carriage moves by hand (EM,0,0); the position is forgotten."""
+    _run(ctx, ["EM,0,0"])
+
+
+@machine_ebb.command("jog")
+@click.argument("x", type=float)
+@click.argument("y", type=float)
+@click.option("--speed", type=float, default=50.0, show_default=True, help="mm/s.")
+@click.pass_context
+def ebb_jog(ctx, x, y, speed):
+    """Move the pen up by X Y mm on the page (y away from home), with XM (motor 1 = x + y, motor 2 = x - y)."""
+    k = 80.0
+    a, b = round(x * k), round(y * k)
+    ms = max(1, round(1000 * max(abs(x), abs(y), 1e-9) / speed))
+    _run(ctx, ["SP,1,200", f"XM,{ms},{a},{b}"])
+
+
+@machine_ebb.command("home")
+@click.pass_context
+def ebb_home(ctx):
+    """Pen up, then back to where the motors were switched on (the start corner: HM)."""
+    _run(ctx, ["SP,1,200", "HM,4000"])
+
+
+@machine_ebb.command("status")
+@click.pass_context
+def ebb_status(ctx):
+    """Firmware version and step position (V, QS)."""
+    _run(ctx, [], wait=False)

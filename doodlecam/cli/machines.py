@@ -134,6 +134,9 @@ def explain(machine, origin: str = "") -> list[str]:
         if rate > GRBL_MAX_STEP_RATE:
             lines.append(f"  note           {rate / 1000:.0f} kHz of steps is more than GRBL 1.1 on an Arduino Uno gives "
                          f"(about {GRBL_MAX_STEP_RATE / 1000:.0f} kHz); fine for the PLC")
+    elif m.kinematics == "axidraw":
+        lines.append("  board          an EiBotBoard: 'doodlecam convert --post ebb', then 'doodlecam send JOB.ebb --serial "
+                     "auto' (docs/ebb.md)")
     else:
         lines.append(f"  GRBL settings  none: GRBL drives cartesian machines; '{m.kinematics}' runs from the PLC samples")
     return lines

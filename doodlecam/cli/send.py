@@ -95,12 +95,22 @@ def send(job, udp, serial_port, baud, check, restart, cancel, again, machine, fr
     executed command. Try it without hardware:
       doodlecam sim plc --port 5005 &   doodlecam send out/camera.plc --udp 127.0.0.1:5005
       doodlecam sim grbl                doodlecam send out/camera.gcode --serial /dev/pts/N
+      doodlecam sim ebb                 doodlecam send out/camera.ebb --serial /dev/pts/N   (AxiDraw; PORT auto finds it)
     """
     from doodlecam import registry
     from doodlecam.cli.options import _pairs
 
     if bool(udp) == bool(serial_port):
         raise click.UsageError("give exactly one of --udp HOST:PORT or --serial PORT")
+    if serial_port and job.suffix.lower() == ".ebb":  # an EiBotBoard (AxiDraw) job: its own link
+        if check or from_line or baud or cancel or again:
+            raise click.UsageError("--check, --from-line, --baud, --cancel and --again are not for .ebb jobs")
+        from doodlecam.cli.ebb import send_ebb
+
+        from doodlecam.cli.machine import raw_keys
+
+        return send_ebb(job, serial_port, restart, machine, timeout, transport_opt, no_progress, _Progress,
+                        _pen_changes, raw_keys)
     kind = "udp" if udp else "serial"
     if kind == "udp" and (check or from_line or baud):
         raise click.UsageError("--check, --from-line and --baud are for --serial (GRBL)")
@@ -359,8 +369,6 @@ def sim_plc(host, port, machine, buffer_size, realtime, speed, loss, dup, reorde
 @click.option("--link", "link_path", type=click.Path(path_type=Path), help="Also make a symlink with this name to the port.")
 def sim_grbl(speed, error_at, alarm_at, vanish_at, soft_limits, travel, link_path):
     """Emulate a GRBL 1.1 controller on a pseudo-terminal; prints the port to use."""
-    import os
-
     from doodlecam.link.grbl.emulator import GrblConfig, GrblEmulator
 
     def pairs(values, what):
@@ -379,6 +387,20 @@ def sim_grbl(speed, error_at, alarm_at, vanish_at, soft_limits, travel, link_pat
     cfg = GrblConfig(speed=speed, error_at=pairs(error_at, "--error-at"), alarm_at=pairs(alarm_at, "--alarm-at"),
                      vanish_at=vanish_at, travel=(w, h), soft_limits=soft_limits)
     emu = GrblEmulator(cfg, log=lambda m: click.echo(f"[grbl] {m}", err=True))
+    extra = ""
+    if soft_limits:  # as GRBL 1.1: homing on, locked until $H, travel in negative machine space
+        extra = (f"soft limits: machine travel X -{w:g}..0, Y -{h:g}..0; it starts in alarm: 'doodlecam machine "
+                 f"--serial {link_path or emu.port} home', then jog to the drawing's corner and 'zero'")
+    serve_emulator(emu, link_path, "GRBL emulator", extra, lambda: (
+        f"GRBL emulator stopped: {len(emu.received)} lines received, {emu.overruns} bytes dropped "
+        f"(receive buffer overruns), most bytes buffered {emu.max_rx}"))
+
+
+def serve_emulator(emu, link_path, name: str, extra: str, summary) -> None:
+    """Run an emulator on its pseudo-terminal (and a symlink ``link_path`` to it) until Ctrl-C,
+    `kill` or the emulator vanishing; then print ``summary()``."""
+    import os
+
     if link_path:
         tmp = link_path.with_name(link_path.name + ".tmp")
         if tmp.is_symlink():
@@ -386,10 +408,9 @@ def sim_grbl(speed, error_at, alarm_at, vanish_at, soft_limits, travel, link_pat
         os.symlink(emu.port, tmp)
         os.replace(tmp, link_path)
     emu.start()
-    click.echo(f"GRBL emulator on {emu.port}" + (f" (also {link_path})" if link_path else "") + "; Ctrl-C stops")
-    if soft_limits:  # as GRBL 1.1: homing on, locked until $H, travel in negative machine space
-        click.echo(f"soft limits: machine travel X -{w:g}..0, Y -{h:g}..0; it starts in alarm: 'doodlecam machine "
-                   f"--serial {link_path or emu.port} home', then jog to the drawing's corner and 'zero'")
+    click.echo(f"{name} on {emu.port}" + (f" (also {link_path})" if link_path else "") + "; Ctrl-C stops")
+    if extra:
+        click.echo(extra)
     sys.stdout.flush()
     _stop_on_sigterm()
     try:
@@ -401,5 +422,21 @@ def sim_grbl(speed, error_at, alarm_at, vanish_at, soft_limits, travel, link_pat
         emu.stop()
         if link_path and link_path.is_symlink():
             link_path.unlink()
-        click.echo(f"GRBL emulator stopped: {len(emu.received)} lines received, {emu.overruns} bytes dropped "
-                   f"(receive buffer overruns), most bytes buffered {emu.max_rx}", err=True)
+        click.echo(summary(), err=True)
+
+
+@sim.command("ebb")
+@click.option("--speed", type=float, default=1.0, show_default=True, help="Motion runs this many times faster than real time.")
+@click.option("--fifo", type=int, default=1, show_default=True, help="Motion commands queued behind the executing one.")
+@click.option("--firmware", default="3.0.2", show_default=True, help="Version the board reports to V.")
+@click.option("--vanish-at", type=int, metavar="N", help="Close the port after the N-th received command.")
+@click.option("--link", "link_path", type=click.Path(path_type=Path), help="Also make a symlink with this name to the port.")
+def sim_ebb(speed, fifo, firmware, vanish_at, link_path):
+    """Emulate an EiBotBoard (AxiDraw) on a pseudo-terminal; prints the port to use."""
+    from doodlecam.link.ebb.emulator import EbbConfig, EbbEmulator
+
+    emu = EbbEmulator(EbbConfig(version=firmware, speed=speed, fifo=fifo, vanish_at=vanish_at),
+                      log=lambda m: click.echo(f"[ebb] {m}", err=True))
+    serve_emulator(emu, link_path, "EiBotBoard emulator", "", lambda: (
+        f"EiBotBoard emulator stopped: {len(emu.received)} commands received, {len(emu.executed)} executed, "
+        f"{len(emu.errors)} refused, motors at {tuple(emu.pos)} steps"))

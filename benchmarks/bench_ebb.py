@@ -1,0 +1,133 @@
+"""AxiDraw plot time: doodlecam's .ebb stream against saxi's planner, same drawings, same limits.
+
+For each input, doodlecam traces/reads it for an AxiDraw V3 with saxi's default AxiDraw
+limits (pen-down 50 mm/s and 200 mm/s^2, pen-up 200 mm/s and 400 mm/s^2, pen drop and lift
+0.12 s each) and writes the .ebb stream; its planned time is the stream's exact executed time
+(every LM on the board's 25 kHz clock) plus the pen delays. doodlecam keeps the pen's
+acceleration <= 200 mm/s^2 in every direction (the axidraw plugin's pen_acceleration),
+including across the path on curves; saxi bounds only the acceleration along each segment
+and turns corners with a velocity jump (its cornering factor 0.127 mm).
+
+saxi gets the same strokes in the same order (doodlecam's fitted curves sampled every 0.5 mm,
+within 0.01 mm of them) and its planner (``plan`` of dist/server/planning.js) times them.
+saxi is installed only in a benchmark folder, never in doodlecam's environment::
+
+    mkdir -p /work/bench-saxi && cd /work/bench-saxi && npm init -y && npm install saxi@0.15
+    nice .venv/bin/python benchmarks/bench_ebb.py --saxi /work/bench-saxi
+
+Prints a markdown table: planned times, the ratio (target <= 0.85), commands per second of
+drawing (target <= 1 / delta_time = 25), the largest mean acceleration of saxi's pen over a
+40 ms window while drawing (doodlecam's is <= 200 mm/s^2 by construction, tests/test_ebb.py),
+and CPU time of both planners (doodlecam's: the whole trace, fit, plan and post).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import re
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parent.parent
+INPUTS = ("samples/vectors/badge.svg", "samples/vectors/layers.svg", "samples/images/text.png",
+          "samples/images/camera.png", "samples/images/horse.png")
+LIMITS = {"down_speed": 50.0, "down_accel": 200.0, "cornering": 0.127, "up_speed": 200.0, "up_accel": 400.0,
+          "pen_down_s": 0.12, "pen_up_s": 0.12}
+
+
+def bench_profile(down_accel: float = LIMITS["down_accel"]) -> str:
+    """axidraw-v3 with saxi's default limits (each motor's acceleration: ``down_accel``)."""
+    text = (ROOT / "doodlecam" / "machines" / "axidraw-v3.toml").read_text()
+    subs = {
+        r'name = "axidraw-v3"': 'name = "axidraw-v3-saxi"',
+        r"max_acceleration = \[1077.0, 1077.0\]": f"max_acceleration = [{down_accel * 2 ** 0.5:.1f}, {down_accel * 2 ** 0.5:.1f}]",
+        r"pen_acceleration = 762.0": f"pen_acceleration = {down_accel}",
+        r"max_velocity = 165.7": f"max_velocity = {LIMITS['up_speed']}",
+        r"max_acceleration = 1143.0": f"max_acceleration = {LIMITS['up_accel']}",
+        r"up_delay = 0.13": f"up_delay = {LIMITS['pen_up_s']}",
+        r"down_delay = 0.13": f"down_delay = {LIMITS['pen_down_s']}",
+        r"max_speed = 55.2": f"max_speed = {LIMITS['down_speed']}",
+        r"speed = 165.7": f"speed = {LIMITS['up_speed']}",
+    }
+    for pat, rep in subs.items():
+        text, n = re.subn(pat, rep, text)
+        assert n, pat
+    return text
+
+
+def doodlecam_job(src: Path, machine, out: Path):
+    from doodlecam import pipeline
+
+    t0 = time.process_time()
+    r = pipeline.convert(src, out, pipeline.Settings(machine=machine, posts=("ebb",)))
+    cpu = time.process_time() - t0
+    text = r.outputs[0].read_text()
+    head = dict(line[2:].split(": ", 1) for line in text.splitlines() if line.startswith("; ") and ": " in line)
+    return r.job, head, cpu
+
+
+def saxi_paths(job) -> list:
+    """The job's strokes as saxi paths (mm), joined where doodlecam keeps the pen down."""
+    paths = []
+    for s, lift in zip(job.strokes, job.lifts):
+        n = max(2, int(np.ceil(s.spline.length / 0.5)) + 1)
+        pts = s.spline(np.linspace(0.0, 1.0, n))
+        pts = np.column_stack([pts[:, 0], job.machine.height - pts[:, 1]])  # the page: y down from home
+        if lift or not paths:
+            paths.append(pts.tolist())
+        else:
+            paths[-1] += pts[1:].tolist()
+    return paths
+
+
+def main() -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--saxi", default="/work/bench-saxi", help="folder where saxi is installed with npm")
+    ap.add_argument("--node", default="node")
+    ap.add_argument("inputs", nargs="*", default=list(INPUTS))
+    a = ap.parse_args()
+    from doodlecam.machine import parse_machine
+
+    try:
+        import tomllib
+    except ModuleNotFoundError:  # pragma: no cover
+        import tomli as tomllib
+    machine = parse_machine(tomllib.loads(bench_profile()), "axidraw-v3-saxi")
+    print(f"limits: {LIMITS}; doodlecam sample period {machine.delta_time * 1000:g} ms\n")
+    print("| input | strokes | doodlecam s | saxi s | ratio | doodlecam draw cmd/s | saxi draw cmd/s | "
+          "saxi pen accel per 40 ms, mm/s^2 | doodlecam s at that accel | ratio | doodlecam CPU s | saxi CPU s |")
+    print("|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|")
+    ratios, rates = [], []
+    with tempfile.TemporaryDirectory() as tmp:
+        for src in a.inputs:
+            job, head, cpu = doodlecam_job(ROOT / src, machine, Path(tmp))
+            ours = float(head["planned_time"])
+            rate = int(head["draw_commands"]) / max(float(head["draw_time"]), 1e-9)
+            payload = json.dumps({"paths": saxi_paths(job), "limits": LIMITS, "period": machine.delta_time})
+            res = subprocess.run([a.node, str(ROOT / "benchmarks" / "saxi_plan.js"), a.saxi], input=payload,
+                                 capture_output=True, text=True, check=True)
+            sx = json.loads(res.stdout)
+            ratio = ours / sx["duration"]
+            ratios.append(ratio)
+            rates.append(rate)
+            # the same drawing with the acceleration saxi's plan really asks of the pen (over 40 ms windows)
+            peak = float(np.floor(sx["accel_per_period"]))
+            m2 = parse_machine(tomllib.loads(bench_profile(peak)), "axidraw-v3-saxi-peak")
+            _, head2, _ = doodlecam_job(ROOT / src, m2, Path(tmp))
+            ours2 = float(head2["planned_time"])
+            print(f"| {Path(src).name} | {len(job.strokes)} | {ours:.1f} | {sx['duration']:.1f} | {ratio:.3f} | "
+                  f"{rate:.1f} | {sx['draw_blocks'] / max(sx['draw_s'], 1e-9):.1f} | {sx['accel_per_period']:.0f} | "
+                  f"{ours2:.1f} | {ours2 / sx['duration']:.3f} | {cpu:.1f} | {sx['cpu_s']:.2f} |")
+    print(f"\nworst ratio {max(ratios):.3f} (target <= 0.85); most commands per second of drawing "
+          f"{max(rates):.1f} (target <= {1 / machine.delta_time:g})")
+    return 0 if max(ratios) <= 0.85 else 1
+
+
+if __name__ == "__main__":
+    sys.exit(main())

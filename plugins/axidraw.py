@@ -1,0 +1,124 @@
+"""AxiDraw (EiBotBoard) mixed-axis kinematics: two motors, each moving x + y or x - y.
+
+The AxiDraw's belt (an H-bot) is driven by two steppers. In the machine's page
+coordinates (origin at the home corner, x to the right, y away from home, down
+the page) motor 1 turns by x + y and motor 2 by x - y (AxiDraw driver and
+plotink: ``motor_dist1 = xDist + yDist``, ``motor_dist2 = xDist - yDist``),
+2032 steps per inch of belt at 16x microstepping (``native_res_factor`` 1016 x 2)
+= 80 steps/mm on each motor axis.
+
+doodlecam's work area has y up (the SVG post flips it), with the home corner at
+(0, height). So y_page = height - y and the actuators are the linear map
+
+    theta1 = x - y,  theta2 = x + y   (mm of belt, plus constants)
+
+The planner keeps each motor's velocity and acceleration limits on this map and
+certifies them between grid points exactly (Bernstein bounds), as for a
+Cartesian machine. The EBB post executes one constant-acceleration ``LM`` per
+velocity-sample period in whole motor steps; the shift that puts each period on
+whole steps changes a motor's rate by at most 1 step / delta_time, so the limits
+given to the planner are the profile's less that (docs/ebb.md).
+
+``pen_acceleration`` (optional): the AxiDraw driver's acceleration limit is on the
+pen's path, not on a motor. With it the map gains four rows, the pen's acceleration
+along 0, 45, 90 and 135 degrees, each within pen_acceleration x cos 22.5 deg, so the
+pen accelerates at most pen_acceleration in every direction (a regular octagon in the
+circle; per-motor limits alone are a diamond, 29 % short of the circle on the diagonals).
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+
+from doodlecam.api import Kinematics
+from doodlecam.errors import MachineError, PlanError
+
+_KEYS = ("steps_per_mm", "max_velocity", "max_acceleration")
+_OPTIONAL = ("pen_acceleration",)
+MOTORS = np.array([[1.0, -1.0], [1.0, 1.0]])  # work area (x, y up) -> (x + y_page, x - y_page)
+# pen acceleration <= A in every direction: its components along 0, 45, 90, 135 degrees within
+# A cos(22.5 deg) (a regular octagon inside the circle of radius A)
+_S = np.sqrt(0.5)
+OCTAGON = np.array([[1.0, 0.0], [0.0, 1.0], [_S, _S], [_S, -_S]])
+EBB_MAX_STEP_RATE = 25000.0  # steps/s: one step per 40 us tick at most
+
+
+class AxiDraw(Kinematics):
+    name = "axidraw"
+    summary = "AxiDraw / EiBotBoard H-bot: motor 1 moves x + y, motor 2 x - y (per-motor limits)"
+
+    actuator_names = ("motor1", "motor2")
+    actuator_units = "mm"
+    linear_map = MOTORS
+
+    def __init__(self, machine, params: dict[str, Any]):
+        super().__init__(machine, params)
+        where = f"{getattr(machine, 'source', '') or getattr(machine, 'name', '') or '<profile>'}: [kinematics]"
+        params = dict(params or {})
+        for key in params:
+            if key not in _KEYS + _OPTIONAL:
+                raise MachineError(f"{where} has unknown key '{key}'; the axidraw plugin reads "
+                                   f"{', '.join(_KEYS + _OPTIONAL)}")
+        for key in _KEYS:
+            if key not in params:
+                raise MachineError(f"{where} is missing '{key}'; the axidraw plugin needs {', '.join(_KEYS)} "
+                                   "(see the built-in profile: doodlecam machines new NAME --from axidraw-v3)")
+        self.steps_per_mm = self._positive(where, "steps_per_mm", params["steps_per_mm"])
+        self.vmax = np.array([self._positive(where, "max_velocity", v) for v in self._pair(where, params, "max_velocity")])
+        self.amax = np.array([self._positive(where, "max_acceleration", v)
+                              for v in self._pair(where, params, "max_acceleration")])
+        self.pen_accel = (self._positive(where, "pen_acceleration", params["pen_acceleration"])
+                          if "pen_acceleration" in params else None)
+        if self.pen_accel is not None:  # the maker's limit is on the pen's path: rows for it after the motors'
+            self.linear_map = np.vstack([MOTORS, OCTAGON])
+            self.actuator_names = ("motor1", "motor2", "pen x", "pen y", "pen x+y", "pen x-y")
+        top = EBB_MAX_STEP_RATE / self.steps_per_mm
+        if (self.vmax > top).any():
+            raise MachineError(f"{where} max_velocity {self.vmax.max():g} mm/s is above the EiBotBoard's 25000 steps/s "
+                               f"({top:g} mm/s at {self.steps_per_mm:g} steps/mm); lower it")
+        spm = getattr(machine, "axes", None)
+        if spm and any(abs(a.steps_per_mm - self.steps_per_mm) > 1e-9 for a in machine.axes):
+            raise MachineError(f"{where} steps_per_mm {self.steps_per_mm:g} differs from [axes.x]/[axes.y] steps_per_mm; "
+                               "the EBB post rounds x and y on the motors' grid, so give them the same value")
+
+    @staticmethod
+    def _positive(where: str, key: str, value) -> float:
+        if isinstance(value, bool) or not isinstance(value, (int, float)) or not np.isfinite(value) or value <= 0:
+            raise MachineError(f"{where} {key} must be positive numbers, got {value!r}; fix the profile")
+        return float(value)
+
+    @staticmethod
+    def _pair(where: str, params: dict, key: str) -> list:
+        v = params[key]
+        if not isinstance(v, list) or len(v) != 2:
+            raise MachineError(f"{where} {key} must be [motor1, motor2], got {v!r}; fix the profile")
+        return v
+
+    def margin(self) -> float:
+        """mm/s of belt that whole-step LMs may add to a motor's rate: 1 step per sample period."""
+        return 1.0 / (self.steps_per_mm * float(getattr(self.machine, "delta_time", 0.04)))
+
+    def actuator_limits(self):
+        v = self.vmax - self.margin()
+        if (v <= 0).any():
+            raise MachineError("the axidraw motors' max_velocity is below one step per sample period; raise it")
+        if self.pen_accel is None:
+            return v, self.amax.copy()
+        # the pen rows bound acceleration only (the pen-speed cap and the motors bound speed)
+        a_pen = self.pen_accel * np.cos(np.pi / 8)
+        return np.concatenate([v, np.full(4, 10 * self.vmax.max())]), np.concatenate([self.amax, np.full(4, a_pen)])
+
+    def page(self, xy) -> np.ndarray:
+        """Work-area points (mm, y up) as the AxiDraw's page coordinates (mm from home, y down)."""
+        p = np.asarray(xy, float)
+        return np.column_stack([p[:, 0], self.machine.height - p[:, 1]])
+
+    def check_reachable(self, points) -> None:
+        m = self.machine
+        p = np.asarray(points, dtype=float)
+        bad = np.flatnonzero((p[:, 0] < -1e-9) | (p[:, 0] > m.width + 1e-9) | (p[:, 1] < -1e-9) | (p[:, 1] > m.height + 1e-9))
+        if bad.size:
+            x, y = p[bad[0]]
+            raise PlanError(f"point ({x:.2f}, {y:.2f}) mm is outside the {m.width:g} x {m.height:g} mm travel of '{m.name}'")

@@ -1,0 +1,180 @@
+"""The EBB post: its .ebb stream executed as the EiBotBoard does (tests/ebb_reader.py, written from the
+command reference) keeps every motor's limits, the pen-speed cap and the path, ends every stroke on its
+last step and stays on the paper; the LM arithmetic agrees with Evil Mad Scientist's plotink."""
+
+from __future__ import annotations
+
+import random
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from ebb_reader import execute
+
+ROOT = Path(__file__).resolve().parents[1]
+INPUTS = [("samples/vectors/badge.svg", "axidraw-v3"), ("samples/vectors/layers.svg", "axidraw-v3"),
+          ("samples/images/text.png", "axidraw-v3"), ("samples/images/camera.png", "axidraw-v3"),
+          ("samples/images/horse.png", "axidraw-se-a3")]
+
+
+def _convert(src: str, machine: str, out: Path):
+    from doodlecam import pipeline
+    from doodlecam.machine import load_machine
+
+    m = load_machine(machine)
+    r = pipeline.convert(ROOT / src, out, pipeline.Settings(machine=m, posts=("ebb",)))
+    return r.job, r.outputs[0].read_text()
+
+
+@pytest.fixture(scope="module", params=INPUTS, ids=lambda p: f"{Path(p[0]).name}-{p[1]}")
+def converted(request, tmp_path_factory):
+    return _convert(*request.param, tmp_path_factory.mktemp("ebb"))
+
+
+def _motor(job, xy):
+    """Motor steps of work-area points, as the AxiDraw documentation defines them (motor 1 = x + y,
+    motor 2 = x - y on the page, y down from the home corner, 80 steps per mm)."""
+    p = np.atleast_2d(xy)
+    x, y = p[:, 0], job.machine.height - p[:, 1]
+    return np.column_stack([x + y, x - y]) * 80.0
+
+
+def test_executed_motion_keeps_limits_path_and_paper(converted):
+    job, text = converted
+    m = job.machine
+    kin = m.kinematics_params
+    k, dt = 80.0, m.delta_time
+    lines = text.splitlines()
+    runs = list(execute(lines))
+    assert runs, "no motion"
+    draw = [r for r in runs if r.pen_down and r.line.startswith("LM")]
+    travel = [r for r in runs if not r.pen_down and r.line.startswith("LM")]
+    # motors: velocity (every tick) and acceleration (every LM) within the profile's limits
+    vmax = np.array(kin["max_velocity"]) * k
+    amax = np.array(kin["max_acceleration"]) * k
+    to_pen = np.array([[0.5, 0.5], [0.5, -0.5]])  # motor steps -> pen steps (x, y on the page)
+    for r in draw:
+        assert (np.abs(r.rate).max(axis=0) <= vmax * (1 + 1e-9)).all(), r.line
+        assert (np.abs(r.accel) <= amax * (1 + 1e-6)).all(), r.line
+        # the pen's acceleration (the maker's limit is on the path) in every direction
+        assert np.linalg.norm(np.array(r.accel) @ to_pen) / k <= kin["pen_acceleration"] * (1 + 1e-6), r.line
+    # pen speed: the planner's cap; whole steps shift a period's rates by at most 1 step / dT per motor,
+    # which moves the pen by at most 1 / (k dT) mm/s = 0.31 mm/s (a split piece tau: 1 / (k tau); docs/ebb.md)
+    margin = 1.0 / (k * dt)
+    for r in draw:
+        pen_speed = np.linalg.norm(r.rate @ to_pen, axis=1).max() / k
+        tau = len(r.rate) * 40e-6  # merged periods keep a period's bound; a split piece 1 step over its length
+        assert pen_speed <= m.pen.max_speed + 1.0 / (k * min(tau, dt)) + 1e-9, r.line
+    # pen-up travel: the profile's pen-up speed and acceleration along the path, motors below 25 kHz
+    for r in travel:
+        sp = np.linalg.norm(r.rate @ to_pen, axis=1).max() / k
+        assert sp <= m.travel_speed * (1 + 1e-6) + 1.0 / (k * len(r.rate) * 40e-6), r.line
+        acc = np.linalg.norm(np.array(r.accel) @ to_pen) / k
+        assert acc <= m.x.max_acceleration * (1 + 1e-6) + margin / dt, r.line
+        assert np.abs(r.rate).max() < 25000
+    # nothing outside the paper (the AxiDraw's travel), anywhere
+    allpos = np.vstack([r.pos for r in runs])
+    x = (allpos[:, 0] + allpos[:, 1]) / 2 / k
+    y = (allpos[:, 0] - allpos[:, 1]) / 2 / k
+    assert x.min() >= -1e-9 and y.min() >= -1e-9 and x.max() <= m.width + 1e-9 and y.max() <= m.height + 1e-9
+    # strokes: pen-down runs between an SP,0 and an SP,1
+    strokes, cur = [], []
+    for r in runs:
+        if r.pen_down and r.line.startswith(("LM", "SM")):
+            cur.append(r)
+        elif cur and not r.pen_down:
+            strokes.append(cur)
+            cur = []
+    groups = [[0]]
+    for i, lift in enumerate(job.lifts[1:], 1):  # strokes joined without a lift share one pen-down run
+        (groups.append([i]) if lift else groups[-1].append(i))
+    assert len(strokes) == len(groups)
+    for run, members in zip(strokes, groups):
+        pos = np.vstack([run[0].pos[:1]] + [r.pos[1:] for r in run])
+        # every stroke ends exactly on its last point, on the machine's step grid (x and y in whole steps)
+        end = np.round(_motor(job, np.round(job.strokes[members[-1]].spline.end * k) / k)[0])
+        assert (pos[-1] == end).all()
+        # the pen within the path tolerance of the curves at every tick (and at the move ends: half a step
+        # from the planned instants, below)
+        curve = np.vstack([_motor(job, job.strokes[s].spline(np.linspace(0, 1, max(4000, int(job.strokes[s].spline.length
+                                                                                          / 0.01)))))
+                           for s in members])  # points 0.01 mm apart: the nearest is within 0.005 mm of the curve
+        from scipy.spatial import cKDTree
+
+        d, _ = cKDTree(curve / k).query(pos / k)  # motor mm; pen mm = motor mm / sqrt(2) at most... exact:
+        pen_d = d / np.sqrt(2)  # |pen| = |motor| / sqrt 2 (the map is sqrt 2 times a rotation)
+        assert pen_d.max() <= m.path_tolerance + 1.5 / k, pen_d.max()
+        # at every sample instant (t = j dT into the run) the motors are within half a step of the plan
+        planned, off = [], 0
+        for s_ in members:
+            P = _motor(job, job.samples[s_].integrate())
+            planned += [(off + j, P[j]) for j in range(1, len(P))]
+            off += len(P) - 1
+        per = round(dt / 40e-6)
+        for j, P in planned:  # the board's step counters at the instant's tick (an LM may span several)
+            tick = min(j * per, len(pos) - 1)
+            assert np.abs(pos[tick] - P).max() <= 0.5 + 1e-6, (j, pos[tick], P)
+
+
+def test_commands_per_second_of_drawing(converted):
+    """About one LM per sample period: a period is split where a motor turns back inside it by more
+    than a step, and periods whose ramps one LM reproduces are merged (README: 24-26 per second)."""
+    job, text = converted
+    head = dict(l[2:].split(": ", 1) for l in text.splitlines() if l.startswith("; ") and ": " in l)
+    periods = sum(len(s.velocity) for s in job.samples)
+    assert abs(float(head["draw_time"]) - periods * job.machine.delta_time) < 1e-3 * periods
+    assert int(head["draw_commands"]) / float(head["draw_time"]) <= 1.1 / job.machine.delta_time
+
+
+def test_planned_time_is_the_executed_time(converted):
+    job, text = converted
+    lines = text.splitlines()
+    runs = list(execute(lines))
+    head = dict(l[2:].split(": ", 1) for l in lines if l.startswith("; ") and ": " in l)
+    pen = sum(int(l.split(",")[2]) / 1000 for l in lines if l.startswith("SP,"))
+    executed = sum(len(r.rate) for r in runs) * 40e-6 + pen
+    assert executed == pytest.approx(float(head["planned_time"]), abs=2e-3)
+
+
+def test_lm_arithmetic_matches_plotink():
+    """doodlecam's exact LM (board.axis_move) against plotink's ebb_calc.calculate_lm (firmware 3.0)."""
+    from plotink import ebb_calc
+
+    from doodlecam.link.ebb.board import axis_move
+
+    rnd = random.Random(7)
+    checked = 0
+    for _ in range(400):
+        steps = rnd.choice([1, 2, 7, 40, 300, 2000]) * rnd.choice([1, -1])
+        rate = rnd.randint(1, 2 ** 31 - 1) // rnd.choice([1, 10, 1000, 10 ** 5])
+        rate = max(rate, 1)
+        accel = rnd.randint(-3000, 3000) * rnd.choice([0, 1, 10, 100])
+        if accel < 0 and rate + accel * 50 < 0:
+            accel = 0  # doodlecam never lets a rate turn negative inside an LM
+        t_ref, pos_ref, acc_ref = ebb_calc.calculate_lm(steps, rate, accel, "clear")
+        if t_ref == 0 or rate - int(accel / 2) + accel * t_ref <= 0:
+            continue  # the rate turns back inside the move (firmware 3's reversal): doodlecam never sends that
+        ticks, pos, acc = axis_move(rate, steps, accel)
+        assert (ticks, pos) == (t_ref, pos_ref), (rate, steps, accel)
+        assert acc == acc_ref
+        checked += 1
+    assert checked > 250
+
+
+def test_axidraw_kinematics_map_and_profiles():
+    from doodlecam import registry
+    from doodlecam.machine import load_machine
+
+    for name, (w, h) in {"axidraw-v3": (300, 218), "axidraw-se-a3": (430, 297)}.items():
+        m = load_machine(name)
+        kin = registry.kinematics_for(m)
+        assert (m.width, m.height) == (w, h)
+        # a move right turns both motors forward; a move away from home (down the page) turns motor 1
+        # forward and motor 2 back (plotink: motor_dist1 = dx + dy, motor_dist2 = dx - dy)
+        assert kin.inverse(np.array([[1.0, 0.0]]))[:, :2].tolist() == [[1.0, 1.0]]
+        assert kin.inverse(np.array([[0.0, -1.0]]))[:, :2].tolist() == [[1.0, -1.0]]
+        v, a = kin.actuator_limits()
+        assert (v[:2] < 312.5).all() and (a > 0).all()
+        # the pen's rows: acceleration along 0, 45, 90, 135 degrees within 762 cos 22.5
+        assert kin.linear_map.shape == (6, 2) and np.allclose(a[2:], 762 * np.cos(np.pi / 8))
