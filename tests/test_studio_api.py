@@ -250,6 +250,28 @@ def test_paths_stay_inside_the_chosen_folders(loaded, tmp_path):
     assert r.status_code == 400 and "nope" in one_line(r)
 
 
+def test_refit_turns_a_traced_stroke_into_few_handles_within_the_tolerance(loaded):
+    from scipy.spatial import cKDTree
+
+    from doodlecam.model import Spline
+
+    view = loaded.get("/api/view").json()
+    k = max(range(len(view["strokes"])), key=lambda i: len(view["strokes"][i]["control"]))
+    before = view["strokes"][k]
+    r = edit(loaded, {"op": "refit", "stroke": k, "tolerance": 0.3})
+    assert r.status_code == 200, r.text
+    after = loaded.get("/api/view").json()["strokes"][k]
+    assert len(after["control"]) < len(before["control"]) / 2
+    u = np.linspace(0, 1, 20000)
+    old, new = (Spline(s["degree"], np.asarray(s["control"], float))(u) for s in (before, after))
+    assert cKDTree(new).query(old)[0].max() <= 0.3 + 1e-6 and cKDTree(old).query(new)[0].max() <= 0.3 + 1e-6
+    for bad in (0, -1, "x", 100, None):
+        r = edit(loaded, {"op": "refit", "stroke": k, "tolerance": bad})
+        assert r.status_code == 400 and "tolerance" in one_line(r)
+    loaded.post("/api/undo", json={})
+    assert loaded.get("/api/view").json()["strokes"][k] == before
+
+
 def test_stale_edits_are_refused(loaded):
     """Tab A shows the job at some version; tab B opens another file or edits: A's edit is refused, not applied."""
     a = loaded.get("/api/state").json()["summary"]

@@ -403,14 +403,52 @@ def test_10_a_job_of_several_pens_waits_for_continue(page, server):
     for pen in (2, 3):
         page.wait_for_selector("#send-status[data-state=waiting]", timeout=60_000)
         assert f"change to pen {pen}, then press Continue" in page.text_content("#send-status")
-        assert page.is_visible("#continue")
+        # a dialog the operator cannot miss, over the page, saying which pen
+        page.wait_for_selector("#pen-modal[open]")
+        assert page.is_visible("#pen-modal-continue") and f"pen {pen}" in page.text_content("#pen-modal-text")
         held = sender._sim.held
         assert held is not None and held.reason == Fault.PEN_CHANGE and not sender._sim.pen
         if pen == 2:
             shot(page, "pen-change")
-        page.click("#continue")
+        page.click("#pen-modal-continue")
         page.wait_for_function(f"!/pen {pen},/.test(document.getElementById('send-status').textContent)")
     # (a late answer to Continue must not put an older state over the 'done' event: showSend's version check)
     page.wait_for_selector("#send-status[data-state=done]", timeout=60_000)
     assert page.text_content("#send-status").startswith(f"done: {summary_commands(server)} commands in ")
-    assert not page.is_visible("#continue")
+    assert not page.is_visible("#continue") and not page.is_visible("#pen-modal")
+
+
+def test_11_refit_makes_a_traced_stroke_a_few_handles(page, server):
+    """Refit within a tolerance the user sets: the selected stroke keeps its shape with far fewer control points."""
+    k = _select_longest(page)
+    n0 = len(page.evaluate(f"studio.view.strokes[{k}].control"))
+    page.fill("#refit-tolerance", "0.3")
+    version = page.evaluate("studio.view.summary.version")
+    page.click("#stroke-tools button[data-op=refit]")
+    page.wait_for_function(f"studio.view.summary.version !== {version}", timeout=30_000)
+    n1 = len(page.evaluate(f"studio.view.strokes[{k}].control"))
+    assert n1 < 0.75 * n0, (n0, n1)  # (the API test checks the curve stays within the tolerance)
+    shot(page, "refit")
+    page.keyboard.press("Control+z")
+    page.wait_for_function(f"studio.view.strokes[{k}].control.length === {n0}", timeout=30_000)
+
+
+def test_12_the_machine_position_is_shown_on_the_drawing_during_a_send(page, server):
+    """During a send the page draws the pen where the PLC's status reports put it, and clears it at the end."""
+    page.select_option("#target", "simulator")
+    page.select_option("#send-speed", "10")
+    page.click("#send")
+    page.wait_for_function("document.body.dataset.machinePos", timeout=60_000)
+    x, y = map(float, page.get_attribute("body", "data-machine-pos").split(","))
+    m = server["app"].state.session.machine
+    assert 0 <= x <= m.width and 0 <= y <= m.height
+    sx, sy = page.evaluate(f"studioScreen({x}, {y})")
+    pixel = page.evaluate(f"Array.from(document.getElementById('paper').getContext('2d')"
+                          f".getImageData({sx} * devicePixelRatio, {sy} * devicePixelRatio - 10 * devicePixelRatio, 1, 1).data)")
+    assert pixel[0] > 150 and pixel[1] < 100 and pixel[2] < 100, pixel  # the red marker's cross above the centre
+    shot(page, "send-position")
+    page.click("#stop")
+    page.wait_for_selector("#send-status[data-state=stopped]", timeout=60_000)
+    assert page.get_attribute("body", "data-machine-pos") == ""
+    page.wait_for_selector("#start-over", state="visible")
+    assert page.is_visible("#abandon")

@@ -265,10 +265,10 @@ def create_app(session: Session, config: StudioConfig | None = None) -> FastAPI:
         if "job" not in doc or "version" not in doc:
             raise InputError("an edit names the job and version it was made on ('job', 'version' from the summary)")
         job_id, version = doc.pop("job"), doc.pop("version")
-        allowed = {"control", "point", "to"}
+        allowed = {"control", "point", "to", "tolerance"}
         extra = set(doc) - allowed
         if extra:
-            raise InputError(f"unknown edit field '{sorted(extra)[0]}'; use op, stroke, control, point, to, reply, "
+            raise InputError(f"unknown edit field '{sorted(extra)[0]}'; use op, stroke, control, point, to, tolerance, reply, "
                              "job, version")
 
         def run():

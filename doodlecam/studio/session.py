@@ -259,13 +259,19 @@ class Session:
                                     Stroke(Spline(deg, ctrl[k:]), source_index=st.source_index)]
                 samples[i:i + 1] = [None, None]
                 changed = {i, i + 1}
+            elif op == "refit":  # fewer control points: the curve refitted within a tolerance the user sets
+                tol = kw.get("tolerance")
+                if not isinstance(tol, (int, float)) or isinstance(tol, bool) or not 0.001 <= tol <= 10:
+                    raise InputError("refit needs 'tolerance': the largest distance from the curve, 0.001 to 10 mm")
+                strokes[i] = Stroke(refit(st.spline, float(tol)), source_index=st.source_index)
             elif op == "reorder":
                 to = self._index(kw.get("to"), len(strokes), "position")
                 strokes.insert(to, strokes.pop(i))
                 samples.insert(to, samples.pop(i))
                 changed = set()
             else:
-                raise InputError(f"unknown edit '{op}'; use move, insert, delete_point, delete, reverse, split or reorder")
+                raise InputError(f"unknown edit '{op}'; use move, insert, delete_point, delete, reverse, split, refit "
+                                 "or reorder")
             self._set(self._rebuild(strokes, samples, changed))
             self.last_changed = tuple(sorted(changed)) if len(strokes) == len(job.strokes) else ()
             return self.summary()
@@ -462,6 +468,18 @@ class Session:
             self._set(job, keep_history=False)
             self._check_later(job)
             return self.summary()
+
+
+def refit(spline: Spline, tolerance: float) -> Spline:
+    """The stroke's curve fitted again by the fitter, within ``tolerance`` mm of the curve as it is:
+    a traced zig-zag of hundreds of control points becomes a few handles. The curve is sampled densely
+    enough (every 0.05 mm, at least 20 samples per control point) that the fit sees its corners."""
+    from doodlecam.geometry.fit import fit_polyline
+
+    n = int(np.clip(max(spline.length / 0.05, 20 * len(spline.control)), 200, 200_000))
+    pts = spline(np.linspace(0.0, 1.0, n))
+    fitted, _ = fit_polyline(pts, spline.degree, tolerance, max_control=len(spline.control))
+    return fitted if len(fitted.control) < len(spline.control) else spline
 
 
 def _curves(strokes: list[Stroke]) -> Drawing:

@@ -103,6 +103,12 @@ function draw(target = ctx, withSelection = true) {
     for (const s of S.view.strokes) g.fillText(String(s.i + 1), sx(s.points[0][0]) + 3, sy(s.points[0][1]) - 3);
   }
   if (withSelection) drawSelection(g);
+  if (S.machinePos && target === ctx) { // where the machine's pen is during a send (PLC status / GRBL reports)
+    const [x, y] = S.machinePos;
+    g.strokeStyle = "#d00"; g.fillStyle = "rgba(221, 0, 0, 0.25)"; g.lineWidth = 2;
+    g.beginPath(); g.arc(sx(x), sy(y), 7, 0, 2 * Math.PI); g.fill(); g.stroke();
+    g.beginPath(); g.moveTo(sx(x) - 12, sy(y)); g.lineTo(sx(x) + 12, sy(y)); g.moveTo(sx(x), sy(y) - 12); g.lineTo(sx(x), sy(y) + 12); g.stroke();
+  }
 }
 
 function drawSelection(g) {
@@ -302,6 +308,8 @@ $("stroke-tools").addEventListener("click", async (e) => {
     const to = S.selected + (op === "up" ? -1 : 1);
     if (to < 0 || to >= S.view.strokes.length) return;
     await edit({ op: "reorder", to }); S.selected = to; draw(); figures();
+  } else if (op === "refit") { // fewer control points within the tolerance the user sets: the points become handles
+    await edit({ op: "refit", tolerance: Number($("refit-tolerance").value) });
   } else if (op === "split") {
     const s = S.view.strokes[S.selected];
     await edit({ op: "split", point: Math.floor(s.control.length / 2) });
@@ -508,6 +516,13 @@ function showSend(s) {
     ? `${s.state}: ${what}, ${s.percent.toFixed(1)} %, ${s.time_left_s.toFixed(1)} s left${pos}${grbl}` + (s.message ? ` — ${s.message}` : "")
     : `${s.state}${s.message ? ": " + s.message : ""}`;
   $("send-status").dataset.state = s.state;
+  // the machine's pen on the drawing while a send runs
+  const at = ACTIVE.includes(s.state) && s.position_mm ? s.position_mm : null;
+  if (String(at) !== String(S.machinePos)) { S.machinePos = at; document.body.dataset.machinePos = at ? at.join(",") : ""; draw(); }
+  // a pen change needs the operator: a dialog they cannot miss
+  const modal = $("pen-modal");
+  if (s.state === "waiting") { $("pen-modal-text").textContent = s.message; if (!modal.open) modal.showModal(); }
+  else if (modal.open) modal.close();
   const can = new Set(s.controls || []);
   $("send").disabled = ACTIVE.includes(s.state); $("stop").disabled = !can.has("stop");
   for (const b of ["pause", "hold", "resume", "continue"]) { $(b).hidden = !can.has(b); }
@@ -528,6 +543,8 @@ $("send").onclick = async () => {
   showSend(await api("/api/send", { method: "POST", json: { target: sendTarget(), speed, again: sendAgain } }));
   follow();
 };
+$("pen-modal-continue").onclick = async () => { showSend(await api("/api/send/control", { method: "POST", json: { action: "continue" } })); };
+$("pen-modal-stop").onclick = async () => { showSend(await api("/api/send/control", { method: "POST", json: { action: "stop" } })); };
 $("start-over").onclick = async () => {
   showSend(await api("/api/send", { method: "POST", json: { target: sendTarget(), restart: true } }));
   follow();
