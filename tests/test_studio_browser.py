@@ -452,3 +452,34 @@ def test_12_the_machine_position_is_shown_on_the_drawing_during_a_send(page, ser
     assert page.get_attribute("body", "data-machine-pos") == ""
     page.wait_for_selector("#start-over", state="visible")
     assert page.is_visible("#abandon")
+
+
+def test_13_the_layers_panel_shows_hides_colours_by_pen_and_plots_one_layer(page, server):
+    page.set_input_files("#file", str(ROOT / "samples" / "vectors" / "layers.svg"))
+    page.wait_for_function("document.getElementById('machine').textContent.endsWith('layers.svg')", timeout=60_000)
+    layers = page.evaluate("studio.view.layers")
+    assert page.locator("#layers tr").count() == len(layers) + 1 == 4
+    assert all(l["pen_name"] in page.text_content("#layers") for l in layers)
+    # hide the first layer: none of its strokes is drawn (a pixel on one of them turns white)
+    k = next(i for i, s in enumerate(page.evaluate("studio.view.strokes")) if s["layer"] == layers[0]["name"])
+    p = page.evaluate(f"studio.view.strokes[{k}].points")[len(page.evaluate(f"studio.view.strokes[{k}].points")) // 2]
+    x, y = page.evaluate(f"studioScreen({p[0]}, {p[1]})")
+    ink = f"Array.from(document.getElementById('paper').getContext('2d').getImageData({x} * devicePixelRatio, {y} * devicePixelRatio, 1, 1).data)"
+    assert min(page.evaluate(ink)[:3]) < 200
+    page.click("#layers input[data-layer='0']")
+    assert page.evaluate(f"studio.hidden.has({layers[0]['name']!r})") and min(page.evaluate(ink)[:3]) > 240
+    page.click("#layers input[data-layer='0']")
+    page.check("#colour-by-pen")
+    shot(page, "layers")
+    page.uncheck("#colour-by-pen")
+    # plot one layer: only its commands reach the PLC, with no pen change
+    page.select_option("#send-layers", "1")
+    page.select_option("#target", "simulator")
+    page.select_option("#send-speed", "")
+    page.click("#send")
+    page.wait_for_selector("#send-status[data-state=done]", timeout=60_000)
+    from doodlecam.link.plc.packetfile import read_plc_array
+
+    session = server["app"].state.session
+    n = len(read_plc_array(session.export("plc", [layers[1]["name"]])[1])[1])
+    assert page.text_content("#send-status").startswith(f"done: {n} commands in ") and n < summary_commands(server)

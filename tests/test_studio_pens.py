@@ -14,7 +14,7 @@ import pytest
 
 from doodlecam.link.plc.protocol import Fault
 
-from test_studio_api import UPLOAD, make_client, wait_state  # tests/ is on sys.path
+from test_studio_api import UPLOAD, make_client, one_line, wait_state  # tests/ is on sys.path
 from test_studio_grbl import control as answer
 
 
@@ -95,3 +95,27 @@ def test_simulation_takes_the_planned_time(studio):
     summary = studio.get("/api/state").json()["summary"]
     tl = studio.get("/api/timeline").json()
     assert abs(tl["duration"] - summary["job_time_s"]) < 1e-3 * summary["job_time_s"]
+
+
+def test_layers_in_the_view_and_plotting_one_layer(studio):
+    """The layers panel's data (each layer's pen, colour, strokes) and 'plot one layer': only its strokes are
+    exported and sent, with no pen change, read back from the PLC and G-code files."""
+    from doodlecam.link.plc.packetfile import read_plc_array
+
+    view = studio.get("/api/view").json()
+    layers = view["layers"]
+    assert len(layers) == 3 and sum(l["strokes"] for l in layers) == len(view["strokes"])
+    assert [l["name"] for l in layers] == list(dict.fromkeys(s["layer"] for s in view["strokes"]))
+    assert all(l["pen_name"] and l["colour"] for l in layers)
+    session = studio.app.state.session
+    one = layers[1]
+    gcode = session.export("gcode", [one["name"]])[1].decode()
+    _, records = read_plc_array(session.export("plc", [one["name"]])[1])
+    assert "M0" not in gcode and not np.any(records["type"] == 2)  # one pen: no pen change inside
+    _, every = read_plc_array(session.export("plc")[1])
+    assert 0 < np.sum(records["type"] == 0) < np.sum(every["type"] == 0)  # that layer's drawing, not the others'
+    assert "no layer 'nope'" in one_line(studio.post("/api/send", json={"target": "simulator", "layers": ["nope"]}))
+    r = studio.post("/api/send", json={"target": "simulator", "layers": [one["name"]], "again": True})
+    assert r.status_code == 200 and r.json()["total"] == len(records)
+    s = wait(studio, lambda s: s["state"] not in ("sending", "stopping"))
+    assert s["state"] == "done" and s["executed"] == len(records), s

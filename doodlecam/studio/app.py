@@ -405,11 +405,12 @@ def create_app(session: Session, config: StudioConfig | None = None) -> FastAPI:
         grbl = target == studio_grbl.EMULATOR or target.startswith(studio_grbl.SERIAL_PREFIX)
 
         def start():
+            layers = doc.get("layers")  # plot one layer (or a few): only their strokes are sent
             if grbl:
-                _, data = session.export("gcode")
+                _, data = session.export("gcode", layers)
                 return sender.start_grbl(data, session.machine, target, doc.get("speed"),
                                          restart=doc.get("restart") is True, plugin_dirs=session.settings.plugin_dirs)
-            _, data = session.export("plc")
+            _, data = session.export("plc", layers)
             return sender.start(data, session.machine, target, doc.get("speed"), again=doc.get("again") is True,
                                 restart=doc.get("restart") is True)
 

@@ -161,10 +161,7 @@ class Session:
         for i, st, sa in zip(idx, planned, smp):
             strokes[i], samples[i] = st, sa
         m = self.machine
-        points = [np.asarray(m.home, float)]
-        for st in strokes:
-            points += [st.spline.start, st.spline.end]
-        points.append(np.asarray(m.home, float))
+        points = self._travel_points(strokes)
         old = self._require()
         # a travel whose ends did not move is kept: an edit re-plans one or two of them, not all
         kept: dict[tuple, list] = {}
@@ -194,6 +191,32 @@ class Session:
                 "max_fit_error_mm": max((st.fit_error for st in strokes), default=0.0),
                 "travel_time_by_law": by_law, "edited": True}
         return replace(old, strokes=tuple(strokes), samples=tuple(samples), travels=travels, meta=meta)
+
+    def _travel_points(self, strokes) -> list[np.ndarray]:
+        """Each travel's start and end: home, the strokes' ends and starts in order, home."""
+        points = [np.asarray(self.machine.home, float)]
+        for st in strokes:
+            points += [st.spline.start, st.spline.end]
+        points.append(np.asarray(self.machine.home, float))
+        return points
+
+    def only_layers(self, job: Job, layers: Any) -> Job:
+        """The job with only ``layers`` (names), its strokes in the same order and travels between them:
+        what 'plot one layer' sends and exports."""
+        from doodlecam.plan.travel import make_travel, travel_time_by_law
+
+        if not isinstance(layers, list) or not layers or not all(isinstance(n, str) for n in layers):
+            raise InputError("layers must be a list of layer names, e.g. [\"red\"]")
+        unknown = sorted(set(layers) - set(job.layers))
+        if unknown:
+            raise InputError(f"the job has no layer '{unknown[0]}'; its layers: {', '.join(job.layers) or '(one, unnamed)'}")
+        keep = [i for i, st in enumerate(job.strokes) if st.layer in layers]
+        strokes = [job.strokes[i] for i in keep]
+        points = self._travel_points(strokes)
+        travels = tuple(make_travel(points[2 * i], points[2 * i + 1], self.machine) for i in range(len(strokes) + 1))
+        meta = {**job.meta, "travel_time_by_law": travel_time_by_law(travels, self.machine)}
+        return replace(job, strokes=tuple(strokes), samples=tuple(job.samples[i] for i in keep), travels=travels,
+                       meta=meta)
 
     def checks(self, stroke: Stroke, samples) -> tuple[float, float, np.ndarray]:
         """(acceleration, velocity) worst ratio to the limits, checked on the planner's fine grid,
@@ -334,7 +357,22 @@ class Session:
                                 "home": list(m.home), "vmax": max(m.x.max_velocity, m.y.max_velocity),
                                 "delta_time": m.delta_time, "pen_up_delay": m.pen.up_delay,
                                 "pen_down_delay": m.pen.down_delay},
-                    "strokes": strokes, "travels": self._view_travels(job), "summary": self.summary()}
+                    "strokes": strokes, "travels": self._view_travels(job), "summary": self.summary(),
+                    "layers": self._view_layers(job)}
+
+    def _view_layers(self, job: Job) -> list[dict]:
+        """The layers panel: each layer in plotting order with its pen (number, name, colour) and size."""
+        pens, m = job.layer_pens, self.machine
+        out = []
+        for name in job.layers:
+            k = pens[name]
+            pen = m.pens[k - 1] if 0 < k <= len(m.pens) else None
+            mine = [st for st in job.strokes if st.layer == name]
+            out.append({"name": name, "pen": k, "pen_name": m.describe_pen(k, f"pen {k}"),
+                        "colour": (pen.colour if pen is not None and pen.colour
+                                   else job.meta.get("layer_colours", {}).get(name, "")),
+                        "strokes": len(mine), "length_mm": round(sum(st.spline.length for st in mine), 1)})
+        return out
 
     def _view_stroke(self, n: int, st: Stroke, sa) -> dict:
         """One stroke of the view: executed positions every sample instant (mm), the speed there (mm/s),
@@ -346,7 +384,7 @@ class Session:
             entry = {"degree": st.spline.degree, "length": round(st.spline.length, 3),
                      "control": np.round(st.spline.control, 4).tolist(),
                      "points": np.round(pos, 3).tolist(), "speed": np.round(speed, 2).tolist(),
-                     "time": round(len(sa.velocity) * sa.delta_time, 4)}
+                     "time": round(len(sa.velocity) * sa.delta_time, 4), "layer": st.layer}
             hit = self._views[id(st)] = (st, sa, entry)
             if len(self._views) > 20000:  # strokes of old jobs and old edits: start again
                 self._views = {id(st): hit}
@@ -436,15 +474,17 @@ class Session:
 
     # ------------------------------------------------------------ export, save, load
 
-    def export(self, post: str) -> tuple[str, bytes]:
-        """(file name, bytes) of one post of the current job."""
-        (_, ext, data), = self.posts((post,))
+    def export(self, post: str, layers: Any = None) -> tuple[str, bytes]:
+        """(file name, bytes) of one post of the current job (of ``layers`` only, when given)."""
+        (_, ext, data), = self.posts((post,), layers)
         return Path(self.name).stem + ext, data
 
-    def posts(self, names: tuple[str, ...]) -> list[tuple[str, str, bytes]]:
+    def posts(self, names: tuple[str, ...], layers: Any = None) -> list[tuple[str, str, bytes]]:
         """[(post, extension, bytes)] of the current job, as ``pipeline.run_posts``."""
         with self.lock:
             job = self._require()
+            if layers is not None:
+                job = self.only_layers(job, layers)
             for post in names:
                 registry.get("postprocessor", post, self.settings.plugin_dirs)  # unknown post: one line
             return run_posts(job, replace(self.settings, posts=tuple(names)))

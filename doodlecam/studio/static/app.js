@@ -38,6 +38,7 @@ function showError(msg) { $("error").textContent = msg; $("error").hidden = fals
 
 const S = {
   view: null, // /api/view
+  hidden: new Set(), // layers the user hid on the paper
   selected: -1,
   drag: null, // {point, control}
   scale: 1, ox: 0, oy: 0, // screen = (x * scale + ox, -y * scale + oy)
@@ -88,8 +89,17 @@ function draw(target = ctx, withSelection = true) {
   g.stroke(); g.setLineDash([]);
   // pen-down strokes as executed, coloured by planned speed (one path per colour)
   const vmax = m.vmax, paths = Array.from({ length: COLORS }, () => new Path2D());
+  const byPen = $("colour-by-pen").checked, penPaths = new Map(); // colour -> one path per pen
   for (const s of S.view.strokes) {
     if (S.drag && s.i === S.selected) continue;
+    if (S.hidden.has(s.layer)) continue; // a layer the user hid
+    if (byPen) {
+      const colour = layerColour(s.layer);
+      if (!penPaths.has(colour)) penPaths.set(colour, new Path2D());
+      const path = penPaths.get(colour), p = s.points;
+      p.forEach((q, k) => k ? path.lineTo(sx(q[0]), sy(q[1])) : path.moveTo(sx(q[0]), sy(q[1])));
+      continue;
+    }
     const p = s.points, v = s.speed;
     for (let k = 1; k < p.length; k++) {
       const c = Math.min(COLORS - 1, Math.round((v[k] + v[k - 1]) / 2 / vmax * (COLORS - 1)));
@@ -98,6 +108,7 @@ function draw(target = ctx, withSelection = true) {
   }
   g.lineWidth = 1.6;
   paths.forEach((p, c) => { g.strokeStyle = speedColor(c); g.stroke(p); });
+  penPaths.forEach((p, colour) => { g.strokeStyle = colour; g.stroke(p); });
   if ($("show-order").checked) { // each stroke's number at its start: the order the pen draws them
     g.fillStyle = "#000"; g.font = "10px sans-serif";
     for (const s of S.view.strokes) g.fillText(String(s.i + 1), sx(s.points[0][0]) + 3, sy(s.points[0][1]) - 3);
@@ -113,7 +124,7 @@ function draw(target = ctx, withSelection = true) {
 
 function drawSelection(g) {
   const s = S.view && S.view.strokes[S.selected];
-  if (!s) return;
+  if (!s || S.hidden.has(s.layer)) return; // a hidden layer's stroke is not shown, selected or not
   const control = S.drag ? S.drag.control : s.control;
   const n = Math.max(200, control.length * 12);
   S.curve = evaluate(control, s.degree, n, S.curve && S.curve.length === 2 * n ? S.curve : null);
@@ -127,6 +138,38 @@ function drawSelection(g) {
   for (const p of control) g.fillRect(sx(p[0]) - 2, sy(p[1]) - 2, 4, 4);
   // the stroke order: its number at its start
   g.fillStyle = "#000"; g.font = "12px sans-serif"; g.fillText(String(s.i + 1), sx(control[0][0]) + 5, sy(control[0][1]) - 5);
+}
+
+// ------------------------------------------------------------------ layers
+
+const PEN_COLOURS = ["#1f4fd8", "#d81f3c", "#1b9e3a", "#8a2be2", "#e07000", "#008b8b"];
+function layerColour(name) {
+  const L = (S.view.layers || []).find((l) => l.name === name);
+  return (L && L.colour) || PEN_COLOURS[((L ? L.pen : 1) - 1) % PEN_COLOURS.length];
+}
+function layersPanel() {
+  const layers = S.view.layers || [];
+  $("layers").innerHTML = "<tr><th></th><th>layer</th><th>pen</th><th>strokes</th></tr>" + layers.map((l, k) =>
+    `<tr><td><input type="checkbox" data-layer="${k}" ${S.hidden.has(l.name) ? "" : "checked"} title="show"></td>` +
+    `<td><span class="swatch" style="background:${layerColour(l.name)}"></span> ${escapeHtml(l.name || "(unnamed)")}</td>` +
+    `<td>${escapeHtml(l.pen_name)}</td><td>${l.strokes}</td></tr>`).join("");
+  const sel = $("send-layers"), keep = sel.value;
+  sel.innerHTML = `<option value="">every layer</option>` +
+    layers.map((l, k) => `<option value="${k}">layer ${escapeHtml(l.name || "(unnamed)")} only (${escapeHtml(l.pen_name)})</option>`).join("");
+  sel.value = [...sel.options].some((o) => o.value === keep) ? keep : "";
+}
+function escapeHtml(t) { return String(t).replace(/[&<>"']/g, (c) => ({ "&": "&amp;", "<": "&lt;", ">": "&gt;", '"': "&quot;", "'": "&#39;" })[c]); }
+$("layers").addEventListener("change", (e) => {
+  const k = e.target.dataset.layer;
+  if (k === undefined) return;
+  const name = S.view.layers[Number(k)].name;
+  if (e.target.checked) S.hidden.delete(name); else S.hidden.add(name);
+  S.base = null; draw();
+});
+$("colour-by-pen").addEventListener("change", () => { S.base = null; draw(); });
+function sendLayers() {
+  const k = $("send-layers").value;
+  return k === "" ? undefined : [S.view.layers[Number(k)].name];
 }
 
 function legend() {
@@ -157,6 +200,7 @@ async function refresh() {
   $("machine").textContent = `machine ${S.view.machine.name} · ${S.view.summary.file}`;
   summary(S.view.summary);
   legend();
+  layersPanel();
   if (S.selected >= S.view.strokes.length) S.selected = -1;
   if (S.timeline) { // a new or changed job: the simulation starts over on it
     S.timeline = null; S.sim.playing = false; S.sim.t = 0; $("scrub").value = 0; $("sim-time").textContent = "";
@@ -501,6 +545,7 @@ $("target").onchange = () => {
   const t = $("target").value;
   $("target-host").hidden = t !== "host"; $("target-serial").hidden = t !== "serial";
   $("machine-panel").hidden = !GRBL_TARGETS.includes(t);
+  $("send-speed-label").hidden = t === "host" || t === "serial"; // a real machine runs at its own speed
 };
 
 const ACTIVE = ["sending", "pausing", "paused", "held", "stopping", "waiting"];
@@ -539,14 +584,15 @@ function follow() {
   es.onerror = () => es.close();
 }
 $("send").onclick = async () => {
-  const speed = $("send-speed").value ? Number($("send-speed").value) : null;
-  showSend(await api("/api/send", { method: "POST", json: { target: sendTarget(), speed, again: sendAgain } }));
+  const real = ["host", "serial"].includes($("target").value); // a real machine: no simulated speed
+  const speed = !real && $("send-speed").value ? Number($("send-speed").value) : null;
+  showSend(await api("/api/send", { method: "POST", json: { target: sendTarget(), speed, again: sendAgain, layers: sendLayers() } }));
   follow();
 };
 $("pen-modal-continue").onclick = async () => { showSend(await api("/api/send/control", { method: "POST", json: { action: "continue" } })); };
 $("pen-modal-stop").onclick = async () => { showSend(await api("/api/send/control", { method: "POST", json: { action: "stop" } })); };
 $("start-over").onclick = async () => {
-  showSend(await api("/api/send", { method: "POST", json: { target: sendTarget(), restart: true } }));
+  showSend(await api("/api/send", { method: "POST", json: { target: sendTarget(), restart: true, layers: sendLayers() } }));
   follow();
 };
 $("abandon").onclick = async () => {
