@@ -333,6 +333,19 @@ class Result:
     timings: dict[str, float]
     drawing_meta: dict[str, Any] = field(default_factory=dict)  # the laid-out drawing's meta (tracer, scale, drops)
 
+    def grbl_estimate(self) -> float | None:
+        """GRBL's time for the G-code written (the header's planner-model figure), None without G-code."""
+        from doodlecam.link.grbl.timing import header_estimate
+
+        for p in self.outputs:
+            if Path(p).suffix.lower() in (".gcode", ".nc", ".ngc", ".gc"):
+                try:
+                    with open(p, encoding="ascii", errors="replace") as f:
+                        return header_estimate(f.read(4000))
+                except OSError:
+                    return None
+        return None
+
     def summary(self) -> dict[str, Any]:
         j = self.job
         d = self.drawing_meta
@@ -368,6 +381,7 @@ class Result:
             "travel_law": j.meta.get("travel_law", ""),
             "travel_time_by_law_s": {k: round(v, 3) for k, v in j.meta.get("travel_time_by_law", {}).items()},
             "outputs": [str(p) for p in self.outputs],
+            "grbl_estimate_s": self.grbl_estimate(),
             "timings_s": {k: round(v, 3) for k, v in self.timings.items()},
             "layers": [n for n in j.layers if n] or [],
             "pen_changes": len(j.pen_changes),

@@ -50,6 +50,9 @@ def convert(input, outdir, as_json, **options):
         click.echo(f"  travel law         {s['travel_law']}: {by_law.get(s['travel_law'], 0):.1f} s pen-up; smooth laws cost "
                    + ", ".join(f"{k} {v - base:+.1f} s" for k, v in by_law.items() if k != "trapezoid"))
     click.echo(f"  planned job time   {s['job_time_s']:.1f} s  (drawing {s['draw_time_s']:.1f} s, {s['samples']} velocity samples)")
+    if s.get("grbl_estimate_s") is not None:
+        click.echo(f"  GRBL's time        {s['grbl_estimate_s']:.1f} s for the G-code (GRBL 1.1's planner: its "
+                   "junctions, look-ahead and step-rounded targets)")
     click.echo(f"  limits             acceleration <= {s['worst_acceleration_ratio']:.6f}, velocity <= "
                f"{s['worst_velocity_ratio']:.6f} of the limit (checked on a 20x finer grid)")
     if s.get("worst_ramp_ratio") is not None:  # nonlinear kinematics: the cranks along the sampled ramps

@@ -228,16 +228,18 @@ def _gcode_plan(job: Path):
     import numpy as np
 
     from doodlecam.errors import InputError
-    from doodlecam.link.grbl.protocol import line_durations, prepare
+    from doodlecam.link.grbl.protocol import prepare
+    from doodlecam.link.grbl.timing import time_left
 
     try:
-        lines = prepare(job.read_text("ascii"), str(job))
+        text = job.read_text("ascii")
+        lines = prepare(text, str(job))
     except UnicodeDecodeError:
         raise InputError(f"{job}: not an ASCII G-code file; GRBL reads ASCII only") from None
     except OSError as e:
         raise InputError(f"{job}: cannot read ({e.strerror}); check the path") from None
-    d = np.asarray(line_durations(lines))
-    left = np.concatenate([[d.sum()], d.sum() - np.cumsum(d)]) if len(d) else np.zeros(1)
+    # GRBL's own time (the header's planner-model estimate), not length / feed
+    left = time_left(text, lines) if lines else np.zeros(1)
     return len(lines), lambda k: float(left[min(max(k, 0), len(left) - 1)])
 
 

@@ -68,24 +68,6 @@ def check_serial_port(name: str) -> str:
     return str(p)
 
 
-def time_left(text: str, lines, machine) -> np.ndarray:
-    """Seconds left before each prepared line (index k: lines [0, k) done), GRBL's planner model in total.
-
-    ``link.grbl.timing`` models the whole program (accelerations, junctions,
-    look-ahead, pen synchronisations); each line gets that total's share of its
-    nominal time (``protocol.line_durations``), so the count down is GRBL's at
-    the start and reaches 0 with the last line.
-    """
-    from doodlecam.link.grbl.protocol import line_durations
-    from doodlecam.link.grbl.timing import GrblSettings, estimate_gcode
-
-    d = np.asarray(line_durations(lines), float)
-    total = estimate_gcode(text, GrblSettings.from_machine(machine), start=tuple(machine.home)).total
-    if d.sum() > 0:
-        d *= total / d.sum()
-    return np.concatenate([[d.sum()], d.sum() - np.cumsum(d)]).clip(min=0.0)
-
-
 def work_position(st) -> tuple[float, float] | None:
     """Work (x, y) in mm of a GRBL status report: WPos, else MPos - WCO (GRBL reports one of them)."""
     if st is None:

@@ -27,7 +27,8 @@ from pathlib import Path
 from typing import Any
 
 from doodlecam.errors import DoodleError, InputError
-from doodlecam.studio.grbl import GrblTargets, time_left, work_position
+from doodlecam.link.grbl.timing import time_left
+from doodlecam.studio.grbl import GrblTargets, work_position
 
 
 # States in which a send is under way (the event stream follows them); "waiting" is for a job that

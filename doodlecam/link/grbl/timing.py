@@ -118,6 +118,12 @@ def _axis_limit(values: np.ndarray, unit: np.ndarray) -> np.ndarray:
     return r.min(axis=1)
 
 
+def to_steps(mm: np.ndarray, steps_per_mm: np.ndarray) -> np.ndarray:
+    """Whole steps as GRBL's lround: to the nearest, halves away from zero."""
+    x = np.asarray(mm, float) * steps_per_mm
+    return np.sign(x) * np.floor(np.abs(x) + 0.5)
+
+
 def _segment_time(points: np.ndarray, feeds: np.ndarray, s: GrblSettings, rest: np.ndarray | None = None) -> np.ndarray:
     """Times (s) of the blocks points[k] -> points[k+1].
 
@@ -128,6 +134,11 @@ def _segment_time(points: np.ndarray, feeds: np.ndarray, s: GrblSettings, rest: 
     passes carry exactly (one call per run cost more than the model itself).
     Zero-length blocks (GRBL drops them) get time 0.
     """
+    # GRBL plans from targets rounded to whole steps (planner.c: lround(target * steps_per_mm), and the
+    # block's direction and length from the rounded deltas): on chords of a fraction of a millimetre a
+    # half step turns a junction by a degree or two, and GRBL slows there
+    spm = np.asarray(s.steps_per_mm, float)[:points.shape[1]]
+    points = to_steps(points, spm) / spm
     d = np.diff(points, axis=0)
     L = np.linalg.norm(d, axis=1)
     if rest is None:
@@ -339,3 +350,35 @@ def parse_gcode(text: str) -> list[tuple]:
 def estimate_gcode(text: str, settings: GrblSettings = GrblSettings(), start=(0.0, 0.0, 0.0)) -> Estimate:
     """Estimate GRBL 1.1's time for a G-code text."""
     return estimate_program(parse_gcode(text), settings, start)
+
+
+_HEADER_ESTIMATE = re.compile(r"^;\s*GRBL 1\.1 estimate ([0-9.]+) s", re.M)
+
+
+def header_estimate(text: str) -> float | None:
+    """The GRBL estimate (s) the G-code post wrote in a file's header, if it did."""
+    said = _HEADER_ESTIMATE.search(text[:4000])
+    return float(said.group(1)) if said else None
+
+
+def time_left(text: str, lines, machine=None) -> np.ndarray:
+    """Seconds left before each prepared line (index k: lines [0, k) done), GRBL's planner model in total.
+
+    The total is this module's model of the whole program (accelerations, junctions, look-ahead, pen
+    synchronisations, step-rounded targets): the figure the G-code post wrote in the header, else the
+    model run here with ``machine``'s settings. Each line gets that total's share of its nominal time
+    (``protocol.line_durations``), so the count down is GRBL's at the start and reaches 0 with the last line.
+    """
+    from doodlecam.link.grbl.protocol import line_durations
+
+    d = np.asarray(line_durations(lines), float)
+    said = header_estimate(text)
+    if said is not None:
+        total = said
+    elif machine is not None:
+        total = estimate_gcode(text, GrblSettings.from_machine(machine), start=tuple(machine.home)).total
+    else:
+        total = float(d.sum())
+    if d.sum() > 0:
+        d *= total / d.sum()
+    return np.concatenate([[d.sum()], d.sum() - np.cumsum(d)]).clip(min=0.0)

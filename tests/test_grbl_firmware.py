@@ -1,0 +1,62 @@
+"""The GRBL time model against GRBL 1.1h's own firmware code: ``../shared/grbl-fw`` (gnea/grbl's planner and
+stepper in a load-independent simulator) is built with gcc and runs G-code; its job time is the reference.
+
+GRBL plans from targets rounded to whole steps (planner.c), so on chords of a fraction of a millimetre a half
+step turns a junction by a degree or two and the firmware slows there; the model rounds as GRBL does."""
+
+from __future__ import annotations
+
+import shutil
+import subprocess
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from doodlecam.link.grbl import timing
+
+FW = Path(__file__).resolve().parents[2] / "shared" / "grbl-fw"
+# the simulator's EEPROM (its README): $100..$102=80, $110..$112=9000 mm/min, $120..$122=2000 mm/s^2, $11=0.010, $1=25
+SETTINGS = timing.GrblSettings((150.0, 150.0, 150.0), (2000.0, 2000.0, 2000.0), 0.01, steps_per_mm=(80.0, 80.0, 80.0))
+
+
+@pytest.fixture(scope="module")
+def firmware(tmp_path_factory):
+    if not (FW / "build.sh").is_file() or shutil.which("gcc") is None:
+        pytest.skip("GRBL's firmware simulator (../shared/grbl-fw) or gcc is not here")
+    out = tmp_path_factory.mktemp("grblfw")
+    r = subprocess.run(["bash", str(FW / "build.sh"), str(out)], capture_output=True, text=True, timeout=300)
+    if not (out / "grbl_lock").is_file():
+        pytest.skip(f"the firmware simulator did not build: {r.stderr[-300:]}")
+
+    def run(gcode: str) -> float:
+        run_dir = Path(tmp_path_factory.mktemp("run"))
+        shutil.copy(FW / "eeprom-doodlebot" / "EEPROM.DAT", run_dir / "EEPROM.DAT")
+        p = subprocess.run([str(out / "grbl_lock"), "-s", "trace.txt"], input=gcode, cwd=run_dir,
+                           capture_output=True, text=True, timeout=600)
+        end = p.stderr.strip().splitlines()[-1]
+        fields = dict(kv.split("=", 1) for kv in end.split()[1:] if "=" in kv)
+        assert fields["error"] == "0" and fields["alarm"] == "0", end
+        return float(fields["job_s"])
+
+    return run
+
+
+def wiggle(chord: float, turn_deg: float, n: int, seed: int) -> np.ndarray:
+    """A stroke of n chords of ``chord`` mm turning by +-turn_deg at random: a traced curve's G-code."""
+    rng = np.random.default_rng(seed)
+    heading = np.cumsum(rng.choice([-1.0, 1.0], n) * np.radians(turn_deg) * rng.uniform(0.5, 1.0, n))
+    steps = chord * np.column_stack([np.cos(heading), np.sin(heading)])
+    return 20.0 + np.cumsum(np.vstack([[0.0, 0.0], steps]), axis=0)
+
+
+@pytest.mark.parametrize("chord, turn", [(0.3, 0.05), (0.3, 1.0), (0.5, 2.0), (0.8, 4.0)])
+def test_the_estimate_is_within_one_percent_of_the_firmware_on_short_chords(firmware, chord, turn):
+    p = wiggle(chord, turn, 1500, seed=int(chord * 10))
+    p = p - p.min(axis=0) + 5.0
+    lines = ["G21 G90", f"G0 X{p[0, 0]:.3f} Y{p[0, 1]:.3f}", "G1 F6000"] + [f"X{x:.3f} Y{y:.3f}" for x, y in p[1:]]
+    gcode = "\n".join(lines + ["M2", ""])
+    fw = firmware(gcode)
+    model = timing.estimate_gcode(gcode, SETTINGS).total
+    assert abs(model / fw - 1) <= 0.01, (model, fw)
+
