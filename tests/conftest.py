@@ -18,6 +18,8 @@ settings.load_profile(os.environ.get("HYPOTHESIS_PROFILE", "default"))
 # The user's own machine profiles (platformdirs honours $XDG_CONFIG_HOME) must not
 # change what the tests see; subprocesses inherit this too.
 os.environ["XDG_CONFIG_HOME"] = tempfile.mkdtemp(prefix="doodlecam-test-config-")
+# ... and the simulators' non-volatile memory (the PLC simulator keeps one per port there by default)
+os.environ["XDG_STATE_HOME"] = tempfile.mkdtemp(prefix="doodlecam-test-state-")
 
 PROFILE = {
     "machine": {"name": "testbot", "kinematics": "cartesian"},

@@ -438,6 +438,41 @@ def test_cli_sim_plc_with_impairments_and_recorded_trajectory(tmp_path):
     np.testing.assert_allclose(cmd_rows[:, 3:5], pos, atol=1e-3)
 
 
+def test_a_restarted_simulator_never_runs_a_finished_job_again(tmp_path):
+    """Its non-volatile memory is kept by default (one per port in the user's state folder): a finished job sent
+    again after a restart is refused, as a real PLC's retentive ended-job table does."""
+    data = synth_job(n_strokes=2, samples=30, seed=11)
+    job = tmp_path / "again.plc"
+    job.write_bytes(data)
+    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
+        s.bind(("127.0.0.1", 0))
+        port = s.getsockname()[1]
+    env = dict(ENV, XDG_STATE_HOME=str(tmp_path / "state"))
+
+    def start():
+        sim = subprocess.Popen([sys.executable, "-m", "doodlecam", "sim", "plc", "--port", str(port)],
+                               stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=env, cwd=ROOT)
+        assert f":{port}" in sim.stdout.readline()
+        return sim
+
+    def send():
+        return subprocess.run([sys.executable, "-m", "doodlecam", "send", str(job), "--udp", f"127.0.0.1:{port}",
+                               "--no-progress"], capture_output=True, text=True, env=env, cwd=ROOT, timeout=60)
+
+    for round_ in range(2):
+        sim = start()
+        try:
+            r = send()
+            if round_ == 0:
+                assert r.returncode == 0, r.stderr
+            else:  # restarted: it remembers
+                assert r.returncode != 0 and "already finished" in r.stderr, r.stderr
+        finally:
+            sim.send_signal(signal.SIGTERM)
+            sim.communicate(timeout=10)
+    assert list((tmp_path / "state" / "doodlecam" / "plc-simulator").glob(f"*-{port}.json"))
+
+
 def test_wrong_job_type_and_bad_target_are_one_line_errors(tmp_path):
     g = tmp_path / "a.gcode"
     g.write_text("G0 X1\n")

@@ -303,12 +303,15 @@ def sim():
 @click.option("--no-boundaries", is_flag=True, help="Do not check commands against the work area (limit switches still trip).")
 @click.option("--record", type=click.Path(path_type=Path), help="Write the executed trajectory to this CSV at exit.")
 @click.option("--state-file", type=click.Path(path_type=Path),
-              help="The PLC's non-volatile memory (ended jobs, current job); kept across restarts.")
+              help="The PLC's non-volatile memory (ended jobs, current job); kept across restarts. Default: one per "
+                   "port in the user's state folder, so a restarted simulator never runs a finished job again.")
+@click.option("--no-state", is_flag=True, help="Forget everything at exit (a fresh PLC each start; finished jobs can "
+              "run again after a restart).")
 @click.option("--key", help="Pre-shared key: accept only HMAC-authenticated datagrams (default: the profile's "
               "[transport.udp] key, if any).")
 @click.option("--quiet", is_flag=True, help="Do not log state changes.")
 def sim_plc(host, port, machine, buffer_size, realtime, speed, loss, dup, reorder, corrupt, delay, jitter, seed, rto,
-            no_boundaries, record, state_file, key, quiet):
+            no_boundaries, record, state_file, no_state, key, quiet):
     """Simulate the DoodleBot PLC on UDP (Governor, command buffer, limit switches)."""
     import math
 
@@ -324,6 +327,14 @@ def sim_plc(host, port, machine, buffer_size, realtime, speed, loss, dup, reorde
     except ValueError as e:
         raise click.BadParameter(str(e)) from None
     profile = load_machine(machine)
+    if state_file is not None and no_state:
+        raise click.UsageError("give --state-file or --no-state, not both")
+    if state_file is None and not no_state and port != 0:
+        # a real PLC's command counter and ended-job table are retentive: so is the simulator's, by default
+        from platformdirs import user_state_dir
+
+        state_file = Path(user_state_dir("doodlecam", appauthor=False)) / "plc-simulator" / f"{host}-{port}.json"
+        state_file.parent.mkdir(parents=True, exist_ok=True)
     key = key if key is not None else profile.plugin_options.get("transport.udp", {}).get("key", "")
     cfg = PlcConfig.from_machine(profile, host=host, port=port, buffer_size=buffer_size, rto=rto,
                                  speed=1.0 if realtime else (speed or math.inf), soft_limits=not no_boundaries,
@@ -341,6 +352,8 @@ def sim_plc(host, port, machine, buffer_size, realtime, speed, loss, dup, reorde
     mode = "real time" if realtime else (f"{speed:g}x real time" if speed else "simulated time")
     click.echo(f"PLC simulator on {plc.address[0]}:{plc.address[1]} ({mode}, buffer {buffer_size}, machine "
                f"{machine}{', HMAC key' if cfg.key else ''}); Ctrl-C stops", err=False)
+    click.echo(f"  non-volatile memory: {state_file}" if state_file else
+               "  no non-volatile memory (--no-state or --port 0): a restart forgets finished jobs", err=True)
     sys.stdout.flush()
     _stop_on_sigterm()
     try:
