@@ -289,14 +289,14 @@ def test_send_command_prompts_the_operator(written, machine, tmp_path):
     prof.write_text(PROFILE)
     try:
         r = subprocess.run([sys.executable, "-m", "doodlecam", "send", str(files[".plc"]), "--udp",
-                            f"127.0.0.1:{sim.address[1]}", "--no-progress", "-m", str(prof)],
+                            f"127.0.0.1:{sim.address[1]}", "--no-progress", "-m", str(prof), "--no-auth"],
                            input="\n\n", capture_output=True, text=True, cwd=ROOT, timeout=120)
         assert r.returncode == 0, r.stderr
         assert "change to pen 2 'brush' (#d01010), then press Enter" in r.stderr
         assert "change to pen 1 'fineliner' (black), then press Enter" in r.stderr
         # no answer (standard input closed): stops at the pause with a one-line message, resumable
         r = subprocess.run([sys.executable, "-m", "doodlecam", "send", str(files[".plc"]), "--udp",
-                            f"127.0.0.1:{sim.address[1]}", "--no-progress", "--again"],
+                            f"127.0.0.1:{sim.address[1]}", "--no-progress", "--again", "--no-auth"],
                            input="", capture_output=True, text=True, cwd=ROOT, timeout=120)
         assert r.returncode == 130 and "nobody answered the pen change" in r.stderr and "Traceback" not in r.stderr
     finally:

@@ -217,7 +217,8 @@ def test_killed_sender_resumes_without_repeating_a_command(sim_factory, tmp_path
     job = tmp_path / "kill.plc"
     job.write_bytes(data)
     sim = sim_factory(speed=50.0, starve_timeout=0.3, buffer_size=128)
-    cmd = [sys.executable, "-m", "doodlecam", "send", str(job), "--udp", f"127.0.0.1:{sim.address[1]}", "--no-progress"]
+    cmd = [sys.executable, "-m", "doodlecam", "send", str(job), "--udp", f"127.0.0.1:{sim.address[1]}", "--no-progress",
+           "--no-auth"]  # an in-process PLC without a key
     p = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, env=ENV, cwd=ROOT)
     try:
         wait_for(lambda: len(sim.executed_log) >= 700, 30, "the job to get going")
@@ -247,7 +248,8 @@ def test_ctrl_c_pauses_at_the_end_of_a_stroke_and_resumes(sim_factory, tmp_path)
     job.write_bytes(data)
     header, arr = read_plc_array(data)
     sim = sim_factory(speed=20.0)
-    cmd = [sys.executable, "-m", "doodlecam", "send", str(job), "--udp", f"127.0.0.1:{sim.address[1]}", "--no-progress"]
+    cmd = [sys.executable, "-m", "doodlecam", "send", str(job), "--udp", f"127.0.0.1:{sim.address[1]}", "--no-progress",
+           "--no-auth"]  # an in-process PLC without a key
     p = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=ENV, cwd=ROOT)
     try:
         wait_for(lambda: len(sim.executed_log) >= 100, 30, "the job to get going")
@@ -536,3 +538,47 @@ def test_a_starving_job_stops_inside_the_work_area_at_every_edge(sim_factory, di
         tr = sim.trajectory()
         assert tr["x"].min() >= 0 and tr["x"].max() <= sim.cfg.width, (brake, starve_at)
         assert tr["y"].min() >= 0 and tr["y"].max() <= sim.cfg.height, (brake, starve_at)
+
+
+def test_the_plc_link_is_authenticated_by_default(tmp_path):
+    """`sim plc` and `send --udp` share the machine's key (created on first use in the config folder): a
+    stranger without it moves nothing; a key too short to be a secret is refused; --no-auth is said loudly."""
+    data = synth_job(n_strokes=2, samples=30, seed=12)
+    job = tmp_path / "auth.plc"
+    job.write_bytes(data)
+    env = dict(ENV, XDG_CONFIG_HOME=str(tmp_path / "config"), XDG_STATE_HOME=str(tmp_path / "state"))
+
+    def start(*extra):
+        sim = subprocess.Popen([sys.executable, "-m", "doodlecam", "sim", "plc", "--port", "0", *extra],
+                               stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=env, cwd=ROOT)
+        first = sim.stdout.readline()
+        return sim, int(first.split(" on ")[1].split()[0].rsplit(":", 1)[1])
+
+    def stop(sim):
+        sim.send_signal(signal.SIGTERM)
+        return sim.communicate(timeout=10)[1]
+
+    sim, port = start()
+    try:
+        key_file = tmp_path / "config" / "doodlecam" / "keys" / "doodlebot.key"
+        assert key_file.is_file() and (key_file.stat().st_mode & 0o077) == 0 and len(key_file.read_text().strip()) >= 32
+        # a stranger on the network without the key: nothing runs
+        with pytest.raises(LinkError):
+            bounded(lambda: UdpSender("127.0.0.1", port, data, timeout=1.0).run())
+        r = subprocess.run([sys.executable, "-m", "doodlecam", "send", str(job), "--udp", f"127.0.0.1:{port}",
+                            "--no-progress"], capture_output=True, text=True, env=env, cwd=ROOT, timeout=60)
+        assert r.returncode == 0, r.stderr  # the same computer's send has the machine's key
+    finally:
+        err = stop(sim)
+    assert f"HMAC key created in {key_file}" in err
+    for bad in (["--key", "short"], ["--key-file", str(tmp_path / "nope.key")], ["--key", "x" * 20, "--no-auth"]):
+        r = subprocess.run([sys.executable, "-m", "doodlecam", "sim", "plc", "--port", "0", *bad],
+                           capture_output=True, text=True, env=env, cwd=ROOT, timeout=30)
+        assert r.returncode == 2 and len(r.stderr.strip().splitlines()) == 1 and "Traceback" not in r.stderr, (bad, r.stderr)
+    sim, port = start("--no-auth")
+    try:
+        r = UdpSender("127.0.0.1", port, data, timeout=5.0)
+        assert bounded(r.run).commands == len(read_plc_array(data)[1])
+    finally:
+        err = stop(sim)
+    assert "WARNING: no authentication" in err

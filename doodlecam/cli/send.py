@@ -85,8 +85,12 @@ class _Progress:
 @click.option("--timeout", type=float, help="Seconds without an answer before giving up (default 5).")
 @click.option("--transport-opt", multiple=True, metavar="KEY=VALUE", help="Transport plugin option (repeatable).")
 @click.option("--no-progress", is_flag=True, help="No progress bar.")
+@click.option("--key-file", type=click.Path(path_type=Path), help="PLC: read the pre-shared key from this file "
+              "(default: the machine's key file, created on first use; see 'doodlecam sim plc').")
+@click.option("--no-auth", is_flag=True, help="PLC: send without authentication (only to a PLC started with --no-auth "
+              "on a trusted bench).")
 def send(job, udp, serial_port, baud, check, restart, cancel, again, machine, from_line, timeout, transport_opt,
-         no_progress):
+         no_progress, key_file, no_auth):
     """Send JOB to a machine: a .plc file to the PLC (--udp), G-code to GRBL (--serial).
 
     \b
@@ -140,6 +144,12 @@ def send(job, udp, serial_port, baud, check, restart, cancel, again, machine, fr
         profile_opts = profile.plugin_options.get(f"transport.{kind}", {})
     options = cls.resolve_options(profile_opts, cli_opts)
     transport = cls()
+    if kind == "udp":  # authenticated by default: the machine's key (docs/protocol.md 1.9)
+        secret, said = plc_key(profile.name if profile is not None else "doodlebot", None, options.get("key") or None,
+                               key_file, no_auth)
+        options = {**options, "key": secret.decode() if secret else ""}
+        if no_auth:
+            click.echo(said, err=True)
 
     if kind == "udp":
         total, left = _plc_plan(job)
@@ -285,6 +295,32 @@ def sim():
     """Machine simulators, to try 'send' without hardware."""
 
 
+def plc_key(machine: str, profile, key: str | None, key_file: Path | None, no_auth: bool) -> tuple[bytes | None, str]:
+    """The PLC link's key for ``sim plc`` and ``send --udp`` (docs/protocol.md 1.9), and a line saying where it is
+    from: --key, --key-file, the profile's [transport.udp] key, else the machine's key file (created on first use)."""
+    from doodlecam.errors import InputError
+    from doodlecam.link.plc.keys import checked, machine_key, read_key
+
+    given = [n for n, v in (("--key", key), ("--key-file", key_file)) if v]
+    if no_auth and given:
+        raise InputError(f"give {given[0]} or --no-auth, not both")
+    if len(given) > 1:
+        raise InputError("give --key or --key-file, not both")
+    if no_auth:
+        return None, ("WARNING: no authentication (--no-auth): anyone who can reach this port can send the machine "
+                      "commands; use it on a trusted bench only")
+    if key_file is not None:
+        return read_key(key_file), f"HMAC key from {key_file}"
+    if key:
+        return checked(key, "--key"), "HMAC key from --key (it shows in the process list: prefer --key-file)"
+    profile_key = profile.plugin_options.get("transport.udp", {}).get("key", "") if profile is not None else ""
+    if profile_key:
+        return checked(str(profile_key), f"machine '{machine}' [transport.udp] key"), \
+            f"HMAC key from machine '{machine}' [transport.udp] key"
+    secret, path, new = machine_key(machine)
+    return secret, (f"HMAC key {'created in' if new else 'from'} {path} (pair a real PLC by giving it this file's text)")
+
+
 @sim.command("plc")
 @click.option("--host", default="127.0.0.1", show_default=True, help="Address to listen on.")
 @click.option("--port", type=int, default=5005, show_default=True, help="UDP port to listen on (0 = any).")
@@ -307,11 +343,14 @@ def sim():
                    "port in the user's state folder, so a restarted simulator never runs a finished job again.")
 @click.option("--no-state", is_flag=True, help="Forget everything at exit (a fresh PLC each start; finished jobs can "
               "run again after a restart).")
-@click.option("--key", help="Pre-shared key: accept only HMAC-authenticated datagrams (default: the profile's "
-              "[transport.udp] key, if any).")
+@click.option("--key", help="Pre-shared key (16+ characters): accept only HMAC-authenticated datagrams. Default: "
+              "the profile's [transport.udp] key, else the machine's key file (created on first use).")
+@click.option("--key-file", type=click.Path(path_type=Path), help="Read the pre-shared key from this file.")
+@click.option("--no-auth", is_flag=True, help="Accept datagrams without authentication (a trusted bench only: anyone "
+              "who can reach the port can then move the machine).")
 @click.option("--quiet", is_flag=True, help="Do not log state changes.")
 def sim_plc(host, port, machine, buffer_size, realtime, speed, loss, dup, reorder, corrupt, delay, jitter, seed, rto,
-            no_boundaries, record, state_file, no_state, key, quiet):
+            no_boundaries, record, state_file, no_state, key, key_file, no_auth, quiet):
     """Simulate the DoodleBot PLC on UDP (Governor, command buffer, limit switches)."""
     import math
 
@@ -335,10 +374,10 @@ def sim_plc(host, port, machine, buffer_size, realtime, speed, loss, dup, reorde
 
         state_file = Path(user_state_dir("doodlecam", appauthor=False)) / "plc-simulator" / f"{host}-{port}.json"
         state_file.parent.mkdir(parents=True, exist_ok=True)
-    key = key if key is not None else profile.plugin_options.get("transport.udp", {}).get("key", "")
+    secret, said = plc_key(profile.name, profile, key, key_file, no_auth)
     cfg = PlcConfig.from_machine(profile, host=host, port=port, buffer_size=buffer_size, rto=rto,
                                  speed=1.0 if realtime else (speed or math.inf), soft_limits=not no_boundaries,
-                                 impair=imp, key=str(key).encode() or None, state_file=state_file)
+                                 impair=imp, key=secret, state_file=state_file)
     t0 = time.monotonic()
 
     def log(msg: str) -> None:
@@ -352,6 +391,7 @@ def sim_plc(host, port, machine, buffer_size, realtime, speed, loss, dup, reorde
     mode = "real time" if realtime else (f"{speed:g}x real time" if speed else "simulated time")
     click.echo(f"PLC simulator on {plc.address[0]}:{plc.address[1]} ({mode}, buffer {buffer_size}, machine "
                f"{machine}{', HMAC key' if cfg.key else ''}); Ctrl-C stops", err=False)
+    click.echo(f"  {said}", err=True)
     click.echo(f"  non-volatile memory: {state_file}" if state_file else
                "  no non-volatile memory (--no-state or --port 0): a restart forgets finished jobs", err=True)
     sys.stdout.flush()
