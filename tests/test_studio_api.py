@@ -507,7 +507,10 @@ def test_one_send_at_a_time_and_a_resume_belongs_to_its_target(tmp_path):
         assert c.post("/api/send/stop", json={}).status_code == 200
         s = wait_state(c, lambda s: s["state"] not in ("sending", "stopping"))
         assert s["state"] == "stopped", s
-    other = PlcSimulator(PlcConfig.from_machine(c.app.state.session.machine, speed=math.inf)).start()
+    from doodlecam.link.plc.keys import profile_key
+
+    machine = c.app.state.session.machine  # a real PLC, paired with the machine's key (the studio sends with it)
+    other = PlcSimulator(PlcConfig.from_machine(machine, speed=math.inf, key=profile_key(machine)[0])).start()
     try:
         host, port = other.address
         assert c.post("/api/send", json={"target": f"{host}:{port}"}).status_code == 200

@@ -299,7 +299,7 @@ def plc_key(machine: str, profile, key: str | None, key_file: Path | None, no_au
     """The PLC link's key for ``sim plc`` and ``send --udp`` (docs/protocol.md 1.9), and a line saying where it is
     from: --key, --key-file, the profile's [transport.udp] key, else the machine's key file (created on first use)."""
     from doodlecam.errors import InputError
-    from doodlecam.link.plc.keys import checked, machine_key, read_key
+    from doodlecam.link.plc.keys import checked, machine_key, profile_key, read_key
 
     given = [n for n, v in (("--key", key), ("--key-file", key_file)) if v]
     if no_auth and given:
@@ -313,12 +313,10 @@ def plc_key(machine: str, profile, key: str | None, key_file: Path | None, no_au
         return read_key(key_file), f"HMAC key from {key_file}"
     if key:
         return checked(key, "--key"), "HMAC key from --key (it shows in the process list: prefer --key-file)"
-    profile_key = profile.plugin_options.get("transport.udp", {}).get("key", "") if profile is not None else ""
-    if profile_key:
-        return checked(str(profile_key), f"machine '{machine}' [transport.udp] key"), \
-            f"HMAC key from machine '{machine}' [transport.udp] key"
+    if profile is not None:
+        return profile_key(profile)
     secret, path, new = machine_key(machine)
-    return secret, (f"HMAC key {'created in' if new else 'from'} {path} (pair a real PLC by giving it this file's text)")
+    return secret, f"HMAC key {'created in' if new else 'from'} {path} (pair a real PLC by giving it this file's text)"
 
 
 @sim.command("plc")

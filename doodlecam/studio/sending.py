@@ -194,7 +194,12 @@ class Sender:
             self._update(executed=executed, total=total, position_mm=pos,
                          time_left_s=float(left[min(executed, len(left) - 1)]))
 
-        sender = UdpSender(host, port, plc_bytes, "studio.plc", progress=progress, again=again, restart=restart,
+        key = None
+        if sim is None:  # a real PLC: the machine's key, as 'doodlecam send --udp' uses (docs/protocol.md 1.9)
+            from doodlecam.link.plc.keys import profile_key
+
+            key = profile_key(machine)[0]
+        sender = UdpSender(host, port, plc_bytes, "studio.plc", progress=progress, again=again, restart=restart, key=key,
                            state_file=self.record_dir(target) / "send-record.json",
                            pen_change=self._pen_change(machine))
         header = sender.plc_header
@@ -383,9 +388,14 @@ class Sender:
                     if self._sim is None:
                         raise InputError("the PLC simulator holds no job; press Send")
                     host, port = self._sim.address
+                    key = None
                 else:
+                    from doodlecam.link.plc.keys import profile_key
+
                     host, port = parse_target(target, 5005)
-                victim = UdpSender(host, port, job, "studio.plc", state_file=self.record_dir(target) / "send-record.json").cancel()
+                    key = profile_key(machine)[0]
+                victim = UdpSender(host, port, job, "studio.plc", key=key,
+                                   state_file=self.record_dir(target) / "send-record.json").cancel()
                 msg = f"abandoned job {victim}: the next send starts at the first command" if victim else \
                     "the PLC holds no job; the next send starts at the first command"
             self._update(state="idle", message=msg, executed=0, line=0)

@@ -55,3 +55,14 @@ def machine_key(machine: str) -> tuple[bytes, Path, bool]:
     with os.fdopen(fd, "w", encoding="utf-8") as f:
         f.write(text + "\n")
     return text.encode(), path, True
+
+
+def profile_key(profile) -> tuple[bytes, str]:
+    """The key a machine profile's PLC link uses by default, and where it is from: the profile's
+    ``[transport.udp] key``, else the machine's key file (created on first use)."""
+    given = profile.plugin_options.get("transport.udp", {}).get("key", "")
+    if given:
+        return checked(str(given), f"machine '{profile.name}' [transport.udp] key"), \
+            f"HMAC key from machine '{profile.name}' [transport.udp] key"
+    secret, path, new = machine_key(profile.name)
+    return secret, f"HMAC key {'created in' if new else 'from'} {path} (pair a real PLC by giving it this file's text)"
