@@ -187,6 +187,26 @@ def test_replayed_datagrams_of_the_bound_session_are_dropped():
     b.close()
 
 
+def test_a_captured_header_replayed_from_another_port_never_moves_the_session():
+    """With a key: the job's HEADER, captured and sent again from another port of the same computer (a
+    sender restarting would draw a fresh session nonce; a capture cannot), leaves the session where it is, so
+    the legitimate sender keeps driving the job to its end with no underrun."""
+    job = synth_job(n_strokes=3, samples=200, seed=8)
+    b = Bench(job, key=b"k" * 32, buffer_size=16)
+    b.start()
+    b.pump(3)
+    header = b.sent[0]
+    session = b.sim.session
+    for port in (LEGIT[1] + 1, LEGIT[1] + 2, 1):
+        b.sim._handle(header, (LEGIT[0], port), b.now)
+        assert b.sim.session == session
+    assert b.sim.stats["replayed_headers"] == 3
+    b.finish()
+    assert b.sim.stats["underruns"] == 0
+    assert_drawn_as_planned(b.sim, job, b.job_id)
+    b.close()
+
+
 # ---------------------------------------------------------------- fuzzing
 
 INTERESTING_U32 = [0, 1, 2, 63, 64, 65, 2**16 - 1, 2**31 - 1, 2**31, 2**32 - 64, 2**32 - 2, 2**32 - 1]

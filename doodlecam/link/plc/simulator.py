@@ -115,6 +115,9 @@ class _Job:
         self.stop_mode: int | None = None
         self.starving_since: float | None = None
         self.filling_since: float | None = None
+        # the session nonces of the sender runs that have driven this job: a sender that restarts draws a
+        # fresh one, so a HEADER with a nonce already seen is a capture played back, never a re-attach
+        self.origins: set[int] = set()
         self.started = False
 
 
@@ -469,8 +472,12 @@ class PlcSimulator:
         h, job, held = m.header, self.job, self.held
         if job is not None:
             if m.job_id == job.id and (addr[0], h.token) == (self.owner, job.h.token):
-                if not mine:  # the job's PC restarted its sender: the new run drives the job
-                    self._bind(m, addr)
+                if not mine:
+                    if m.origin in job.origins:  # a captured header replayed (from another port): ignored
+                        self.stats["replayed_headers"] += 1
+                        return
+                    self._bind(m, addr)  # the job's PC restarted its sender: the new run drives the job
+                    job.origins.add(m.origin)
                     self.log(f"job {job.id}: sender re-attached from {addr[0]}:{addr[1]}")
                 self._send(Msg.STATUS, now)  # a duplicate of the header we run: idempotent
             else:
@@ -508,6 +515,7 @@ class PlcSimulator:
         self._bind(m, addr)
         self.owner = addr[0]
         self.job = _Job(m.job_id, h, self.cfg.buffer_size)
+        self.job.origins.add(m.origin)
         self.fault, self.fault_cmd = Fault.NONE, 0
         self.nv.progress(m.job_id, h.start_at - 1)
         self._nv_save()
