@@ -122,7 +122,7 @@ def test_design_tool_file_layers_and_warnings(tmp_path):
     d = VEC.trace(tmp_path / "design-tool.svg", {}) if write_corpus(tmp_path) else None
     assert set(d.layers) == {"Black", "Red"}
     assert d.meta["layer_colours"]["Red"] == "#ff0000"
-    assert d.meta["warnings"] == ["not drawn: 1 text (convert it to paths)"]
+    assert d.meta["warnings"] == ["not drawn: 1 text (convert text to paths)"]
 
 
 def test_bezier_length_against_fine_sampling(tmp_path):
@@ -222,7 +222,7 @@ def test_cli_prints_what_is_not_drawn(tmp_path):
     path.write_text(HEAD + '<circle cx="50" cy="50" r="20"/><text x="1" y="1">hi</text></svg>')
     res = CliRunner().invoke(cli, ["convert", str(path), "-o", str(tmp_path / "out"), "--post", "svg", "--scale", "1"])
     assert res.exit_code == 0, res.output
-    assert "not drawn: 1 text (convert it to paths)" in res.output
+    assert "not drawn: 1 text (convert text to paths)" in res.output
 
 
 def test_an_output_never_replaces_the_input(tmp_path, capsys):
@@ -302,3 +302,41 @@ def test_a_multi_layer_file_takes_no_longer_than_its_layers(tmp_path, machine):
     assert len(layered.strokes) == len(one.strokes) and len(layered.pen_changes) == 2 and not one.pen_changes
     assert layered.pen_down_length == pytest.approx(one.pen_down_length, rel=1e-9)
     assert layered.draw_time == pytest.approx(one.draw_time, rel=0.02)
+
+
+def rsvg_ink_boxes(path, px_per_mm: int = 10) -> tuple[float, float, float, float]:
+    """The ink's bounding box (mm, y down) as rsvg-convert (librsvg, a real renderer) draws the file."""
+    import subprocess
+
+    from PIL import Image
+
+    png = path.with_suffix(".png")
+    subprocess.run(["rsvg-convert", "--width", str(200 * px_per_mm), "--height", str(100 * px_per_mm),
+                    "--background-color", "white", "-o", str(png), str(path)], check=True, timeout=60)
+    ink = np.asarray(Image.open(png).convert("L")) < 128
+    rows, cols = np.flatnonzero(ink.any(axis=1)), np.flatnonzero(ink.any(axis=0))
+    return cols[0] / px_per_mm, rows[0] / px_per_mm, (cols[-1] + 1) / px_per_mm, (rows[-1] + 1) / px_per_mm
+
+
+@pytest.mark.skipif(__import__("shutil").which("rsvg-convert") is None, reason="rsvg-convert (librsvg2-bin) not installed")
+@pytest.mark.parametrize("par, size, want", [
+    ("", (40, 40), (54, 14, 86, 46)),  # xMidYMid meet: an 8-unit square in a 10-unit box, 40 mm viewport
+    ("xMinYMin meet", (80, 40), (54, 14, 86, 46)),  # a wide viewport: the box sits at its left
+    ("xMaxYMid meet", (80, 40), (94, 14, 126, 46)),  # ... at its right
+    ("none", (80, 40), (58, 14, 122, 46)),  # stretched
+])
+def test_symbols_are_drawn_as_a_real_renderer_draws_them(tmp_path, par, size, want):
+    """A <symbol viewBox> placed by <use x y width height> fills the use's viewport (its preserveAspectRatio);
+    a symbol outside <use> and a shape with no stroke and no fill draw nothing; checked against librsvg."""
+    body = (f'<symbol id="s" viewBox="0 0 10 10" {f"preserveAspectRatio={chr(34)}{par}{chr(34)}" if par else ""}>'
+            '<rect x="1" y="1" width="8" height="8" stroke="black" stroke-width="0.05" fill="none"/></symbol>'
+            '<rect x="5" y="60" width="10" height="10" fill="none" stroke="none"/>'
+            f'<use xlink:href="#s" x="50" y="10" width="{size[0]}" height="{size[1]}"/>')
+    path = tmp_path / "symbol.svg"
+    path.write_text(HEAD + body + "</svg>")
+    d = VEC.trace(path, {})
+    pts = np.vstack(d.polylines)
+    ours = (*pts.min(axis=0), *pts.max(axis=0))
+    np.testing.assert_allclose(ours, want, atol=1e-6)
+    np.testing.assert_allclose(rsvg_ink_boxes(path), want, atol=0.25)  # 0.1 mm pixels; the line is up to 0.4 mm wide
+    assert len(d.polylines) == 1  # the symbol where it stands and the invisible rectangle draw nothing
