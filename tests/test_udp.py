@@ -6,6 +6,7 @@ deadlines), so a broken link fails instead of hanging.
 
 import math
 import os
+import re
 import signal
 import socket
 import subprocess
@@ -371,6 +372,32 @@ def test_cancel_forgets_a_held_job(sim_factory, tmp_path):
     assert sim.held is not None
     assert bounded(UdpSender(*sim.address, data, state_file=tmp_path / "c.json", timeout=3.0).cancel) == held_id
     assert sim.held is None and sim.finished[held_id][0] == Fault.CANCELLED
+
+
+def test_a_send_cancelled_from_elsewhere_says_how_far_it_got(sim_factory, tmp_path):
+    """'doodlecam send --cancel' from a second terminal while the first sends: the first says the job was cancelled
+    after the command the PLC had run, not 'command 0'."""
+    import threading
+
+    data = synth_job(n_strokes=6, samples=200, seed=13)
+    sim = sim_factory(speed=20.0)
+    state = tmp_path / "c.json"
+    box = {}
+
+    def run():
+        try:
+            UdpSender(*sim.address, data, state_file=state, timeout=5.0).run()
+        except LinkError as e:
+            box["error"] = str(e)
+
+    t = threading.Thread(target=run, daemon=True)
+    t.start()
+    wait_for(lambda: len(sim.executed_log) >= 300, 30, "the job to get going")
+    bounded(UdpSender(*sim.address, data, state_file=state, timeout=3.0).cancel)
+    t.join(30)
+    ran = len(sim.executed_log)
+    m = re.search(r"cancelled on the PLC after command (\d+) of", box.get("error", ""))
+    assert m and 300 <= int(m.group(1)) <= ran, box
 
 
 # ---------------------------------------------------------------- errors a user sees

@@ -376,6 +376,11 @@ class UdpSender:
             if m.type == Msg.FAULT or s.fault != Fault.NONE:
                 self._save(force=True)
                 where = f" at ({s.x / self.plc_header.steps_per_mm_x:.1f}, {s.y / self.plc_header.steps_per_mm_y:.1f}) mm"
+                if s.fault == Fault.CANCELLED:  # not a fault of the machine: say how far the job got
+                    ran = max(self.executed, s.fault_command - 1)
+                    raise LinkError(f"the job was cancelled on the PLC after command {ran} of {self.n}{where} "
+                                    "('doodlecam send --cancel' from this computer); send it with --restart to draw "
+                                    "it from the beginning")
                 raise LinkError(f"PLC fault at command {s.fault_command} of {self.n}{where}: {P.FAULT_TEXT[Fault(s.fault)]}")
         return None
 

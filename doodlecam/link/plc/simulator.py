@@ -437,12 +437,12 @@ class PlcSimulator:
             self._halt(now)
             self._forget(job.id, Fault.CANCELLED)
             self.job = None
-            self.fault = Fault.CANCELLED
+            self.fault, self.fault_cmd = Fault.CANCELLED, job.executed + 1  # the first command that did not run
             self._enter(State.B_READY, now)
         elif held and m.job_id == held.id and (addr[0], m.token) == (held.owner, held.h.token):
             self._forget(held.id, Fault.CANCELLED)
             self.held = None
-            self.fault = Fault.CANCELLED
+            self.fault, self.fault_cmd = Fault.CANCELLED, held.next
         elif job or held:
             self._busy(m, addr, now)
             return
