@@ -189,6 +189,59 @@ def _svg_scan(path: Path) -> dict[str, int]:
     return counts
 
 
+_NUMERIC = {"d", "points", "x", "y", "width", "height", "cx", "cy", "r", "rx", "ry", "x1", "y1", "x2", "y2",
+            "transform", "viewBox"}
+_NUMBER = re.compile(r"[-+]?(?:\d+\.?\d*|\.\d+)(?:[eE][-+]?\d+)?")
+_NOT_A_NUMBER = re.compile(r"nan|inf", re.I)
+
+
+def _excerpt(text: str) -> str:
+    """A short, printable excerpt of file text for a message (never raw bytes)."""
+    return repr(text[:40] + ("..." if len(text) > 40 else ""))
+
+
+def _svg_check_numbers(path: Path) -> None:
+    """Refuse, with the element and its line, what a renderer would refuse or svgelements would quietly drop or
+    change: non-finite numbers (NaN, inf, 1e999) in geometry, negative sizes, a viewBox of zero size."""
+    import math
+    import xml.parsers.expat
+
+    parser = xml.parsers.expat.ParserCreate(namespace_separator=" ")
+    found: list[str] = []
+
+    def start(name, attrs):
+        if found:
+            return
+        tag = name.rpartition(" ")[2]
+        attrs = {k.rpartition(" ")[2]: v for k, v in attrs.items()}
+        what = f"line {parser.CurrentLineNumber}: <{tag}" + (f" id={attrs['id']!r}" if "id" in attrs else "") + ">"
+        for key in _NUMERIC & attrs.keys():
+            v = attrs[key]
+            if _NOT_A_NUMBER.search(v) or not all(math.isfinite(float(t)) for t in _NUMBER.findall(v)):
+                found.append(f"{what} has a number that is not finite in {key}={_excerpt(v)}; fix it in the file")
+                return
+        for key in ("width", "height", "r", "rx", "ry"):
+            m = _NUMBER.match(attrs.get(key, "").strip())
+            if m and float(m.group()) < 0:
+                found.append(f"{what} has a negative {key} ({_excerpt(attrs[key])}), which SVG does not allow; "
+                             "fix it in the file")
+                return
+        if tag == "svg" and "viewBox" in attrs:
+            box = [float(t) for t in _NUMBER.findall(attrs["viewBox"])]
+            if len(box) != 4 or box[2] <= 0 or box[3] <= 0:
+                found.append(f"{what} has a viewBox of no size ({_excerpt(attrs['viewBox'])}); give it a width and "
+                             "height above 0")
+
+    parser.StartElementHandler = start
+    try:
+        with open(path, "rb") as f:
+            parser.ParseFile(f)
+    except xml.parsers.expat.ExpatError:
+        return  # malformed files are refused by the scan, with its message
+    if found:
+        raise InputError(f"{path}: {found[0]}")
+
+
 def _colour(shape) -> str:
     for c in (shape.stroke, shape.fill):
         if c is not None and getattr(c, "value", None) is not None:
@@ -360,6 +413,7 @@ def _svg(path: Path, opt) -> Drawing:
     import svgelements as se
 
     not_drawn = _svg_scan(path)
+    _svg_check_numbers(path)
     try:
         rendered = _render_symbols(path)
         svg = se.SVG.parse(io.BytesIO(rendered) if rendered is not None else str(path), reify=True, ppi=96.0)

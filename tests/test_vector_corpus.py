@@ -340,3 +340,32 @@ def test_symbols_are_drawn_as_a_real_renderer_draws_them(tmp_path, par, size, wa
     np.testing.assert_allclose(ours, want, atol=1e-6)
     np.testing.assert_allclose(rsvg_ink_boxes(path), want, atol=0.25)  # 0.1 mm pixels; the line is up to 0.4 mm wide
     assert len(d.polylines) == 1  # the symbol where it stands and the invisible rectangle draw nothing
+
+
+@pytest.mark.parametrize("body, words", [
+    ('<path id="p" d="M 0 0 L 10 NaN" stroke="black"/>', "line 2: <path id='p'> has a number that is not finite in d="),
+    ('<path d="M 0 0 L 1e999 10" stroke="black"/>', "line 2: <path> has a number that is not finite"),
+    ('<circle cx="inf" cy="5" r="3" stroke="black"/>', "not finite in cx='inf'"),
+    ('<g transform="translate(NaN,0)"><path d="M0 0 L1 1" stroke="black"/></g>', "not finite in transform="),
+    ('<rect x="10" y="10" width="-5" height="5" stroke="black"/>', "negative width ('-5')"),
+    ('<circle cx="5" cy="5" r="-3" stroke="black"/>', "negative r"),
+])
+def test_bad_numbers_are_one_line_naming_the_element_and_nothing_is_written(tmp_path, capsys, body, words):
+    """svgelements drops a path with NaN quietly, turns 1e999 into NaN and inf into 0: each is refused first."""
+    from doodlecam.cli import main
+
+    path = tmp_path / "bad.svg"
+    path.write_text(HEAD + "\n" + body + '\n<path d="M 0 0 L 50 50" stroke="black"/></svg>')
+    out = tmp_path / "out"
+    assert main(["convert", str(path), "-o", str(out)]) == 2
+    err = capsys.readouterr().err
+    assert words in err and len(err.strip().splitlines()) == 1 and "Traceback" not in err, err
+    assert not out.exists()
+
+
+def test_a_viewbox_of_no_size_is_refused(tmp_path):
+    path = tmp_path / "zero.svg"
+    path.write_text('<svg xmlns="http://www.w3.org/2000/svg" width="10mm" height="10mm" viewBox="0 0 0 10">'
+                    '<path d="M0 0 L1 1" stroke="black"/></svg>')
+    with pytest.raises(InputError, match=r"line 1: <svg> has a viewBox of no size \('0 0 0 10'\)"):
+        VEC.trace(path, {})
