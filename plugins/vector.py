@@ -200,6 +200,12 @@ def _excerpt(text: str) -> str:
     return repr(text[:40] + ("..." if len(text) > 40 else ""))
 
 
+def _printable(text: str, n: int = 100) -> str:
+    """A parser's message for one line: whitespace runs as one space, control bytes escaped, at most n chars."""
+    text = " ".join(str(text).split())
+    return "".join(c if c.isprintable() else f"\\x{ord(c):02x}" for c in text)[:n]
+
+
 def _svg_check_numbers(path: Path) -> None:
     """Refuse, with the element and its line, what a renderer would refuse or svgelements would quietly drop or
     change: non-finite numbers (NaN, inf, 1e999) in geometry, negative sizes, a viewBox of zero size."""
@@ -418,7 +424,7 @@ def _svg(path: Path, opt) -> Drawing:
         rendered = _render_symbols(path)
         svg = se.SVG.parse(io.BytesIO(rendered) if rendered is not None else str(path), reify=True, ppi=96.0)
     except Exception as e:  # the parser raises anything on a malformed file
-        msg = " ".join(str(e).split())[:100] or type(e).__name__
+        msg = _printable(e) or type(e).__name__
         raise InputError(f"{path}: not a readable SVG file ({msg}); re-export it") from None
     mm = _mm_per_px(svg)
     vb = se.Matrix(getattr(svg, "viewbox_transform", "") or "")
@@ -492,8 +498,13 @@ def _dxf(path: Path, opt) -> Drawing:
     try:
         doc, _auditor = recover.readfile(str(path))
     except Exception as e:  # the loader raises anything on a malformed entity
-        msg = " ".join(str(e).split())[:100] or type(e).__name__
+        msg = _printable(e) or type(e).__name__
         raise InputError(f"{path}: not a readable DXF file ({msg}); re-export it") from None
+    with open(path, "rb") as f:  # a DXF ends with "0 / EOF": without it entities may be missing, unseen
+        f.seek(max(0, path.stat().st_size - 64))
+        if b"EOF" not in f.read():
+            raise InputError(f"{path}: the DXF file is cut short (it does not end with EOF), so drawing may be missing; "
+                             "re-export or copy it again")
     code = int(doc.header.get("$INSUNITS", 0) or 0)
     unit = _DXF_UNITS.get(code)
     mm = units.conversion_factor(code, units.MM) if code else 1.0
@@ -511,7 +522,10 @@ def _dxf(path: Path, opt) -> Drawing:
         except Exception:  # a degenerate or 3-D-only entity (mesh polyline, ...): counted, the rest draws
             skipped[kind] = skipped.get(kind, 0) + 1
             continue
-        if len(pts) >= 2 and np.isfinite(pts).all():
+        if not np.isfinite(pts).all():
+            raise InputError(f"{path}: {kind} (handle {e.dxf.get('handle', '?')}) on layer {layer!r} has coordinates "
+                             "that are not finite (NaN or infinite); fix it in the CAD program")
+        if len(pts) >= 2:
             by_layer.setdefault(layer, []).append(pts * mm)
     if not by_layer:
         found = ", ".join(sorted(skipped)) or "nothing"

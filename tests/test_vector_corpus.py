@@ -369,3 +369,25 @@ def test_a_viewbox_of_no_size_is_refused(tmp_path):
                     '<path d="M0 0 L1 1" stroke="black"/></svg>')
     with pytest.raises(InputError, match=r"line 1: <svg> has a viewBox of no size \('0 0 0 10'\)"):
         VEC.trace(path, {})
+
+
+def test_damaged_dxf_files_are_one_line_each(tmp_path):
+    """A NaN coordinate, a file cut short, garbage: each refused in one line that says what is wrong, never
+    echoing raw bytes of the file."""
+    import ezdxf
+
+    doc = ezdxf.new()
+    doc.modelspace().add_line((0, 0), (10, 10))
+    doc.modelspace().add_line((0, 0), (float("nan"), 5))
+    nan = tmp_path / "nan.dxf"
+    doc.saveas(nan)
+    cut = tmp_path / "cut.dxf"
+    text = nan.read_text()
+    cut.write_text(text[:len(text) // 2])
+    junk = tmp_path / "junk.dxf"
+    junk.write_bytes(b"\x00" * 80 + b"garbage\x01\x02" * 10)
+    for path, words in ((nan, "LINE (handle"), (cut, "cut short"), (junk, "not a readable DXF file")):
+        with pytest.raises(InputError) as e:
+            VEC.trace(path, {})
+        msg = str(e.value)
+        assert words in msg and "\n" not in msg and all(c.isprintable() for c in msg), msg
