@@ -193,9 +193,9 @@ def picture() -> None:
     for img in sorted((Path(__file__).resolve().parent.parent / "samples" / "images").glob("*.png")):
         d = fit_to_work_area(trace(img, Settings(machine=m)), m)
         plan_job(d, m)  # warm
-        job = min((plan_job(d, m) for _ in range(3)), key=lambda j: j.meta["timings"]["plan"] + j.meta["timings"]["sample"])
+        job = min((plan_job(d, m) for _ in range(3)), key=lambda j: j.meta["timings"]["plan"] + j.meta["timings"].get("sample", 0.0))
         t = job.meta["timings"]
-        print(f"| {img.name} | {len(job.strokes)} | {t['plan']:.3f} | {t['sample']:.3f} | {t['plan'] + t['sample']:.3f} | "
+        print(f"| {img.name} | {len(job.strokes)} | {t['plan']:.3f} | {t.get("sample", 0.0):.3f} | {t["plan"] + t.get("sample", 0.0):.3f} | "
               f"{job.meta['worst_acceleration_ratio']:.12f} | {job.meta['max_between_samples_mm']:.3f} | "
               f"{job.meta['strokes_replanned']} |")
 

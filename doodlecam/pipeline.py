@@ -35,6 +35,7 @@ class Settings(ConvertOptions):
     """The options of one conversion with the machine profile loaded."""
 
     machine: Machine
+    workers: int = 1  # processes planning the strokes (the job is the same with any number)
 
 
 def _guarded(what: str, fn, *args):
@@ -75,26 +76,24 @@ def trace(path: Path, settings: Settings) -> Drawing:
     return drawing
 
 
-REPLANS = 10  # at most this many re-plans of a stroke still off the curve between samples
-LOCAL_REPLANS = 3  # ... the first ones lower the jerk bound where it strays, the rest also everywhere
-GLOBAL_JERK_STEP = 0.7
-RAMP_REPLANS = 6  # ... and of one whose ramps pass a (nonlinear) actuator's limit
-RAMP_GAIN = 1.25  # the share of a limit drops by this times the excess measured on the ramps
-
-
 def plan_job(drawing: Drawing, machine: Machine, solver: str = "reach", plugin_dirs=(), order: dict | None = None,
-             smoothing: float | None = None, fitted: list[Stroke] | None = None) -> Job:
+             smoothing: float | None = None, fitted: list[Stroke] | None = None, workers: int = 1,
+             progress=None) -> Job:
     """Order, fit, plan and sample a drawing already in machine millimetres.
 
     ``order`` overrides the profile's [order] options (doodlecam.options.ORDER_DEFAULTS).
     ``fitted``: strokes already ordered and fitted (an edited job, e.g. from the
     studio): planned as given, without ordering or fitting ``drawing`` again.
+    ``workers``: processes that plan the strokes (doodlecam.plan.stroke; the job is the
+    same with any number). ``progress(stage, total)`` returns a function called with the
+    number of strokes done, or None.
     """
     from doodlecam.geometry.fit import fit_pieces
     from doodlecam.geometry.order import order_strokes
-    from doodlecam.plan.follow import JerkBound, jerk_limit, path_deviation, ramp_ratios
-    from doodlecam.plan.planner import check_profile, check_solver, plan_stroke
-    from doodlecam.plan.sample import sample_stroke, whole_step_limits, written_samples
+    from doodlecam.plan.follow import JerkBound, jerk_limit
+    from doodlecam.plan.planner import check_solver
+    from doodlecam.plan.sample import whole_step_limits
+    from doodlecam.plan.stroke import Context, plan_strokes
     from doodlecam.plan.travel import machine_law, make_travel, travel_time_by_law
     from doodlecam.options import order_options
 
@@ -142,84 +141,18 @@ def plan_job(drawing: Drawing, machine: Machine, solver: str = "reach", plugin_d
     # planned within what whole-step rounding leaves, so the samples (which keep
     # that, sample.whole_step_limits) need no extra periods to follow the plan
     by_pen = {k: (lim, whole_step_limits(lim, steps, machine.delta_time)) for k, lim in by_pen.items()}
-    stroke_limits = [by_pen[pen_of[s.layer]] for s in strokes]  # (limits, plan limits) per stroke
+    ctx = Context(delta_time=machine.delta_time, solver=solver, smoothing=smoothing, path_tolerance=path_tol,
+                  jerk=jerk, steps=steps, kinematics=kin, pens=by_pen)
+    t0 = time.perf_counter()
+    done = progress("planning", len(strokes)) if progress else None
+    outcomes = plan_strokes(ctx, strokes, [pen_of[s.layer] for s in strokes], workers, done)
+    timings["plan"] = time.perf_counter() - t0  # plan, sample and re-plan: one pass per stroke
+    planned = [o.stroke for o in outcomes]
+    samples = tuple(o.samples for o in outcomes)
+    worst_acc = max((o.ratios[0] for o in outcomes), default=0.0)
+    worst_vel = max((o.ratios[1] for o in outcomes), default=0.0)
+    between = max((float(o.deviation.max(initial=0.0)) for o in outcomes), default=0.0)
     nonlinear = kin.linear_map is None
-
-    # Nonlinear kinematics: the samples are pen motion, and the cranks follow its
-    # constant-acceleration periods with varying acceleration. The sampler keeps the
-    # cranks' velocity at the instants and their mean acceleration over each period
-    # within shares of the limits (sample._crank_rows); the variation inside a period
-    # comes on top. Where the executed ramps still pass a limit by e, the share drops
-    # by RAMP_GAIN e and the stroke is planned within the same shares: the variation
-    # is bounded by the kinematics' second derivatives times the motion, which only
-    # slows, so the new peak is at most share - RAMP_GAIN e + (1 + e - share) < 1.
-    scale = [(1.0, 1.0)] * len(strokes)  # per stroke: shares (velocity, acceleration) of the actuator limits
-    ramps = [0.0] * len(strokes)  # per stroke: worst actuator ratio along the sampled ramps (nonlinear)
-
-    def plan_one(n: int, s: Stroke, jerk_max, grid=None):
-        limits, plan_limits = stroke_limits[n - 1]
-        sv, sa = scale[n - 1]
-        lim = plan_limits if sv == sa == 1.0 else replace(plan_limits, vmax=plan_limits.vmax * sv,
-                                                          amax=plan_limits.amax * sa)
-        try:
-            prof = plan_stroke(s.spline, lim, solver=solver, smoothing=smoothing, jerk_max=jerk_max, grid=grid,
-                               jerk_period=machine.delta_time)
-        except PlanError as e:
-            raise PlanError(f"stroke {n} of {len(strokes)}: {e}") from None
-        return replace(s, profile=prof), check_profile(s.spline, prof, limits)
-
-    def sample(s: Stroke, n: int):
-        return sample_stroke(s, machine.delta_time, stroke_limits[n - 1][0], steps, follow=jerk is not None,
-                             crank_share=scale[n - 1] if nonlinear else None)
-
-    def sample_one(s: Stroke, n: int, jerk_max):
-        """Samples and the per-period path deviation of stroke n (planned as s);
-        for nonlinear kinematics re-plans it (into planned[n - 1]) until the
-        actuators keep their limits along the sampled ramps."""
-        smp = sample(s, n)
-        limits = stroke_limits[n - 1][0]
-        for attempt in range(RAMP_REPLANS + 1 if nonlinear else 0):
-            ra, rv = ramp_ratios(written_samples(smp, steps), kin, limits.vmax, limits.amax)
-            ramps[n - 1] = max(ra, rv)
-            if ra <= 1.0 and rv <= 1.0:
-                break
-            if attempt == RAMP_REPLANS:
-                raise PlanError(f"stroke {n} of {len(strokes)}: velocity samples every {machine.delta_time * 1000:g} ms "
-                                "cannot keep the actuators within their limits; use a shorter [sampling] delta_time")
-            sv, sa = scale[n - 1]
-            step = lambda e: 0.0 if e <= 0 else max(RAMP_GAIN * e, 1e-3)  # noqa: E731
-            scale[n - 1] = (max(sv - step(rv - 1.0), 0.1), max(sa - step(ra - 1.0), 0.1))
-            s, ratios[n - 1] = plan_one(n, strokes[n - 1], jerk_max, s.profile.u)
-            planned[n - 1] = s
-            smp = sample(s, n)
-        return smp, path_deviation(s.spline, written_samples(smp, steps))  # what the machine draws
-
-    t0 = time.perf_counter()
-    planned, ratios = map(list, zip(*(plan_one(n, s, jerk) for n, s in enumerate(strokes, 1)))) if strokes else ([], [])
-    timings["plan"] = time.perf_counter() - t0
-
-    t0 = time.perf_counter()
-    samples, devs = map(list, zip(*(sample_one(s, n, jerk) for n, s in enumerate(list(planned), 1)))) if planned else ([], [])
-    replanned = 0
-    for i in range(len(planned)):
-        bound = jerk
-        for attempt in range(REPLANS if jerk is not None else 0):  # still off: lower the bound where it strays
-            if devs[i].max(initial=0.0) <= path_tol:
-                break
-            bound = bound.tightened(samples[i], devs[i], path_tol)
-            if attempt >= LOCAL_REPLANS:
-                # the sampler solves for the whole stroke, so a long one can stray somewhere
-                # new after each local change; the swing grows with the jerk everywhere, so
-                # lowering the whole bound geometrically ends it
-                bound = replace(bound, base=bound.base * GLOBAL_JERK_STEP)
-            planned[i], ratios[i] = plan_one(i + 1, strokes[i], bound, planned[i].profile.u)
-            samples[i], devs[i] = sample_one(planned[i], i + 1, bound)
-            replanned += 1
-    samples = tuple(samples)
-    timings["sample"] = time.perf_counter() - t0
-    worst_acc = max((r[0] for r in ratios), default=0.0)
-    worst_vel = max((r[1] for r in ratios), default=0.0)
-    between = max((float(d.max(initial=0.0)) for d in devs), default=0.0)
 
     points = [np.asarray(machine.home, float)]
     for s in planned:
@@ -235,9 +168,10 @@ def plan_job(drawing: Drawing, machine: Machine, solver: str = "reach", plugin_d
         "max_fit_error_mm": max((s.fit_error for s in planned), default=0.0),
         "max_between_samples_mm": between,
         "path_tolerance_mm": path_tol,
-        "strokes_replanned": replanned,
-        "strokes_slowed_for_ramps": sum(1 for c in scale if min(c) < 1.0),
-        "worst_ramp_ratio": max(ramps, default=0.0) if nonlinear else None,
+        "strokes_replanned": sum(1 for o in outcomes if o.replans),
+        "strokes_slowed_for_ramps": sum(1 for o in outcomes if o.slowed_for_ramps),
+        "strokes_slowed_for_path": sum(1 for o in outcomes if o.slowed < 1.0),
+        "worst_ramp_ratio": max((o.ramp for o in outcomes), default=0.0) if nonlinear else None,
         "control_points": sum(len(s.spline.control) for s in planned),
         "layer_colours": dict(drawing.meta.get("layer_colours", {})),
         "timings": timings,
@@ -405,8 +339,7 @@ def convert(path: str | Path, outdir: str | Path, settings: Settings) -> Result:
     if settings.path_tolerance is not None:
         machine = replace(machine, path_tolerance=float(settings.path_tolerance))
     job = plan_job(drawing_mm, machine, settings.solver or settings.machine.solver, settings.plugin_dirs,
-                   smoothing=settings.smoothing,
-                   order=settings.order)
+                   smoothing=settings.smoothing, order=settings.order, workers=settings.workers)
     timings.update(job.meta["timings"])
     over = over_bounds(job)
     if over and not settings.allow_deviation:  # before any file is written

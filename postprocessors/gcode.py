@@ -40,6 +40,7 @@ import numpy as np
 
 from doodlecam.api import Option, PostProcessor
 from doodlecam.errors import OutputError, PluginError
+from doodlecam.geometry.chords import chord_ok, greedy_chords
 
 CAP_LEVELS = 5  # chord tolerances tried for feeds = cap: tol, tol/2, ... tol/16
 MAX_LINE = 79  # GRBL's line buffer is 80 bytes including the terminating NUL
@@ -101,18 +102,6 @@ def _refine(spline, u: np.ndarray, tol: float, max_rounds: int = 30) -> np.ndarr
     return u
 
 
-def _seg_dist2(q: np.ndarray, a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """Squared distance (mm²) of each point of q (n, 2) from the segment a-b (few NumPy calls: this is the hot loop)."""
-    d = b - a
-    dd = float(d @ d)
-    qa = q - a
-    s = qa @ d
-    if dd > 0:
-        s = np.minimum(np.maximum(s / dd, 0.0), 1.0)
-    r = qa - np.multiply.outer(s, d)
-    return np.einsum("ij,ij->i", r, r)
-
-
 def _furthest(ok, lo: int, n: int, step: int) -> int:
     """The largest j < n with ok(j), searching up from lo (ok) by doubling steps, then bisecting."""
     while lo + step < n and ok(lo + step):
@@ -129,32 +118,13 @@ def _furthest(ok, lo: int, n: int, step: int) -> int:
 
 
 def _chord_ok(q: np.ndarray, i: int, j: int, tol2: float) -> bool:
-    return j == i + 1 or bool(_seg_dist2(q[i + 1:j], q[i], q[j]).max() <= tol2)
+    return chord_ok(q, i, j, tol2)
 
 
 def _greedy_chords(q: np.ndarray, tol: float) -> np.ndarray:
-    """Indices of the vertices of the longest chords through q (n, 2) from q[0] to q[-1], each within ``tol``.
-
-    From each vertex the chord reaches as far along q as it can (a search over
-    the dense points that starts from the previous chord's reach, grows it
-    exponentially, then bisects), so the polyline has the fewest vertices
-    whenever a chord within the tolerance has every sub-chord within it too (the
-    case on pieces without an inflection).
-    """
-    n = len(q)
-    out = [0]
-    i = 0
-    tol2 = tol * tol
-    reach = 1
-    while i < n - 1:
-        guess = min(i + reach, n - 1)
-        if _chord_ok(q, i, guess, tol2):  # always for i + 1: no point between
-            lo = _furthest(lambda j: _chord_ok(q, i, j, tol2), guess, n, max(reach // 2, 1))
-        else:
-            lo = _furthest(lambda j: _chord_ok(q, i, j, tol2), i + 1, guess, 1)
-        out.append(lo)
-        reach, i = lo - i, lo
-    return np.asarray(out)
+    """Indices of the vertices of the longest chords through q (n, 2), each within ``tol`` (compiled:
+    doodlecam.geometry.chords)."""
+    return greedy_chords(np.ascontiguousarray(q, dtype=float), float(tol))
 
 
 MAX_ARC_RADIUS = 2000.0  # mm: flatter pieces are chords

@@ -175,7 +175,7 @@ def test_straight_strokes_get_the_exact_trapezoid():
     general solver on a fine grid, within every limit on the 20x finer check, and
     refusing what the general solver refuses."""
     from doodlecam.errors import PlanError
-    from doodlecam.plan.planner import _straight
+    from doodlecam.plan.planner import is_straight
 
     lim = Limits(np.array([150.0, 120.0]), np.array([2000.0, 1500.0]), np.eye(2), 200.0)
     rng = np.random.default_rng(0)
@@ -183,7 +183,7 @@ def test_straight_strokes_get_the_exact_trapezoid():
         p0, p1 = rng.random(2) * 200, rng.random(2) * 200
         p1 = p0 + (p1 - p0) * rng.choice([1.0, 0.01, 0.001])
         s = Spline(3, p0 + np.arange(4)[:, None] / 3 * (p1 - p0))
-        assert _straight(s, lim)
+        assert is_straight(s, lim)
         vs, ve = (0.0, 0.0) if k % 3 else (rng.random() * 30, rng.random() * 30)
         try:
             general = plan_stroke(s, lim, v_start=vs, v_end=ve, n_points=20001)
@@ -196,4 +196,4 @@ def test_straight_strokes_get_the_exact_trapezoid():
         ra, rv = check_profile(s, fast, lim)
         assert ra <= 1 + 1e-9 and rv <= 1 + 1e-9
         assert fast.duration <= general.duration * (1 + 1e-9)
-    assert not _straight(Spline(3, np.array([[0.0, 0], [1, 1], [2, 0], [3, 1]])), lim)
+    assert not is_straight(Spline(3, np.array([[0.0, 0], [1, 1], [2, 0], [3, 1]])), lim)

@@ -16,8 +16,11 @@ from doodlecam.cli.options import job_kwargs, job_options
 @click.option("-o", "--out", "outdir", type=click.Path(path_type=Path), default=Path("out"), show_default=True,
               help="Output folder (created if needed).")
 @click.option("--json", "as_json", is_flag=True, help="Print the summary as JSON.")
+@click.option("-w", "--workers", type=click.IntRange(min=1), default=None,
+              help="Processes planning the strokes of a large drawing (default: up to 2, the CPUs available); "
+              "the files are the same with any number.")
 @job_options
-def convert(input, outdir, as_json, **options):
+def convert(input, outdir, as_json, workers, **options):
     """Convert a picture into a machine job: PLC packet file, G-code and SVG preview."""
     from doodlecam.machine import load_machine
     from doodlecam.pipeline import Settings
@@ -27,7 +30,9 @@ def convert(input, outdir, as_json, **options):
     from doodlecam.cli.firstrun import first_run_notice
 
     kw = job_kwargs(**options)
-    settings = Settings(**{**kw, "machine": load_machine(kw["machine"])})
+    from doodlecam.plan.stroke import default_workers
+
+    settings = Settings(**{**kw, "machine": load_machine(kw["machine"])}, workers=workers or default_workers())
     check_input(input)
     check_settings(settings, settings.machine, [input], outdir)  # (convert checks again: cheap)
     first_run_notice()

@@ -299,7 +299,7 @@ def plan_stroke(spline: Spline, limits: Limits, solver: str = "reach", spacing: 
     b0 = (v_start / max(speed_ends[0], 1e-300)) ** 2
     bN = (v_end / max(speed_ends[1], 1e-300)) ** 2
     period = jerk_period if jerk_max else None
-    if solver == "reach" and mode == "bernstein" and grid is None and n_points is None and _straight(spline, limits):
+    if solver == "reach" and mode == "bernstein" and grid is None and n_points is None and is_straight(spline, limits):
         return _trapezoid(spline, limits, b0, bN)
     sp = constraints.spans(spline)  # the span polynomials, shared by the grid and every round's rows
     if grid is not None:
@@ -353,7 +353,7 @@ def plan_stroke(spline: Spline, limits: Limits, solver: str = "reach", spacing: 
     return Profile(u=u, b=b, a=a, t=t, solver=solver)
 
 
-def _straight(spline: Spline, limits: Limits) -> bool:
+def is_straight(spline: Spline, limits: Limits) -> bool:
     """A straight stroke at constant speed in u (q'' = 0: a fitted segment) on
     linear kinematics, whose optimum is a trapezoid."""
     if limits.M is None or spline.degree < 2:

@@ -1,0 +1,133 @@
+"""Generated drawings at scale (issue 29): the same files with any number of workers,
+the closed-form straight strokes against the QP they replace, the path tolerance
+always met, touching segments drawn as one stroke. Correctness, not time
+(benchmarks/bench_scale.py times it against vpype)."""
+
+from __future__ import annotations
+
+from dataclasses import replace
+
+import numpy as np
+import pytest
+
+from doodlecam.machine import load_machine
+from doodlecam.model import Drawing, Stroke
+from doodlecam.pipeline import Settings, convert, plan_job
+from doodlecam.plan import sample as sampling
+from doodlecam.plan import stroke as stroke_plan
+from doodlecam.plan.planner import Limits, plan_stroke
+from doodlecam.plan.sample import TRACKING_STEPS, sample_stroke, whole_step_limits
+from doodlecam.registry import kinematics_for
+from generated_art import generated_svg
+from test_executed import _check, executed_ratios
+
+
+def _convert(tmp_path, svg, workers, name):
+    out = tmp_path / name
+    res = convert(svg, out, Settings(machine=load_machine("doodlebot"), layout={"scale": 1.0}, workers=workers))
+    return res, {p.suffix: p.read_bytes() for p in map(type(out), res.outputs)}
+
+
+def test_two_workers_write_the_same_files_and_every_limit_holds(tmp_path):
+    svg = tmp_path / "art.svg"
+    svg.write_text(generated_svg(stroke_plan.PARALLEL_MIN + 300, "mixed", seed=7))
+    one, files_one = _convert(tmp_path, svg, 1, "one")
+    two, files_two = _convert(tmp_path, svg, 2, "two")
+    assert len(one.job.strokes) >= stroke_plan.PARALLEL_MIN  # the workers really ran
+    assert set(files_one) == {".plc", ".gcode", ".svg"}
+    for ext, data in files_one.items():
+        assert files_two[ext] == data, ext  # byte for byte
+    m = one.job.machine
+    r = executed_ratios(files_one[".plc"], one.job, m.path_tolerance)  # read back from the file's bytes
+    _check(r, m.path_tolerance)
+
+
+def _line(a, b, degree=3):
+    from doodlecam.geometry.fit import fit_pieces
+
+    (spline, _), = fit_pieces(np.array([a, b], float), degree, 0.1)
+    return spline
+
+
+@pytest.mark.parametrize("profile", ["doodlebot", "axidraw-v3"])
+def test_straight_strokes_in_closed_form_keep_every_limit_and_are_not_slower_than_the_qp(profile, monkeypatch):
+    m = load_machine(profile)
+    kin = kinematics_for(m)
+    lim = Limits.from_machine(m, kin)
+    k = np.array([m.x.steps_per_mm, m.y.steps_per_mm])
+    plan_lim = whole_step_limits(lim, k, m.delta_time)
+    low = whole_step_limits(lim, k, m.delta_time)
+    rng = np.random.default_rng(3)
+    M = np.asarray(lim.M, float)
+    fast_used = 0
+    for n in range(60):
+        a = rng.uniform(20, 150, 2)
+        length = [0.05, 0.3, 2.0, 10.0, 60.0, 200.0][n % 6]
+        ang = [0.0, np.pi / 2, np.pi / 4][n % 3] if n % 4 == 0 else rng.uniform(0, 2 * np.pi)
+        b = a + length * np.array([np.cos(ang), np.sin(ang)])
+        spline = _line(a, b)
+        stroke = Stroke(spline, plan_stroke(spline, plan_lim))
+        fast = sampling.straight_samples(stroke, m.delta_time, low, k, TRACKING_STEPS / k.max())
+        got = sample_stroke(stroke, m.delta_time, lim, k)
+        with monkeypatch.context() as mp:
+            mp.setattr(sampling, "straight_samples", lambda *a: None)
+            qp = sample_stroke(stroke, m.delta_time, lim, k)
+        if fast is None:
+            assert len(got.velocity) == len(qp.velocity)
+            continue
+        fast_used += 1
+        assert np.array_equal(got.velocity, fast.velocity)
+        assert len(fast.velocity) <= len(qp.velocity)  # the optimum: never more periods than the QP
+        v = np.vstack([[0.0, 0.0], fast.velocity]) @ M.T  # actuator velocities at the instants
+        assert (np.abs(v) <= lim.vmax * (1 + 1e-9)).all()
+        assert (np.abs(np.diff(v, axis=0)) / m.delta_time <= lim.amax * (1 + 1e-9)).all()
+        if lim.pen_speed:
+            assert (np.linalg.norm(fast.velocity, axis=1) <= lim.pen_speed * (1 + 1e-9)).all()
+        x = fast.integrate()
+        assert np.allclose(x[-1] * k, np.round(spline.end * k), atol=1e-6)  # lands on the end's whole step
+        assert np.allclose(x[0] * k, np.round(spline.start * k))
+        assert (np.abs(x - spline(fast.sample_u))[:-1] * k <= TRACKING_STEPS + 1e-9).all()
+        assert fast.velocity[-1].tolist() == [0.0, 0.0]
+    assert fast_used >= 30  # most lines take the closed form
+
+
+def test_a_curve_is_left_to_the_qp():
+    m = load_machine("doodlebot")
+    lim = Limits.from_machine(m, kinematics_for(m))
+    k = np.array([80.0, 80.0])
+    from doodlecam.geometry.fit import fit_pieces
+
+    t = np.linspace(0, np.pi, 40)
+    (spline, _), = fit_pieces(np.c_[50 + 20 * np.cos(t), 50 + 20 * np.sin(t)], 3, 0.1)
+    stroke = Stroke(spline, plan_stroke(spline, lim))
+    assert sampling.straight_samples(stroke, m.delta_time, lim, k, 0.005) is None
+
+
+def _walk(n=200, seed=1):
+    rng = np.random.default_rng(seed)
+    return np.clip(140 + np.cumsum(rng.normal(0, 2, (n, 2)), axis=0) * [1, 0.6], [5, 5], [275, 175])
+
+
+def test_slowing_a_stroke_always_ends_within_the_path_tolerance(monkeypatch):
+    """Without any jerk re-plan the slowing alone must bring a wandering stroke within the
+    tolerance (the default run never ends 'over the path tolerance')."""
+    m = replace(load_machine("doodlebot"), path_tolerance=0.02)
+    monkeypatch.setattr(stroke_plan, "REPLANS", 0)
+    job = plan_job(Drawing(polylines=(_walk(),), units="mm"), m)
+    assert job.meta["strokes_slowed_for_path"] >= 1  # the slowing did the work
+    assert job.meta["max_between_samples_mm"] <= 0.02 + 1e-9
+    from test_executed import _plc
+
+    r = executed_ratios(_plc(job), job, m.path_tolerance)
+    _check(r, m.path_tolerance)
+
+
+def test_touching_segments_are_drawn_as_one_stroke_with_their_exact_length(tmp_path):
+    svg = tmp_path / "grid.svg"
+    svg.write_text(generated_svg(800, "grid"))
+    res = convert(svg, tmp_path / "out", Settings(machine=load_machine("doodlebot"), layout={"scale": 1.0},
+                                                   posts=("plc",)))
+    s = res.summary()
+    assert s["pen_lifts"] <= 45  # 800 segments on 40 lines of the grid (pen lifts, not segments)
+    exact = 800 * min(270 / 20, 186 / 20)
+    assert abs(s["pen_down_mm"] - exact) <= 1e-3 * exact
