@@ -112,6 +112,15 @@ class Spline:
             out.append(c)
         return out
 
+    @cached_property
+    def straight(self) -> bool:
+        """A segment run at constant speed in u (q'' = 0, as a fitted line is): q(u) = start + u (end - start)."""
+        d = self.derivative_controls
+        if self.degree < 2:
+            return len(self.control) == 2
+        scale = float(np.abs(d[1][0]).max())
+        return scale > 1e-9 and float(np.abs(d[2]).max()) <= 1e-9 * scale
+
     def __call__(self, u, der: int = 0) -> np.ndarray:
         """q^(der)(u) for u in [0, 1]; shape (len(u), 2). Units mm / u^der."""
         from doodlecam.geometry.kernels import bspline_eval

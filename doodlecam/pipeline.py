@@ -308,6 +308,7 @@ class Result:
             "path_tolerance_mm": j.meta.get("path_tolerance_mm", 0.0),
             "strokes_replanned": j.meta.get("strokes_replanned", 0),
             "strokes_slowed_for_ramps": j.meta.get("strokes_slowed_for_ramps", 0),
+            "strokes_slowed_for_path": j.meta.get("strokes_slowed_for_path", 0),
             "worst_ramp_ratio": (None if j.meta.get("worst_ramp_ratio") is None
                                  else round(j.meta["worst_ramp_ratio"], 6)),
             "worst_acceleration_ratio": round(j.meta["worst_acceleration_ratio"], 9),

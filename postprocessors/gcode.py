@@ -40,7 +40,7 @@ import numpy as np
 
 from doodlecam.api import Option, PostProcessor
 from doodlecam.errors import OutputError, PluginError
-from doodlecam.geometry.chords import chord_ok, greedy_chords
+from doodlecam.geometry.chords import chord_ok, greedy_chords, one_step_apart
 
 CAP_LEVELS = 5  # chord tolerances tried for feeds = cap: tol, tol/2, ... tol/16
 MAX_LINE = 79  # GRBL's line buffer is 80 bytes including the terminating NUL
@@ -183,13 +183,7 @@ def _one_step_apart(p: np.ndarray, steps_per_mm: np.ndarray) -> np.ndarray:
     means anything); the last point is always kept, in place of the one before.
     """
     st = np.round(p * steps_per_mm).astype(np.int64)
-    keep = np.ones(len(p), bool)
-    last = st[0]
-    for k in range(1, len(p)):  # sequential: compares with the last point kept
-        if (st[k] == last).all():
-            keep[k] = False
-        else:
-            last = st[k]
+    keep = one_step_apart(st) if len(p) else np.ones(0, bool)  # compares with the last point kept
     if len(p) > 1 and not keep[-1]:
         j = np.flatnonzero(keep)[-1]
         if j > 0:
@@ -402,6 +396,10 @@ class GcodePost(PostProcessor):
             from doodlecam.link.grbl.timing import _segment_time
 
             feed = max(cap, min_feed)
+            if stroke.spline.straight:  # one chord (what the search below finds, without the search)
+                p = np.round(stroke.spline(np.array([0.0, 1.0])), 3)
+                p = p[_one_step_apart(p, spm)]
+                return p, np.full(len(p) - 1, feed), {}
             best, best_t = None, np.inf
             for u in self._cap_candidates(stroke, tol):  # coarse to fine
                 p = np.round(stroke.spline(u), 3)

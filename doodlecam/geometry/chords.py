@@ -68,3 +68,17 @@ def greedy_chords(q, tol):  # pragma: no cover - compiled
         reach = lo - i
         i = lo
     return out[:k]
+
+
+@numba.njit(cache=True, nogil=True)
+def one_step_apart(st):  # pragma: no cover - compiled
+    """Keep-mask of points (n, 2) in whole steps that differ from the last kept one (sequential)."""
+    n = st.shape[0]
+    keep = np.ones(n, np.bool_)
+    lx, ly = st[0, 0], st[0, 1]
+    for k in range(1, n):
+        if st[k, 0] == lx and st[k, 1] == ly:
+            keep[k] = False
+        else:
+            lx, ly = st[k, 0], st[k, 1]
+    return keep

@@ -356,10 +356,7 @@ def plan_stroke(spline: Spline, limits: Limits, solver: str = "reach", spacing: 
 def is_straight(spline: Spline, limits: Limits) -> bool:
     """A straight stroke at constant speed in u (q'' = 0: a fitted segment) on
     linear kinematics, whose optimum is a trapezoid."""
-    if limits.M is None or spline.degree < 2:
-        return False
-    d1 = spline.derivative_controls[1]
-    return bool(np.abs(d1[0]).max() > 1e-9 and np.abs(spline.derivative_controls[2]).max() <= 1e-9 * np.abs(d1[0]).max())
+    return limits.M is not None and spline.degree >= 2 and spline.straight
 
 
 def _trapezoid(spline: Spline, limits: Limits, b0: float, bN: float) -> Profile:
