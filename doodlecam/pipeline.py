@@ -124,9 +124,12 @@ def plan_job(drawing: Drawing, machine: Machine, solver: str = "reach", plugin_d
     t0 = time.perf_counter()
     strokes = [] if fitted is None else [Stroke(spline=s.spline, source_index=s.source_index, fit_error=s.fit_error,
                                                 layer=s.layer) for s in fitted]
+    # A tracer may ask for its strokes to be cut where they turn sharper than an angle (the
+    # vector tracer's corners, joined hatching's zig-zags): each piece is fitted on its own, so
+    # the corner is exactly where the drawing puts it and the pen stops there, pen down.
+    corner = float(drawing.meta.get("split_corners_deg", 0.0))
     for i, p, layer in ordered if fitted is None else ():
-        # a tracer may ask for its zig-zags to be cut at their corners first (joined hatching)
-        for spline, err in fit_pieces(p, machine.degree, machine.tolerance, corner=float(drawing.meta.get("split_corners_deg", 0.0))):
+        for spline, err in fit_pieces(p, machine.degree, machine.tolerance, corner=corner):
             strokes.append(Stroke(spline=spline, source_index=i, fit_error=err, layer=layer))
     timings["fit"] = time.perf_counter() - t0
 
@@ -239,11 +242,19 @@ def plan_job(drawing: Drawing, machine: Machine, solver: str = "reach", plugin_d
         "strokes_slowed_for_ramps": sum(1 for c in scale if min(c) < 1.0),
         "worst_ramp_ratio": max(ramps, default=0.0) if nonlinear else None,
         "control_points": sum(len(s.spline.control) for s in planned),
+        "corners_kept": corners_kept(planned),
         "layer_colours": dict(drawing.meta.get("layer_colours", {})),
         "timings": timings,
     }
     return Job(machine=machine, strokes=tuple(planned), travels=travels, samples=samples,
                source=drawing.source, meta=meta)
+
+
+def corners_kept(strokes) -> int:
+    """Corners kept exact: joins where one piece of a traced line ends and the next goes on from
+    that very point, the pen stopping there without lifting (fit_pieces' cuts)."""
+    return sum(1 for a, b in zip(strokes, strokes[1:]) if a.source_index == b.source_index >= 0
+               and a.layer == b.layer and np.array_equal(a.spline.end, b.spline.start))
 
 
 def pen_limits(machine: Machine, pen, kin):
@@ -369,6 +380,7 @@ class Result:
             "optimal_draw_time_s": round(sum(s.duration for s in j.strokes), 3),
             "samples": sum(len(s.velocity) for s in j.samples),
             "control_points": j.meta["control_points"],
+            "corners_kept": j.meta.get("corners_kept", 0),
             "max_fit_error_mm": round(j.meta["max_fit_error_mm"], 4),
             "max_between_samples_mm": round(j.meta.get("max_between_samples_mm", 0.0), 4),
             "path_tolerance_mm": j.meta.get("path_tolerance_mm", 0.0),

@@ -43,6 +43,8 @@ def convert(input, outdir, as_json, **options):
     click.echo(f"  strokes            {s['strokes']}  ({s['control_points']} control points, fit within {s['max_fit_error_mm']:.3f} mm; "
                f"{s['pen_lifts']} pen lift{'s' if s['pen_lifts'] != 1 else ''})")
     click.echo(f"  pen-down length    {s['pen_down_mm']:.1f} mm")
+    if s.get("corners_kept"):
+        click.echo(f"  corners kept       {s['corners_kept']}: exact, the pen stops on each without lifting")
     click.echo(f"  travel length      {s['travel_mm']:.1f} mm")
     by_law = s["travel_time_by_law_s"]
     if by_law:
