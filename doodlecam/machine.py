@@ -89,34 +89,49 @@ class Machine:
         return (min(self.travel_speed, self.x.max_velocity), min(self.travel_speed, self.y.max_velocity))
 
     def pen_assignment(self, layers, colours: dict[str, str] | None = None) -> dict[str, int]:
-        """Layer name -> pen number (1-based), for the layers in plotting order.
+        """Layer name -> pen number (1-based), for the layers in the order given (:meth:`assign_pens`)."""
+        return {name: k for name, (k, _) in self.assign_pens(layers, colours).items()}
+
+    def assign_pens(self, layers, colours: dict[str, str] | None = None) -> dict[str, tuple[int, str]]:
+        """Layer name -> (pen number (1-based), why that pen), for the layers in the order given.
 
         A pen takes the layers it lists (``layers = [...]``); then a layer goes to
         the pen of its name or colour; the rest take the unused pens in order
-        (again from the first once all are used). Without [[pen]] entries the
-        operator fits one pen per layer: the number is the layer's place.
+        (again from the first once all are used: shared). Without [[pen]] entries
+        the operator fits one pen per layer: the number is the layer's place.
         """
         layers = list(dict.fromkeys(layers))
         if not self.pens:
-            return {name: k for k, name in enumerate(layers, 1)}
+            return {name: (k, "one pen per layer (the profile has no [[pen]] list)") for k, name in enumerate(layers, 1)}
         colours = {k: _colour_key(v) for k, v in (colours or {}).items()}
-        out: dict[str, int] = {}
+        out: dict[str, tuple[int, str]] = {}
         for name in layers:
             key = name.lower()
             for k, p in enumerate(self.pens, 1):
                 if name in p.layers:
-                    out[name] = k
+                    out[name] = (k, "the pen lists this layer")
                     break
             else:
                 for k, p in enumerate(self.pens, 1):
-                    if key and key in (p.name.lower(), p.colour.lower()) or (
-                            p.colour and colours.get(name) == _colour_key(p.colour)):
-                        out[name] = k
+                    if key and key in (p.name.lower(), p.colour.lower()):
+                        out[name] = (k, "the pen's name" if key == p.name.lower() else "the pen's colour")
                         break
-        free = [k for k in range(1, len(self.pens) + 1) if k not in out.values()] or list(range(1, len(self.pens) + 1))
+                    if p.colour and colours.get(name) == _colour_key(p.colour):
+                        out[name] = (k, "the pen's colour")
+                        break
+        used = {k for k, _ in out.values()}
+        free = [k for k in range(1, len(self.pens) + 1) if k not in used]
         for i, name in enumerate(n for n in layers if n not in out):
-            out[name] = free[i % len(free)]
-        return {name: out[name] for name in layers}  # in plotting order
+            if free:
+                k = free[i % len(free)]
+                out[name] = (k, "no pen of its own: a spare pen" if i < len(free) else
+                             "no pen of its own: shares a spare pen")
+            else:  # every pen has a layer: share the pen nearest in colour (else take turns)
+                near = _nearest_colour(colours.get(name), [p.colour for p in self.pens])
+                k = near + 1 if near is not None else 1 + i % len(self.pens)
+                out[name] = (k, "no pen of its own: shares the pen nearest in colour" if near is not None
+                             else "no pen of its own: shares a pen (every pen has a layer)")
+        return {name: out[name] for name in layers}
 
     def pen_number(self, number: int) -> Pen:
         """The Pen of a pen number from :meth:`pen_assignment` (the [pen] table when there are no [[pen]]s)."""
@@ -128,6 +143,22 @@ class Machine:
         if number and (not self.pens or number <= len(self.pens)):
             return self.pen_number(number).describe(number)
         return otherwise
+
+
+def _nearest_colour(colour: str | None, choices: list[str]) -> int | None:
+    """Index of the colour in ``choices`` nearest to ``colour`` (sRGB distance), None when unknown."""
+    from svgelements import Color
+
+    def rgb(text):
+        try:
+            c = Color(str(text)) if text else None
+        except (ValueError, TypeError):
+            return None
+        return None if c is None or c.value is None else (c.red, c.green, c.blue)
+
+    want, have = rgb(colour), [rgb(c) for c in choices]
+    known = [(sum((a - b) ** 2 for a, b in zip(want, h)), k) for k, h in enumerate(have) if h] if want else []
+    return min(known)[1] if known else None
 
 
 def _colour_key(text: str) -> str:

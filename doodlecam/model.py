@@ -274,8 +274,12 @@ class Job:
 
     @property
     def layer_pens(self) -> dict[str, int]:
-        """Layer -> pen number (1-based): the machine's assignment of layers to its
-        [[pen]]s, or one pen per layer in plotting order."""
+        """Layer -> pen number (1-based), in plotting order: as planned (``meta["layer_pens"]``, chosen
+        in the drawing's order of layers), else the machine's assignment of layers to its [[pen]]s,
+        else one pen per layer."""
+        planned = self.meta.get("layer_pens") or {}
+        if all(n in planned for n in self.layers):
+            return {n: int(planned[n]) for n in self.layers}
         assign = getattr(self.machine, "pen_assignment", None)
         return (assign(self.layers, self.meta.get("layer_colours")) if assign
                 else {n: k for k, n in enumerate(self.layers, 1)})
@@ -292,6 +296,14 @@ class Job:
         changes, at a layer boundary (the job pauses there, pen up, for the operator)."""
         p = self.pen_numbers
         return tuple(i for i in range(1, len(p)) if p[i] != p[i - 1])
+
+    @property
+    def pen_pauses(self) -> tuple[int, ...]:
+        """Indices i of the strokes before which the job pauses, pen up, for the operator to fit
+        a pen: every pen change, and before the first stroke when the machine has more than one
+        [[pen]] (nobody knows which one is in the holder). Posts and links pause here."""
+        first = (0,) if self.strokes and len(getattr(self.machine, "pens", ())) > 1 else ()
+        return first + self.pen_changes
 
     @property
     def lifts(self) -> tuple[bool, ...]:

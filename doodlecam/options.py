@@ -56,7 +56,9 @@ ORDER_DEFAULTS: dict[str, Any] = {
     "budget": None,  # s: an optional clock cap on improving the order (0 = greedy only); None = no clock,
     # so the same input gives the same order on any machine under any load
     "moves": 200.0,  # improving moves (2-opt / Or-opt / kicks' repairs) per stroke at most: the deterministic cap
+    "layers": "pen",  # "pen": layers grouped by pen, so each pen is fitted once; "file": the drawing's order
 }
+LAYER_ORDERS = ("pen", "file")
 
 
 _LENGTH = re.compile(r"\s*([-+]?(?:\d+\.?\d*|\.\d+)(?:[eE][-+]?\d+)?)\s*([a-zA-Z]*)\s*")
@@ -173,6 +175,11 @@ def order_options(raw: dict[str, Any] | None, where: str = "order", error: type[
             if not isinstance(value, bool):
                 raise error(f"{where} reverse must be true or false, got {value!r}")
             out[key] = value
+        elif key == "layers":
+            if str(value).strip().lower() not in LAYER_ORDERS:
+                raise error(f"{where} layers must be 'pen' (each pen fitted once) or 'file' (the drawing's order), "
+                            f"got {value!r}")
+            out[key] = str(value).strip().lower()
         else:
             out[key] = _number(value, f"{where} {key}", error, strict=False)
     return out

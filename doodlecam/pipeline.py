@@ -98,6 +98,7 @@ def plan_job(drawing: Drawing, machine: Machine, solver: str = "reach", plugin_d
     from doodlecam.options import order_options
 
     check_solver(solver)  # before the fitting, not after it
+    colours = drawing.meta.get("layer_colours")
     smoothing = machine.smoothing if smoothing is None else smoothing
     kin = registry.kinematics_for(machine, plugin_dirs)
     kin.check_reachable(np.concatenate(drawing.polylines))
@@ -106,11 +107,14 @@ def plan_job(drawing: Drawing, machine: Machine, solver: str = "reach", plugin_d
     t0 = time.perf_counter()
     if fitted is None:
         oo = order_options({**machine.order, **(order or {})})
-        # One layer after another (a pen each, in the drawing's order); strokes ordered within it.
+        # One layer after another, strokes ordered within each; layers grouped by pen (each pen
+        # fitted once) unless [order] layers = "file" keeps the drawing's order.
         names = drawing.layers or ("",) * len(drawing.polylines)
+        pens = machine.assign_pens(names, colours)  # in the drawing's order, so the choice never depends on ours
+        plotted = sorted(pens, key=lambda n: pens[n][0]) if oo["layers"] == "pen" else list(pens)  # stable
         ordered = []  # (source index, polyline, layer)
         here = np.asarray(machine.home, float)
-        for layer in dict.fromkeys(names):
+        for layer in plotted:
             mine = [i for i, n in enumerate(names) if n == layer]
             # each layer starts where the previous one ended (the pen is changed there)
             o = order_strokes([drawing.polylines[i] for i in mine], here, allow_reverse=oo["reverse"],
@@ -123,9 +127,14 @@ def plan_job(drawing: Drawing, machine: Machine, solver: str = "reach", plugin_d
     t0 = time.perf_counter()
     strokes = [] if fitted is None else [Stroke(spline=s.spline, source_index=s.source_index, fit_error=s.fit_error,
                                                 layer=s.layer) for s in fitted]
+    if fitted is not None:  # an edited job keeps its order of layers
+        pens = machine.assign_pens([*drawing.layers, *(s.layer for s in strokes)], colours)
+    # A tracer may ask for its strokes to be cut where they turn sharper than an angle (the
+    # vector tracer's corners, joined hatching's zig-zags): each piece is fitted on its own, so
+    # the corner is exactly where the drawing puts it and the pen stops there, pen down.
+    corner = float(drawing.meta.get("split_corners_deg", 0.0))
     for i, p, layer in ordered if fitted is None else ():
-        # a tracer may ask for its zig-zags to be cut at their corners first (joined hatching)
-        for spline, err in fit_pieces(p, machine.degree, machine.tolerance, corner=float(drawing.meta.get("split_corners_deg", 0.0))):
+        for spline, err in fit_pieces(p, machine.degree, machine.tolerance, corner=corner):
             strokes.append(Stroke(spline=spline, source_index=i, fit_error=err, layer=layer))
     timings["fit"] = time.perf_counter() - t0
 
@@ -136,7 +145,7 @@ def plan_job(drawing: Drawing, machine: Machine, solver: str = "reach", plugin_d
     jerk = JerkBound(jerk_limit(path_tol, machine.delta_time)) if path_tol > 0 else None
     steps = (machine.x.steps_per_mm, machine.y.steps_per_mm)
     # Each layer is drawn with its pen, which may cap speed and acceleration below the machine's.
-    pen_of = machine.pen_assignment([s.layer for s in strokes], drawing.meta.get("layer_colours"))
+    pen_of = {name: k for name, (k, _) in pens.items()}
     by_pen = {k: pen_limits(machine, machine.pen_number(k), kin) for k in sorted(set(pen_of.values()))}
     # planned within what whole-step rounding leaves, so the samples (which keep
     # that, sample.whole_step_limits) need no extra periods to follow the plan
@@ -173,11 +182,22 @@ def plan_job(drawing: Drawing, machine: Machine, solver: str = "reach", plugin_d
         "strokes_slowed_for_path": sum(1 for o in outcomes if o.slowed < 1.0),
         "worst_ramp_ratio": max((o.ramp for o in outcomes), default=0.0) if nonlinear else None,
         "control_points": sum(len(s.spline.control) for s in planned),
-        "layer_colours": dict(drawing.meta.get("layer_colours", {})),
+        "corners_kept": corners_kept(planned),
+        "layer_colours": dict(colours or {}),
+        "layer_pens": {s.layer: pen_of[s.layer] for s in planned},  # in plotting order
+        "pen_reasons": {n: pens[n][1] for n in dict.fromkeys(s.layer for s in planned)},
+        "layer_order": oo["layers"] if fitted is None else "file",
         "timings": timings,
     }
     return Job(machine=machine, strokes=tuple(planned), travels=travels, samples=samples,
                source=drawing.source, meta=meta)
+
+
+def corners_kept(strokes) -> int:
+    """Corners kept exact: joins where one piece of a traced line ends and the next goes on from
+    that very point, the pen stopping there without lifting (fit_pieces' cuts)."""
+    return sum(1 for a, b in zip(strokes, strokes[1:]) if a.source_index == b.source_index >= 0
+               and a.layer == b.layer and np.array_equal(a.spline.end, b.spline.start))
 
 
 def pen_limits(machine: Machine, pen, kin):
@@ -248,6 +268,11 @@ def over_bounds(job: Job) -> list[str]:
 def warnings_for(job: Job, drawing_meta: dict[str, Any]) -> list[str]:
     """What the user should know about a finished job, one sentence each."""
     out = list(drawing_meta.get("warnings", ()))  # the tracer's: what it could not draw
+    spare = [c for c in pen_choice(job) if c["why"].startswith("no pen of its own")]
+    if spare:
+        named = (c["layer"] + (f" ({c['colour']})" if c["colour"] else "") + f" drawn with {c['pen']}" for c in spare)
+        out.append("no pen of their own (by a pen's layers list, name or colour): " + ", ".join(named)
+                   + "; give each a [[pen]] of its colour, or list it in a pen's layers")
     if job.duration > LONG_JOB_S:
         out.append(f"the job takes {job.duration / 3600:.1f} hours ({job.duration / 60:.0f} min); check the tracer "
                    "options (a noisy picture traces to many strokes) or draw it smaller")
@@ -303,6 +328,7 @@ class Result:
             "optimal_draw_time_s": round(sum(s.duration for s in j.strokes), 3),
             "samples": sum(len(s.velocity) for s in j.samples),
             "control_points": j.meta["control_points"],
+            "corners_kept": j.meta.get("corners_kept", 0),
             "max_fit_error_mm": round(j.meta["max_fit_error_mm"], 4),
             "max_between_samples_mm": round(j.meta.get("max_between_samples_mm", 0.0), 4),
             "path_tolerance_mm": j.meta.get("path_tolerance_mm", 0.0),
@@ -320,8 +346,21 @@ class Result:
             "timings_s": {k: round(v, 3) for k, v in self.timings.items()},
             "layers": [n for n in j.layers if n] or [],
             "pen_changes": len(j.pen_changes),
+            "layer_order": j.meta.get("layer_order", "file"),
+            # the pen the job first pauses for the operator to fit (a profile with several pens), else None
+            "first_pen_prompt": (j.machine.pen_number(j.pen_numbers[0]).describe(j.pen_numbers[0])
+                                 if 0 in j.pen_pauses else None),
             "pens": {n: j.machine.pen_number(k).describe(k) for n, k in j.layer_pens.items() if n},
+            "pen_choice": pen_choice(j),
         }
+
+
+def pen_choice(job: Job) -> list[dict[str, Any]]:
+    """Which layers (and their colours) each pen draws and why, in plotting order: one entry per
+    layer, {"layer", "colour", "pen", "why"}."""
+    colours, why = job.meta.get("layer_colours") or {}, job.meta.get("pen_reasons") or {}
+    return [{"layer": n, "colour": colours.get(n, ""), "pen": job.machine.pen_number(k).describe(k),
+             "why": why.get(n, "")} for n, k in job.layer_pens.items() if n]
 
 
 def convert(path: str | Path, outdir: str | Path, settings: Settings) -> Result:

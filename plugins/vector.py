@@ -49,6 +49,9 @@ class VectorTracer(Tracer):
     extensions = (".svg", ".dxf") + MESH_EXTENSIONS
     options = (
         Option("tolerance", float, 0.02, "largest distance in mm between a curve and the polyline drawn for it"),
+        Option("corner", float, 30.0, "keep corners exact where a path turns by more than this many degrees (polyline "
+               "vertices, joins of segments): the stroke is split there and the pen stops on the corner without "
+               "lifting (0 = round corners within the fit tolerance)"),
         Option("layers", str, "auto", "SVG/DXF: strokes' layers by 'layer' (Inkscape/DXF layers), 'colour' (SVG stroke "
                "colour), 'group' (SVG top-level groups), 'none', or 'auto' (layers, else colours)"),
         Option("mesh", str, "section", "meshes: 'section' (cut by a plane) or 'silhouette' (outline seen along a direction)"),
@@ -64,6 +67,8 @@ class VectorTracer(Tracer):
             raise PluginError(f"tracer 'vector': layers must be auto, layer, colour, group or none, got {opt['layers']!r}")
         if not opt["tolerance"] > 0:
             raise PluginError(f"tracer 'vector': tolerance must be > 0 mm, got {opt['tolerance']:g}")
+        if not 0 <= opt["corner"] < 180:
+            raise PluginError(f"tracer 'vector': corner must be 0 (off) to below 180 degrees, got {opt['corner']:g}")
         path = Path(path)
         if not path.is_file():
             raise InputError(f"{path}: no such file; check the path")
@@ -73,14 +78,14 @@ class VectorTracer(Tracer):
         if size > _MAX_BYTES:
             raise InputError(f"{path}: {size / 2**20:.0f} MB is too large for a plotter drawing; simplify it first")
         ext = path.suffix.lower()
-        if ext == ".svg":
-            return _svg(path, opt)
-        if ext == ".dxf":
-            return _dxf(path, opt)
-        if ext in MESH_EXTENSIONS:
-            return _mesh(path, opt)
-        raise InputError(f"{path}: the vector tracer reads {', '.join(self.extensions)} files; "
-                         "pick another tracer with --tracer")
+        read = {".svg": _svg, ".dxf": _dxf, **{e: _mesh for e in MESH_EXTENSIONS}}.get(ext)
+        if read is None:
+            raise InputError(f"{path}: the vector tracer reads {', '.join(self.extensions)} files; "
+                             "pick another tracer with --tracer")
+        drawing = read(path, opt)
+        if opt["corner"] > 0:  # the fitter cuts the strokes at these corners (pipeline.plan_job)
+            drawing.meta["split_corners_deg"] = float(opt["corner"])
+        return drawing
 
 
 # ---------------------------------------------------------------- 2-D drawings
@@ -98,30 +103,44 @@ def _join(polylines: list[np.ndarray], tol: float) -> list[np.ndarray]:
     return out
 
 
-def _curve_points(seg, tol: float) -> np.ndarray:
+_CURVE_TURN = 0.25  # a curve's chords turn by at most this share of the corner angle at each point
+_TURN_MAX_POINTS = 4096  # ... unless that takes more points (a cusp: a real corner, kept as one)
+
+
+def _curve_points(seg, tol: float, corner: float = 0.0) -> np.ndarray:
     """Points along one curved segment (Bézier or elliptical arc) whose chords stay within
     ``tol`` of it, end points included.
 
     The chord over a parameter step dt sags by at most max|P''| dt² / 8; max|P''| is
     estimated from 64 samples, and the midpoints of the chords are then checked against
-    the curve itself, doubling the count until every chord is within tolerance.
+    the curve itself, doubling the count until every chord is within tolerance. With
+    ``corner`` (degrees), also until the chords turn by at most a quarter of it at each
+    point, so the fitter, which keeps every turn sharper than ``corner`` as a corner,
+    finds only the path's own tangent breaks (a chord at a smooth join leans by half a
+    turn, so a join is misjudged by at most an eighth of ``corner``).
     """
+    from doodlecam.geometry.fit import turn_angles
+
     t = np.linspace(0.0, 1.0, 65)
     p = np.asarray(seg.npoint(t), float)
     d2 = float(np.abs(p[2:] - 2 * p[1:-1] + p[:-2]).max()) * 64**2
     n = max(1, int(np.ceil(1.2 * np.sqrt(d2 / (8 * tol)))))
-    for _ in range(8):
+    max_turn = np.radians(corner * _CURVE_TURN)
+    sag_rounds = 0
+    while True:
         n = min(n, 200_000)
         t = np.linspace(0.0, 1.0, n + 1)
         p = np.asarray(seg.npoint(t), float)
         mid = np.asarray(seg.npoint((t[:-1] + t[1:]) / 2), float)
-        if n == 200_000 or np.hypot(*(mid - (p[:-1] + p[1:]) / 2).T).max() <= tol:
+        sag = n == 200_000 or sag_rounds == 8 or np.hypot(*(mid - (p[:-1] + p[1:]) / 2).T).max() <= tol
+        smooth = not corner or n >= _TURN_MAX_POINTS or turn_angles(p).max(initial=0.0) <= max_turn
+        if sag and smooth:
             return p
+        sag_rounds += not sag
         n *= 2
-    return p
 
 
-def _path_polylines(path, tol: float) -> list[np.ndarray]:
+def _path_polylines(path, tol: float, corner: float = 0.0) -> list[np.ndarray]:
     """An svgelements Path (transform applied) as polylines, one per subpath, in its units."""
     import svgelements as se
 
@@ -139,7 +158,7 @@ def _path_polylines(path, tol: float) -> list[np.ndarray]:
             if isinstance(seg, (se.Line, se.Close)):
                 q = np.array([[seg.start.x, seg.start.y], [seg.end.x, seg.end.y]], float)
             else:
-                q = _curve_points(seg, tol)
+                q = _curve_points(seg, tol, corner)
             if not pts:
                 pts = [q[:1]]
             pts.append(q[1:])
@@ -297,7 +316,7 @@ def _clipped(polys: list[np.ndarray], region) -> list[np.ndarray]:
 _INKSCAPE = "{http://www.inkscape.org/namespaces/inkscape}"
 
 
-def _svg_shapes(svg, tol: float):
+def _svg_shapes(svg, tol: float, corner: float = 0.0):
     """(polylines, layer name, colour) of every visible shape, clip paths applied."""
     import svgelements as se
 
@@ -321,7 +340,7 @@ def _svg_shapes(svg, tol: float):
                     continue  # no stroke and no fill: it renders nothing (a fill-only shape is drawn as its outline)
                 path = se.Path(child)
                 path.reify()
-                polys = _path_polylines(path, tol)
+                polys = _path_polylines(path, tol, corner)
                 for r in here:
                     polys = _clipped(polys, r)
                 if polys:
@@ -429,7 +448,7 @@ def _svg(path: Path, opt) -> Drawing:
     mm = _mm_per_px(svg)
     vb = se.Matrix(getattr(svg, "viewbox_transform", "") or "")
     mm_per_unit = float(np.sqrt(abs(vb.a * vb.d - vb.b * vb.c))) * mm
-    found = _svg_shapes(svg, opt["tolerance"] / mm)
+    found = _svg_shapes(svg, opt["tolerance"] / mm, opt["corner"])
     if not found:
         raise InputError(f"{path}: no shapes to draw (no paths, lines, rectangles, circles, ...; text must be "
                          "converted to paths first)")
@@ -509,6 +528,9 @@ def _dxf(path: Path, opt) -> Drawing:
     unit = _DXF_UNITS.get(code)
     mm = units.conversion_factor(code, units.MM) if code else 1.0
     tol = opt["tolerance"] / mm
+    # ezdxf draws curves as Béziers of up to 180 degrees' turn (arcs: 90): enough points on each that its
+    # chords turn by at most a quarter of the corner angle (as _curve_points), so only real corners are kept
+    segments = max(4, int(np.ceil(180.0 / (opt["corner"] * _CURVE_TURN)))) if opt["corner"] > 0 else 4
     skipped: dict[str, int] = {}
     by_layer: dict[str, list[np.ndarray]] = {}
     for e, layer in _dxf_entities(doc.modelspace(), skipped):
@@ -518,7 +540,7 @@ def _dxf(path: Path, opt) -> Drawing:
                 skipped[kind] = skipped.get(kind, 0) + 1
             continue
         try:
-            pts = np.array([(v.x, v.y) for v in dxfpath.make_path(e).flattening(distance=tol)], float)
+            pts = np.array([(v.x, v.y) for v in dxfpath.make_path(e).flattening(distance=tol, segments=segments)], float)
         except Exception:  # a degenerate or 3-D-only entity (mesh polyline, ...): counted, the rest draws
             skipped[kind] = skipped.get(kind, 0) + 1
             continue

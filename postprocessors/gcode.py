@@ -443,6 +443,7 @@ class GcodePost(PostProcessor):
         # Each stroke is drawn with its layer's pen: its delays, and its speed cap on the feed.
         pen_no = job.pen_numbers
         changes = set(job.pen_changes)
+        pauses = set(job.pen_pauses)  # the changes, and the first pen when the machine has several
         caps = {k: _pen_cap(m, k, float(options["max_feed"])) for k in set(pen_no)}
         paths = [self._stroke_points(s, dts[i] if dts else m.delta_time, tol, min_feed, options["feeds"],
                                      caps[pen_no[i]], m, grbl, int(options["baud"]), bool(options["arcs"]))
@@ -471,8 +472,8 @@ class GcodePost(PostProcessor):
         lifts = job.lifts + (True,)  # a stroke that starts where the last ended keeps the pen down
         for n, (p, feed, arc) in enumerate(paths):
             tool = m.pen_number(pen_no[n])
-            if n in changes:  # pen up already: the operator fits the next pen, then resumes
-                for text in pause_lines(d, f"change to {tool.describe(pen_no[n])}"):
+            if n in pauses:  # pen up already: the operator fits the next pen, then resumes
+                for text in pause_lines(d, f"{'change to' if n else 'fit'} {tool.describe(pen_no[n])}"):
                     line(text)
             if lifts[n]:
                 body.append(f"G0 X{_num(p[0, 0])} Y{_num(p[0, 1])}")
@@ -505,6 +506,8 @@ class GcodePost(PostProcessor):
             f"; pen-down {job.pen_down_length:.1f} mm, travel {job.travel_length:.1f} mm",
             *([f"; {len(changes)} pen change{'s' if len(changes) != 1 else ''}: the program pauses (M0) for each"]
               if changes else []),
+            *([f"; the program pauses (M0) first to fit {m.pen_number(pen_no[0]).describe(pen_no[0])}"]
+              if 0 in pauses else []),
             f"; bounds X {_num(lo[0])}..{_num(hi[0])} Y {_num(lo[1])}..{_num(hi[1])} mm",
         ]
         if d.name != "grbl" or options["pen"] != "servo":

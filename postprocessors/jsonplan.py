@@ -76,7 +76,8 @@ class JsonPost(PostProcessor):
             "machine": _plain(job.machine, d),
             "figures": {"strokes": len(job.strokes), "pen_lifts": job.pen_lifts, "pen_down_mm": _plain(job.pen_down_length, d),
                         "travel_mm": _plain(job.travel_length, d), "draw_time_s": _plain(job.draw_time, d),
-                        "job_time_s": _plain(job.duration, d), "pen_changes": list(job.pen_changes)},
+                        "job_time_s": _plain(job.duration, d), "pen_changes": list(job.pen_changes),
+                        "pen_pauses": list(job.pen_pauses)},
             "strokes": strokes,
             "travels": [{"start": _plain(t.start, d), "end": _plain(t.end, d), "duration_s": _plain(t.duration, d)}
                         for t in job.travels],

@@ -137,13 +137,16 @@ def test_pen_accel_cap_needs_paper_axes(tmp_path):
 # ---------------------------------------------------------------- the job and its files
 
 def test_layers_are_plotted_pen_by_pen(written):
+    """black and red have pens of their colours, blue shares one: the layers are grouped by pen, so the
+    pen is changed once (pens used - 1), and the job first asks for pen 1 (two pens: which one is in?)."""
     job, _ = written
-    assert job.layers == ("black", "red", "blue")
+    assert job.layers == ("black", "blue", "red")
     pens = job.pen_numbers
-    assert set(pens) == {1, 2}
+    assert set(pens) == {1, 2} and list(pens) == sorted(pens)
     changes = job.pen_changes
-    assert len(changes) == 2 and all(pens[i] != pens[i - 1] for i in changes)
+    assert len(changes) == 1 and all(pens[i] != pens[i - 1] for i in changes)
     assert all(job.strokes[i].layer != job.strokes[i - 1].layer for i in changes)
+    assert job.pen_pauses == (0, *changes)
 
 
 def test_gcode_pauses_once_between_layers_with_the_pen_up(written, machine):
@@ -151,28 +154,28 @@ def test_gcode_pauses_once_between_layers_with_the_pen_up(written, machine):
     text = files[".gcode"].read_text()
     lines = text.splitlines()
     pauses = [k for k, ln in enumerate(lines) if re.match(r"M0\b", ln)]
-    assert len(pauses) == len(job.pen_changes) == 2
-    assert lines[pauses[0]] == "M0 (change to pen 2 'brush' [#d01010])"
-    assert lines[pauses[1]] == "M0 (change to pen 1 'fineliner' [black])"
+    assert len(pauses) == len(job.pen_pauses) == 2
+    assert lines[pauses[0]] == "M0 (fit pen 1 'fineliner' [black])"  # before anything moves
+    assert lines[pauses[1]] == "M0 (change to pen 2 'brush' [#d01010])"
     # the strokes between pauses: each pause sits after a stroke's pen-up and before the next travel
     g0 = [k for k, ln in enumerate(lines) if ln.startswith("G0 ")]
     starts = g0[:-1]  # the last G0 goes home
     assert len(starts) == len(job.strokes)
-    for k, i in zip(pauses, job.pen_changes):
+    first = [ln for ln in lines[:pauses[0]] if not ln.startswith(";")]
+    assert first[-2:] == ["M3 S0", "G4 P0.1"] and not any(re.match(r"G[01] ", ln) for ln in first)  # pen up
+    for k, i in zip(pauses[1:], job.pen_changes):
         assert starts[i - 1] < k < starts[i]
         pen_cmds = [ln for ln in lines[starts[i - 1]:k] if ln.startswith("M3")]
         assert pen_cmds[-1] == "M3 S0"  # lifted before the pause
     # the brush's slower lift: its G4 after the pen-up
-    first_red = starts[job.pen_changes[0]]
-    seg = lines[first_red:starts[job.pen_changes[1]]]
-    assert "G4 P0.3" in seg
+    assert "G4 P0.3" in lines[starts[job.pen_changes[0]]:]
 
 
 def test_plc_file_pauses_where_the_pen_changes(written):
     job, files = written
     header, strokes = read_plc_file(files[".plc"].read_bytes())
     pens = job.pen_numbers
-    assert header["pauses"] == [(i, pens[i]) for i in job.pen_changes]
+    assert header["pauses"] == [(i, pens[i]) for i in job.pen_pauses] == [(0, 1), (job.pen_changes[0], 2)]
     assert len(strokes) == len(job.strokes)
 
 
@@ -211,7 +214,7 @@ def test_plc_simulator_holds_at_each_pen_change(written, machine):
         sender = UdpSender(*sim.address, data, timeout=5.0, rto=0.03, pen_change=operator)
         r = bounded(sender.run)
         _, arr = read_plc_array(data)
-        assert asked == [(2, "pen 2"), (1, "pen 1")] and sender.pen_changes == 2
+        assert asked == [(1, "pen 1"), (2, "pen 2")] and sender.pen_changes == 2
         assert r.executed == len(arr)
         np.testing.assert_array_equal(sim.executed(r.job_id), np.arange(1, len(arr) + 1))  # each once, in order
         tr = sim.trajectory()
@@ -234,7 +237,7 @@ def test_plc_send_without_an_operator_stops_and_asks_again(written, machine, tmp
         asked = []
         r = bounded(UdpSender(*sim.address, data, state_file=state, timeout=5.0, rto=0.03,
                               pen_change=lambda pen, what: asked.append(pen)).run)
-        assert r.resumed and asked == [2, 1]  # the interrupted pen change is asked again first
+        assert r.resumed and asked == [1, 2]  # the interrupted pen change is asked again first
         _, arr = read_plc_array(data)
         np.testing.assert_array_equal(sim.executed(r.job_id), np.arange(1, len(arr) + 1))
         assert before < len(arr)
@@ -254,7 +257,7 @@ def test_grbl_emulator_holds_at_each_m0(written, tmp_path):
 
     try:
         r = bounded(lambda: send_gcode(emu.port, gcode, state_file=tmp_path / "s.json", pen_change=operator), 120)
-        assert asked == [(2, "pen 2 'brush' (#d01010)"), (1, "pen 1 'fineliner' (black)")]
+        assert asked == [(1, "pen 1 'fineliner' (black)"), (2, "pen 2 'brush' (#d01010)")]
         assert r["pen_changes"] == 2 and emu.pauses == 2
         assert emu.received == [ln.text.upper() for ln in prepare(gcode.read_text())]  # every line once
         assert emu.overruns == 0 and emu.state == "Idle"
@@ -277,7 +280,7 @@ def test_grbl_send_without_an_operator_resumes_at_the_pause(written, tmp_path):
         assert lines[nxt].text == "M0"  # the resume point is the pause itself
         asked = []
         r = bounded(lambda: send_gcode(emu.port, gcode, state_file=state, pen_change=lambda p, w: asked.append(p)), 120)
-        assert r["resumed"] and asked == [2, 1] and not state.exists()
+        assert r["resumed"] and asked == [1, 2] and not state.exists()
     finally:
         emu.stop()
 
@@ -301,3 +304,59 @@ def test_send_command_prompts_the_operator(written, machine, tmp_path):
         assert r.returncode == 130 and "nobody answered the pen change" in r.stderr and "Traceback" not in r.stderr
     finally:
         sim.stop()
+
+
+# ---------------------------------------------------------------- the order of layers (issue 28)
+
+FOUR = ('<svg xmlns="http://www.w3.org/2000/svg" xmlns:inkscape="http://www.inkscape.org/namespaces/inkscape" '
+        'width="120mm" height="90mm" viewBox="0 0 120 90">'
+        + "".join(f'<g inkscape:groupmode="layer" inkscape:label="{name}" stroke="{colour}" fill="none">'
+                  f'<circle cx="{20 + 25 * k}" cy="45" r="10"/></g>'
+                  for k, (name, colour) in enumerate([("outline", "black"), ("roses", "#d01010"),
+                                                      ("leaves", "green"), ("shadow", "black")]))
+        + "</svg>")
+
+
+def _four(tmp_path, machine, order=None):
+    path = tmp_path / "four.svg"
+    path.write_text(FOUR)
+    res = convert(path, tmp_path / "out", Settings(machine=machine, posts=("gcode", "plc"), order=order or {}))
+    files = {p.suffix: p for p in res.outputs}
+    m0 = [ln for ln in files[".gcode"].read_text().splitlines() if re.match(r"M0\b", ln)]
+    return res, m0, read_plc_file(files[".plc"].read_bytes())[0]["pauses"]
+
+
+def test_four_colours_on_two_pens_change_pens_once(tmp_path, machine):
+    """Two black layers, a red one and a green one (no pen of its own: it shares the nearest colour's, black):
+    grouped by pen, one change; the files read back ask for pen 1 first, then pen 2 once; the summary says
+    which colour went to which pen and why."""
+    res, m0, pauses = _four(tmp_path, machine)
+    job, s = res.job, res.summary()
+    assert job.layers == ("outline", "leaves", "shadow", "roses")
+    assert s["pen_changes"] == 1 == len(set(job.pen_numbers)) - 1
+    assert m0 == ["M0 (fit pen 1 'fineliner' [black])", "M0 (change to pen 2 'brush' [#d01010])"]
+    assert [pen for _, pen in pauses] == [1, 2] and pauses[0][0] == 0
+    assert s["first_pen_prompt"] == "pen 1 'fineliner' (black)"
+    why = {c["layer"]: (c["colour"], c["pen"], c["why"]) for c in s["pen_choice"]}
+    assert why["outline"] == ("#000000", "pen 1 'fineliner' (black)", "the pen's colour")
+    assert why["roses"] == ("#d01010", "pen 2 'brush' (#d01010)", "the pen's colour")
+    assert why["leaves"] == ("#008000", "pen 1 'fineliner' (black)", "no pen of its own: shares the pen nearest in colour")
+    assert any(w.startswith("no pen of their own") and "leaves (#008000) drawn with pen 1" in w for w in s["warnings"])
+
+
+def test_file_order_is_kept_when_the_profile_says_so(tmp_path):
+    m = parse_machine({**_toml(PROFILE), "order": {"layers": "file"}}, "p.toml")
+    res, m0, pauses = _four(tmp_path, m)
+    assert res.job.layers == ("outline", "roses", "leaves", "shadow")
+    assert res.summary()["pen_changes"] == 2 and len(m0) == len(pauses) == 3  # the first pen, then two changes
+    assert [pen for _, pen in pauses] == [1, 2, 1]  # outline, roses, leaves (nearest black), shadow
+    with pytest.raises(MachineError, match="layers must be 'pen'.*or 'file'"):
+        parse_machine({**_toml(PROFILE), "order": {"layers": "colour"}}, "p.toml")
+
+
+def test_one_pen_profiles_ask_for_no_first_pen(tmp_path):
+    """A profile with one [pen]: the pen in the holder is the one; each further layer is a change, in file order."""
+    m = load_machine("doodlebot")
+    res, m0, pauses = _four(tmp_path, m)
+    assert res.job.layers == ("outline", "roses", "leaves", "shadow") and res.job.pen_pauses == res.job.pen_changes
+    assert len(m0) == len(pauses) == 3 and pauses[0][0] > 0 and res.summary()["first_pen_prompt"] is None

@@ -269,8 +269,9 @@ def test_a_multi_layer_file_plots_layer_after_layer(tmp_path, capsys):
     labels = [g.get("{http://www.inkscape.org/namespaces/inkscape}label") for g in groups]
     assert labels == ["pen down: Black", "pen down: Red", "pen down: Blue"]
     assert [g.get("stroke") for g in groups] == ["#000000", "#ff0000", "#0000ff"]
-    assert [len(g.findall("s:path", ns)) for g in groups] == [2, 2, 1]
-    assert len(plan["strokes"]) == 5
+    # a path per stroke: the rectangle is four, its sides drawn pen down, stopping on its corners
+    assert [len(g.findall("s:path", ns)) for g in groups] == [2, 5, 1]
+    assert len(plan["strokes"]) == 8
 
 
 def test_one_layer_only_stays_in_place(tmp_path, machine):

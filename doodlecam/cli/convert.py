@@ -48,6 +48,8 @@ def convert(input, outdir, as_json, workers, **options):
     click.echo(f"  strokes            {s['strokes']}  ({s['control_points']} control points, fit within {s['max_fit_error_mm']:.3f} mm; "
                f"{s['pen_lifts']} pen lift{'s' if s['pen_lifts'] != 1 else ''})")
     click.echo(f"  pen-down length    {s['pen_down_mm']:.1f} mm")
+    if s.get("corners_kept"):
+        click.echo(f"  corners kept       {s['corners_kept']}: exact, the pen stops on each without lifting")
     click.echo(f"  travel length      {s['travel_mm']:.1f} mm")
     by_law = s["travel_time_by_law_s"]
     if by_law:
@@ -72,11 +74,16 @@ def convert(input, outdir, as_json, workers, **options):
         click.echo("                     (the PLC's linear ramps; set [sampling] path_tolerance in the machine profile "
                    "to keep within it, docs/sampling.md)")
     if s["layers"]:
-        click.echo(f"  layers             {len(s['layers'])}, plotted one after another: "
+        how = "grouped by pen" if s["layer_order"] == "pen" else "in the file's order ([order] layers = \"file\")"
+        click.echo(f"  layers             {len(s['layers'])}, plotted {how}: "
                    + ", ".join(f"{n} with {s['pens'][n]}" for n in s["layers"]))
-        if s["pen_changes"]:
-            click.echo(f"  pen changes        {s['pen_changes']}: the job pauses for each, pen up (G-code M0, PLC "
-                       "PAUSE); 'doodlecam send' asks the operator")
+        for c in s["pen_choice"]:
+            click.echo(f"                     {c['layer']}" + (f" ({c['colour']})" if c["colour"] else "")
+                       + f" -> {c['pen']}: {c['why']}")
+    if s["pen_changes"] or s["first_pen_prompt"]:
+        first = f"; the job first pauses to fit {s['first_pen_prompt']}" if s["first_pen_prompt"] else ""
+        click.echo(f"  pen changes        {s['pen_changes']}{first}; each pause is pen up (G-code M0, PLC PAUSE), "
+                   "'doodlecam send' asks the operator")
     click.echo("  wrote              " + ", ".join(s["outputs"]))
     for w in s["warnings"]:
         click.echo(f"  warning: {w}", err=True)

@@ -355,6 +355,11 @@ def _turns(d: np.ndarray) -> np.ndarray:
     return np.abs(np.arctan2(cross, (d[:-1] * d[1:]).sum(axis=1)))
 
 
+def turn_angles(p: np.ndarray) -> np.ndarray:
+    """The angle (radians, 0..pi) the polyline through the points ``p`` turns at each inner point."""
+    return _turns(np.diff(np.asarray(p, dtype=float), axis=0))
+
+
 def split_corners(p: np.ndarray, corner: float) -> list[np.ndarray]:
     """The polyline cut at every vertex turning by more than ``corner`` degrees
     (pieces share the vertex)."""

@@ -295,7 +295,7 @@ def job_lines(job, kinematics, options: dict) -> tuple[list[str], Counter]:
     if options["servo_rate_down"]:
         L.append(f"SC,12,{options['servo_rate_down']}")
     pens = job.pen_numbers
-    changes = set(job.pen_changes)
+    changes = set(job.pen_pauses)  # each pen change, and the first pen when the machine has several
     number = getattr(m, "pen_number", None)
     w.c.pos = w.motor(m.home)[0]
     if w.c.pos.any():

@@ -73,11 +73,11 @@ def is_program_pause(line: GcodeLine) -> bool:
 
 def pen_change_message(line: GcodeLine) -> tuple[int | None, str]:
     """(pen number or None, what to fit) from an M0 line's comment, e.g.
-    'M0 (change to pen 2 [red])' -> (2, 'pen 2 (red)'); brackets stand for the
-    parentheses a G-code comment cannot hold."""
+    'M0 (change to pen 2 [red])' -> (2, 'pen 2 (red)'), 'M0 (fit pen 1)' (the first pen) -> (1, 'pen 1');
+    brackets stand for the parentheses a G-code comment cannot hold."""
     m = re.search(r"\(([^)]*)\)", line.source) or re.search(r"M0*0\s+(.+)$", line.source, re.I)
     text = (m.group(1).strip() if m else "").replace("[", "(").replace("]", ")")
-    text = re.sub(r"^(?:MSG,\s*)?(?:change to\s+)?", "", text, flags=re.I) or "the next pen"
+    text = re.sub(r"^(?:MSG,\s*)?(?:(?:change to|fit)\s+)?", "", text, flags=re.I) or "the next pen"
     pen = _PEN_IN_MESSAGE.search(text)
     return (int(pen.group(1)) if pen else None), text
 

@@ -152,7 +152,7 @@ def commands_array(job) -> tuple[PlcHeader, np.ndarray]:
     home = job.travels[-1].end if job.travels else np.asarray(m.home, dtype=float)
 
     blocks = []
-    changes = set(job.pen_changes)
+    changes = set(job.pen_pauses)  # each pen change, and the first pen when the machine has several
     pens = job.pen_numbers if changes else ()
     for k, (s, lift) in enumerate(zip(job.samples, job.lifts)):
         # no MOVE before a stroke that goes on from the last one's end: the pen stays down
@@ -193,7 +193,7 @@ def commands_array(job) -> tuple[PlcHeader, np.ndarray]:
 def commands_from_job(job) -> tuple[PlcHeader, list[PlcCommand]]:
     """Header and commands for a planned, sampled Job.
 
-    Per stroke: a PAUSE first where the pen changes (job.pen_changes), a MOVE
+    Per stroke: a PAUSE first where the operator fits a pen (job.pen_pauses), a MOVE
     to its start (rounded to steps), then one DRAW per velocity sample
     (steps/s); finally a MOVE home. Numbered 1..N. A stroke that starts where
     the one before ended (``job.lifts``) gets no MOVE: its DRAWs follow the
