@@ -37,7 +37,7 @@ def main() -> None:
     tracer_options = dict(o.split("=", 1) for o in args.tracer_opt)
     settings = Settings(machine=load_machine(args.machine), path_tolerance=args.path_tolerance,
                         tracer_options=tracer_options)
-    stages = ["trace", "order", "fit", "plan", "sample", "post"]
+    stages = ["trace", "order", "fit", "plan", "post"]  # "plan": planning, sampling and their checks, stroke by stroke
     print("| picture | strokes | ctrl pts | pen-down mm | travel mm | job s | optimal draw s | "
           + " | ".join(f"{s} s" for s in stages) + " | total s | worst acc ratio | between samples mm |")
     print("|" + "---|" * (11 + len(stages)))

@@ -263,11 +263,11 @@ class Job:
     source: str = ""
     meta: dict[str, Any] = field(default_factory=dict)
 
-    @property
+    @cached_property  # strokes, travels and samples never change: the studio asks often
     def pen_down_length(self) -> float:
         return sum(s.spline.length for s in self.strokes)
 
-    @property
+    @cached_property  # strokes, travels and samples never change: the studio asks often
     def layers(self) -> tuple[str, ...]:
         """The layers in the order they are plotted (one pen each)."""
         return tuple(dict.fromkeys(s.layer for s in self.strokes))
@@ -305,7 +305,7 @@ class Job:
         first = (0,) if self.strokes and len(getattr(self.machine, "pens", ())) > 1 else ()
         return first + self.pen_changes
 
-    @property
+    @cached_property  # strokes, travels and samples never change: the studio asks often
     def lifts(self) -> tuple[bool, ...]:
         """lifts[i]: the pen travels pen-up to strokes[i] and is lowered there.
 
@@ -323,11 +323,11 @@ class Job:
         """How many times the pen is lowered (and lifted again) in the job."""
         return sum(self.lifts)
 
-    @property
+    @cached_property  # strokes, travels and samples never change: the studio asks often
     def travel_length(self) -> float:
         return sum(t.length for t in self.travels)
 
-    @property
+    @cached_property  # strokes, travels and samples never change: the studio asks often
     def draw_time(self) -> float:
         """Pen-down time as executed: whole sample periods once sampled."""
         if self.samples:

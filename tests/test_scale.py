@@ -131,3 +131,21 @@ def test_touching_segments_are_drawn_as_one_stroke_with_their_exact_length(tmp_p
     assert s["pen_lifts"] <= 45  # 800 segments on 40 lines of the grid (pen lifts, not segments)
     exact = 800 * min(270 / 20, 186 / 20)
     assert abs(s["pen_down_mm"] - exact) <= 1e-3 * exact
+
+
+def test_a_degenerate_jerk_plan_is_replaced_by_a_bounded_one():
+    """A 6 mm stroke of a generated drawing turning very tightly near its end over 264 control
+    points: its first jerk-bounded plan took 1.5e5 s (and the sampler asked for 1 GB). It is planned
+    within bounded time and still meets the path tolerance."""
+    from pathlib import Path
+
+    from doodlecam.model import Spline
+
+    m = load_machine("doodlebot")
+    control = np.loadtxt(Path(__file__).parent / "data" / "near_cusp_stroke.txt")
+    spline = Spline(3, control)
+    job = plan_job(Drawing(polylines=(spline(np.linspace(0, 1, 50)),), units="mm"), m,
+                   fitted=[Stroke(spline, source_index=0)])
+    least = stroke_plan._least_time(spline, Limits.from_machine(m, kinematics_for(m)))
+    assert job.draw_time <= stroke_plan.ABSURD * least + 1.0 and job.draw_time < 10.0
+    assert job.meta["max_between_samples_mm"] <= m.path_tolerance + 1e-9

@@ -25,6 +25,7 @@ GLOBAL_JERK_STEP = 0.7
 # speed squared, so SLOW_STEP per re-plan ends within the tolerance (0.7^12: 1.4 % of the speed)
 SLOW_REPLANS = 12
 SLOW_STEP = 0.7
+ABSURD = 200.0  # a first plan this many times slower than the least possible time is a degenerate one
 RAMP_REPLANS = 6  # ... and of one whose ramps pass a (nonlinear) actuator's limit
 RAMP_GAIN = 1.25  # the share of a limit drops by this times the excess measured on the ramps
 PARALLEL_MIN = 400  # strokes: fewer are planned in this process (a worker costs ~0.3 s to start)
@@ -112,13 +113,30 @@ def plan_one(ctx: Context, n: int, total: int, stroke: Stroke, pen) -> Outcome:
             smp = sample(s)
         return s, ratios, smp, path_deviation(s.spline, written_samples(smp, ctx.steps))  # what the machine draws
 
-    s, ratios = plan(ctx.jerk)
-    s, ratios, smp, dev = sample_within_ramps(s, ratios, ctx.jerk)
-    bound, replans = ctx.jerk, 0
+    def degenerate_on(jerk_max, grid=None):
+        """The plan within jerk_max, or None where the jerk rows pin it down: they take sqrt(b)
+        from a profile the plan stays below, and where the curve turns very tightly over a dense
+        grid that can hold b near 0 (seen: 6 mm planned to take 1.5e5 s, or stopped mid-stroke)."""
+        try:
+            out = plan(jerk_max, grid)
+        except PlanError:
+            return None
+        return None if out[0].profile.duration > ABSURD * _least_time(stroke.spline, plan_limits) + 1.0 else out
+
+    bound = ctx.jerk
+    planned = degenerate_on(bound) if bound is not None else plan(None)
+    if planned is None:
+        # plan without the bound and let the slowing below keep the path tolerance (bounded:
+        # 1 / SLOW_STEP^SLOW_REPLANS times the plan at most)
+        bound = None
+        planned = plan(None)
+    s, ratios = planned
+    s, ratios, smp, dev = sample_within_ramps(s, ratios, bound)
+    replans = 0
     for attempt in range(REPLANS + SLOW_REPLANS if ctx.jerk is not None else 0):
         if dev.max(initial=0.0) <= ctx.path_tolerance:
             break
-        if attempt < REPLANS:  # lower the jerk bound where it strays
+        if bound is not None and attempt < REPLANS:  # lower the jerk bound where it strays
             bound = bound.tightened(smp, dev, ctx.path_tolerance)
             if attempt >= LOCAL_REPLANS:
                 # the sampler solves for the whole stroke, so a long one can stray somewhere
@@ -126,10 +144,29 @@ def plan_one(ctx: Context, n: int, total: int, stroke: Stroke, pen) -> Outcome:
                 bound = replace(bound, base=bound.base * GLOBAL_JERK_STEP)
         else:  # the bound alone did not end it: slow the whole stroke, which does
             slow *= SLOW_STEP
-        s, ratios = plan(bound, s.profile.u)
+        again = plan(bound, s.profile.u) if bound is None else degenerate_on(bound, s.profile.u)
+        if again is None:
+            bound = None  # the lower bound pinned the plan down: slow the stroke instead
+            again = plan(None, s.profile.u)
+        s, ratios = again
         s, ratios, smp, dev = sample_within_ramps(s, ratios, bound)
         replans += 1
     return Outcome(s, ratios, smp, dev, replans, min(share) < 1.0, ramp, slow)
+
+
+def _least_time(spline, limits) -> float:
+    """A lower bound on any plan's time: the length at the largest speed any actuator
+    allows, plus accelerating to it and stopping (the path at its easiest everywhere)."""
+    if limits.M is None:
+        return np.inf  # nonlinear kinematics: no such bound here (the guard is off)
+    # actuator units per mm in the most favourable direction, doubled to be generous (a
+    # direction may share the motion between actuators)
+    gain = float(np.min(np.abs(np.asarray(limits.M, float)).max(axis=0))) / 2
+    v, a = float(np.max(limits.vmax)) / gain, float(np.max(limits.amax)) / gain
+    if limits.pen_speed is not None:
+        v = min(v, float(limits.pen_speed))
+    length = spline.length
+    return length / v + 2 * np.sqrt(length / a)
 
 
 _CTX: Context | None = None

@@ -401,14 +401,17 @@ class Session:
 
     def patch(self) -> dict:
         """What the last edit changed, for a page that has the view: the re-planned strokes' entries,
-        the travels, the summary, and the figures of the first of them (one answer instead of
+        the travels next to them ([index, row] each), the summary, and the figures of the first of them (one answer instead of
         /api/view and /api/stroke: a fraction of the bytes, one request)."""
         with self.lock:
             job = self._require()
             if not self.last_changed:
                 raise InputError("the last edit changed the strokes' order or number; fetch the whole view")
+            # only the travels into and out of the changed strokes: a generated drawing has 10^4 of them
+            near = sorted({k for n in self.last_changed for k in (n, n + 1)})
+            rows = self._view_travels(replace(job, travels=tuple(job.travels[k] for k in near)))
             return {"strokes": [self._view_stroke(n, job.strokes[n], job.samples[n]) for n in self.last_changed],
-                    "travels": self._view_travels(job), "summary": self.summary(),
+                    "travels": [[k, row] for k, row in zip(near, rows)], "summary": self.summary(),
                     "figures": self.stroke(self.last_changed[0])}
 
     def stroke(self, i: Any) -> dict:

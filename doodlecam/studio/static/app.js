@@ -212,7 +212,8 @@ async function refresh() {
 
 async function applyPatch(p) {
   for (const st of p.strokes) S.view.strokes[st.i] = st;
-  S.view.travels = p.travels; S.view.summary = p.summary;
+  for (const [k, row] of p.travels) S.view.travels[k] = row; // only those next to the changed strokes
+  S.view.summary = p.summary;
   summary(p.summary);
   S.timeline = null; S.base = null;
   draw();
