@@ -32,6 +32,10 @@ class ConvertOptions:
     layer: str | None = None  # convert only this layer of the drawing
 
 
+# the planner's back-ends (doodlecam.plan.planner), named here so a profile is checked on load
+SOLVERS = ("reach", "lp", "lp:osqp", "lp:highs", "lp:clarabel", "qp", "qp:osqp", "qp:highs", "qp:clarabel")
+
+
 # ---------------------------------------------------------------- layout, order and travel
 # Checked here, below every stage, so that a machine profile is validated on load
 # without importing the stages that use these options.

@@ -314,6 +314,7 @@ def over_bounds(job: Job) -> list[str]:
 def warnings_for(job: Job, drawing_meta: dict[str, Any]) -> list[str]:
     """What the user should know about a finished job, one sentence each."""
     out = list(drawing_meta.get("warnings", ()))  # the tracer's: what it could not draw
+    out += job.machine.warnings  # the profile's implausible values (doodlecam.plausible)
     if job.duration > LONG_JOB_S:
         out.append(f"the job takes {job.duration / 3600:.1f} hours ({job.duration / 60:.0f} min); check the tracer "
                    "options (a noisy picture traces to many strokes) or draw it smaller")

@@ -16,7 +16,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING, Callable, Iterable
 
-from doodlecam.errors import PluginError, did_you_mean
+from doodlecam.errors import MachineError, PluginError, did_you_mean
 
 if TYPE_CHECKING:
     from doodlecam.machine import Machine
@@ -162,5 +162,10 @@ def get(kind: str, name: str, plugin_dirs: Iterable[str | os.PathLike] = ()) -> 
 
 def kinematics_for(machine: "Machine", plugin_dirs=()):
     """The machine's kinematics plugin, built for its profile."""
+    if not any(i.kind == "machine" and i.name == machine.kinematics for i in discover(plugin_dirs)):
+        names = sorted(i.name for i in discover(plugin_dirs) if i.kind == "machine")
+        raise MachineError(f"{machine.source or machine.name}: [machine] kinematics '{machine.kinematics}' is unknown"
+                           f"{did_you_mean(machine.kinematics, names)}; use one of {', '.join(names)}, or give the "
+                           "folder of its plugin with --plugin-dir")
     cls = get("machine", machine.kinematics, plugin_dirs)
     return cls(machine, machine.kinematics_params)
