@@ -14,6 +14,20 @@ def did_you_mean(name: str, known, quotes: str = "''") -> str:
     return f" (did you mean {quotes[0]}{hint[0]}{quotes[1]}?)" if hint else ""
 
 
+def interrupted(exc: BaseException | None) -> bool:
+    """Whether ``exc`` is a KeyboardInterrupt or was raised because of one. Ctrl-C inside a
+    compiled kernel can surface as ``SystemError: CPUDispatcher(...) returned a result with an
+    exception set`` (numba), with the KeyboardInterrupt as its cause; code that wraps errors
+    (a plugin's failure, cleanup that fails) keeps it in the chain too."""
+    seen = set()
+    while exc is not None and id(exc) not in seen:
+        if isinstance(exc, KeyboardInterrupt):
+            return True
+        seen.add(id(exc))
+        exc = exc.__cause__ or exc.__context__
+    return False
+
+
 class DoodleError(Exception):
     """Base class: a problem the user can fix (bad input, bad profile, ...)."""
 

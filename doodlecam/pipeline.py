@@ -23,6 +23,7 @@ from doodlecam.errors import (
     OutputError,
     PlanError,
     PluginError,
+    interrupted,
 )
 from doodlecam.machine import Machine
 from doodlecam.model import Drawing, Job, Stroke
@@ -44,6 +45,8 @@ def _guarded(what: str, fn, *args):
     except DoodleError:
         raise
     except Exception as e:
+        if interrupted(e):  # Ctrl-C inside a compiled kernel: not the plugin's failure
+            raise KeyboardInterrupt from None
         raise PluginError(f"{what} failed: {type(e).__name__}: {e}") from e
 
 
