@@ -10,8 +10,11 @@ def did_you_mean(name: str, known, quotes: str = "''") -> str:
     opening and closing characters around it (``"[]"`` for a TOML table)."""
     import difflib
 
-    hint = difflib.get_close_matches(str(name), list(known), n=1, cutoff=0.6)
-    return f" (did you mean {quotes[0]}{hint[0]}{quotes[1]}?)" if hint else ""
+    by_fold: dict[str, str] = {}  # compared without case: 'GCOD' -> 'gcode'
+    for k in known:
+        by_fold.setdefault(str(k).casefold(), str(k))
+    hint = difflib.get_close_matches(str(name).casefold(), list(by_fold), n=1, cutoff=0.6)
+    return f" (did you mean {quotes[0]}{by_fold[hint[0]]}{quotes[1]}?)" if hint else ""
 
 
 def interrupted(exc: BaseException | None) -> bool:

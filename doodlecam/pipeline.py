@@ -37,6 +37,11 @@ class Settings(ConvertOptions):
 
     machine: Machine
 
+    def __post_init__(self):
+        super().__post_init__()
+        for key, value in registry.canonical_fields(self).items():  # --post GCODE is the gcode post
+            object.__setattr__(self, key, value)
+
 
 def _guarded(what: str, fn, *args):
     """Call plugin code: its own DoodleErrors pass, anything else names the plugin."""

@@ -54,6 +54,10 @@ class EdgesTracer(Tracer):
                "(0 = the pen width), so px options mean the same drawn size at any resolution"),
     )
 
+    @classmethod
+    def layer_names(cls, options):
+        return ()  # a picture's lines are one layer (--layer is refused before tracing)
+
     def trace(self, path: Path, options: dict[str, Any]) -> Drawing:
         """Polylines in pixels: x = column, y = row (down), a pixel's centre at its index."""
         opt = self.resolve_options(options)
