@@ -11,7 +11,7 @@ from __future__ import annotations
 import time
 from dataclasses import dataclass, field, replace
 from pathlib import Path
-from typing import Any
+from typing import Any, Callable
 
 import numpy as np
 
@@ -90,9 +90,19 @@ RAMP_REPLANS = 6  # ... and of one whose ramps pass a (nonlinear) actuator's lim
 RAMP_GAIN = 1.25  # the share of a limit drops by this times the excess measured on the ramps
 
 
+Progress = Callable[[str, int, int], None]  # (stage, done, total): where a conversion is, for a status line
+
+
+def _quiet(stage: str, done: int = 0, total: int = 0) -> None:
+    """No progress report."""
+
+
 def plan_job(drawing: Drawing, machine: Machine, solver: str = "reach", plugin_dirs=(), order: dict | None = None,
-             smoothing: float | None = None, fitted: list[Stroke] | None = None) -> Job:
+             smoothing: float | None = None, fitted: list[Stroke] | None = None, progress: Progress = _quiet) -> Job:
     """Order, fit, plan and sample a drawing already in machine millimetres.
+
+    ``progress(stage, done, total)`` is told each stage ("ordering", "fitting", "planning",
+    "sampling") and, within the last three, how many of the strokes are done.
 
     ``order`` overrides the profile's [order] options (doodlecam.options.ORDER_DEFAULTS).
     ``fitted``: strokes already ordered and fitted (an edited job, e.g. from the
@@ -113,6 +123,7 @@ def plan_job(drawing: Drawing, machine: Machine, solver: str = "reach", plugin_d
     timings: dict[str, float] = {}
 
     t0 = time.perf_counter()
+    progress("ordering", 0, len(drawing.polylines))
     if fitted is None:
         oo = order_options({**machine.order, **(order or {})})
         # One layer after another (a pen each, in the drawing's order); strokes ordered within it.
@@ -132,7 +143,8 @@ def plan_job(drawing: Drawing, machine: Machine, solver: str = "reach", plugin_d
     t0 = time.perf_counter()
     strokes = [] if fitted is None else [Stroke(spline=s.spline, source_index=s.source_index, fit_error=s.fit_error,
                                                 layer=s.layer) for s in fitted]
-    for i, p, layer in ordered if fitted is None else ():
+    for k, (i, p, layer) in enumerate(ordered if fitted is None else ()):
+        progress("fitting", k, len(ordered))
         # a tracer may ask for its zig-zags to be cut at their corners first (joined hatching)
         for spline, err in fit_pieces(p, machine.degree, machine.tolerance, corner=float(drawing.meta.get("split_corners_deg", 0.0))):
             strokes.append(Stroke(spline=spline, source_index=i, fit_error=err, layer=layer))
@@ -202,12 +214,19 @@ def plan_job(drawing: Drawing, machine: Machine, solver: str = "reach", plugin_d
             smp = sample(s, n)
         return smp, path_deviation(s.spline, written_samples(smp, steps))  # what the machine draws
 
+    def counted(stage: str, items):
+        for n, item in enumerate(items):
+            progress(stage, n, len(items))
+            yield item
+
     t0 = time.perf_counter()
-    planned, ratios = map(list, zip(*(plan_one(n, s, jerk) for n, s in enumerate(strokes, 1)))) if strokes else ([], [])
+    planned, ratios = map(list, zip(*(plan_one(n, s, jerk) for n, s in counted("planning", list(enumerate(strokes, 1)))))) \
+        if strokes else ([], [])
     timings["plan"] = time.perf_counter() - t0
 
     t0 = time.perf_counter()
-    samples, devs = map(list, zip(*(sample_one(s, n, jerk) for n, s in enumerate(list(planned), 1)))) if planned else ([], [])
+    samples, devs = map(list, zip(*(sample_one(s, n, jerk) for n, s in counted("sampling", list(enumerate(planned, 1)))))) \
+        if planned else ([], [])
     replanned = 0
     for i in range(len(planned)):
         bound = jerk
@@ -398,7 +417,9 @@ class Result:
         }
 
 
-def convert(path: str | Path, outdir: str | Path, settings: Settings) -> Result:
+def convert(path: str | Path, outdir: str | Path, settings: Settings, progress: Progress = _quiet) -> Result:
+    """Trace, plan and post one file into ``outdir``; ``progress`` as for :func:`plan_job`, plus
+    "tracing" first and "writing" last."""
     from doodlecam.trace.layout import fit_to_work_area
 
     path = Path(path)
@@ -407,6 +428,7 @@ def convert(path: str | Path, outdir: str | Path, settings: Settings) -> Result:
     checks.check_settings(settings, settings.machine, [path], Path(outdir))
     timings = {}
     t0 = time.perf_counter()
+    progress("tracing", 0, 0)
     drawing = trace(path, settings)
     timings["trace"] = time.perf_counter() - t0
     drawing_mm = select_layer(fit_to_work_area(drawing, settings.machine, settings.layout), settings.layer)
@@ -414,8 +436,7 @@ def convert(path: str | Path, outdir: str | Path, settings: Settings) -> Result:
     if settings.path_tolerance is not None:
         machine = replace(machine, path_tolerance=float(settings.path_tolerance))
     job = plan_job(drawing_mm, machine, settings.solver or settings.machine.solver, settings.plugin_dirs,
-                   smoothing=settings.smoothing,
-                   order=settings.order)
+                   smoothing=settings.smoothing, order=settings.order, progress=progress)
     timings.update(job.meta["timings"])
     over = over_bounds(job)
     if over and not settings.allow_deviation:  # before any file is written
@@ -423,6 +444,7 @@ def convert(path: str | Path, outdir: str | Path, settings: Settings) -> Result:
                         "demands, or pass --allow-deviation to write it anyway)")
     job.meta["allowed_deviations"] = over
     t0 = time.perf_counter()
+    progress("writing", 0, len(settings.posts))
     outputs = run_posts(job, settings)
     timings["post"] = time.perf_counter() - t0
     written = write_outputs(Path(outdir), path.stem, outputs)

@@ -79,6 +79,7 @@ def test_main_reports_a_wrapped_interrupt_in_one_line(monkeypatch, capsys):
             raise SystemError("returned a result with an exception set") from k
 
     monkeypatch.setattr("doodlecam.cli.machines.explain", boom)
+    monkeypatch.setattr("doodlecam.atomic.renamed", 0)  # this process may have written files in other tests
     assert cli.main(["machines", "check", "doodlebot"]) == 130
     assert capsys.readouterr().err == "doodlecam: interrupted; no file was written\n"
 

@@ -50,13 +50,17 @@ class LazyGroup(click.Group):
 
 @click.group(cls=LazyGroup, context_settings={"help_option_names": ["-h", "--help"]})
 @click.version_option(__version__, prog_name="doodlecam")
-def cli():
+@click.option("-v", "--verbose", count=True, help="Say more: each stage's time (convert). Before the command: doodlecam -v convert ...")
+@click.pass_context
+def cli(ctx, verbose):
     """Turn pictures into time-optimal pen-plotter jobs.
 
     \b
     trace -> fit B-splines -> order -> plan (time-optimal) -> sample -> post
-    Start with:  doodlecam convert samples/images/camera.png -o out/
+    Start with:  doodlecam convert PICTURE -o out/    (a photo or sketch: PNG, JPEG; or an SVG, DXF)
+    No picture at hand:  doodlecam calibrate -o out/   (a test pattern for the default machine)
     """
+    ctx.meta["doodlecam.verbose"] = verbose  # shared with every sub-command's context (cli.progress)
 
 
 
@@ -103,6 +107,11 @@ def _run(argv) -> int:
             return _interrupted()
         click.echo(f"doodlecam: error: {e}", err=True)
         return e.exit_code
+    except BrokenPipeError:  # `doodlecam convert ... | head`: the reader left; say nothing more
+        import os
+
+        os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())  # Python flushes stdout at exit
+        return 1
     return 0
 
 

@@ -30,8 +30,11 @@ def convert(input, outdir, as_json, **options):
     settings = Settings(**{**kw, "machine": load_machine(kw["machine"])})
     check_input(input)
     check_settings(settings, settings.machine, [input], outdir)  # (convert checks again: cheap)
+    from doodlecam.cli.progress import Stages, verbosity
+
     first_run_notice()
-    result = run(input, outdir, settings)
+    with Stages(input.name, verbosity()) as stages:  # a status line on a terminal; stage times with -v
+        result = run(input, outdir, settings, progress=stages)
     s = result.summary()
     if as_json:
         click.echo(json.dumps(s, indent=2))
