@@ -38,6 +38,8 @@ class Option:
 
     def coerce(self, value: Any, plugin: str) -> Any:
         """``value`` (a CLI string or a TOML value) as this option's type."""
+        if value is None and self.default is None:  # an option that may stay unset, passed on unset
+            return None
         value = self._coerce(value, plugin)
         if self.choices is not None and value not in self.choices:
             raise PluginError(f"{plugin}: option '{self.name}' must be one of {', '.join(map(str, self.choices))}, got {value!r}")
@@ -97,6 +99,19 @@ class Tracer(Plugin):
 
     def trace(self, path: Path, options: dict[str, Any]):  # -> doodlecam.model.Drawing
         raise NotImplementedError
+
+    @classmethod
+    def check_options(cls, options: dict[str, Any], pen_mm: float | None = None) -> None:
+        """Raise a PluginError for resolved ``options`` that cannot work (``pen_mm``: the pen's
+        width when known). Called before anything is traced; optional to override."""
+
+    @classmethod
+    def layer_names(cls, options: dict[str, Any]) -> tuple[str, ...] | None:
+        """The layers this tracer's drawings can have with these resolved options, when that is
+        known before tracing: ``()`` for one unnamed layer (a photo's edges); ``None``, the
+        default, when it depends on the file (an SVG's layers). ``--layer`` is checked against it
+        before the work."""
+        return None
 
 
 class Kinematics(Plugin):

@@ -61,6 +61,21 @@ def pick_tracer(path: Path, tracer: str | None, plugin_dirs: Iterable[str] = ())
                      "give a picture (PNG, JPEG, ...) or pick one with --tracer")
 
 
+def check_layer(layer: str, tracer: type, resolved: dict, ext: str) -> None:
+    """``--layer`` names a layer the tracer can draw, when it can tell before tracing (a picture's
+    edges are one layer: only the file's own layers, in an SVG or DXF, can be picked)."""
+    names = tracer.layer_names(resolved)
+    if names is None or layer in names:
+        return
+    files = f"{ext or 'such'} files" if ext else "its input"
+    if not names:
+        raise InputError(f"--layer {layer!r}: the {tracer.name} tracer draws {files} as one layer; layers come from "
+                         "SVG and DXF files (or --tracer hatch --tracer-opt layers=tone: 'tone 1', 'tone 2', ...); "
+                         "leave --layer out")
+    raise InputError(f"--layer {layer!r}: the {tracer.name} tracer draws the layers "
+                     f"{', '.join(repr(n) for n in names)}; pick one of them")
+
+
 def check_output_dir(outdir: Path) -> None:
     """``outdir`` is, or can be made, a writable folder; nothing is left behind by the check."""
     outdir = Path(outdir)
@@ -141,8 +156,11 @@ def check_settings(options: ConvertOptions, machine: Machine, inputs: Iterable[P
             tracers[ext] = pick_tracer(Path(path), options.tracer, dirs)
     if options.tracer and not tracers:
         tracers[""] = registry.get("tracer", options.tracer, dirs)
-    for cls in {c.name: c for c in tracers.values()}.values():
-        cls.resolve_options(machine.plugin_options.get(f"trace.{cls.name}", {}), options.tracer_options)
+    for ext, cls in tracers.items():
+        resolved = cls.resolve_options(machine.plugin_options.get(f"trace.{cls.name}", {}), options.tracer_options)
+        cls.check_options(resolved, machine.pen.width)
+        if options.layer is not None:
+            check_layer(options.layer, cls, resolved, ext)
     posts = {post: registry.get("postprocessor", post, dirs) for post in options.posts}
     for post, cls in posts.items():
         cls.resolve_options(machine.plugin_options.get(f"post.{post}", {}), options.post_options.get(post, {}))

@@ -13,7 +13,9 @@ from pathlib import Path
 from typing import Any
 
 from doodlecam.errors import MachineError, did_you_mean
-from doodlecam.options import LAYOUT_DEFAULTS, ORDER_DEFAULTS, TRAVEL_ALIASES, TRAVEL_LAWS, layout_options, order_options, travel_law_name
+from doodlecam.options import (LAYOUT_DEFAULTS, ORDER_DEFAULTS, SOLVERS, TRAVEL_ALIASES, TRAVEL_LAWS, layout_options,
+                               order_options, travel_law_name)
+from doodlecam.plausible import findings
 
 try:  # Python 3.11+
     import tomllib
@@ -72,6 +74,7 @@ class Machine:
     plugin_options: dict[str, dict[str, Any]] = field(default_factory=dict)  # "post.gcode" -> {...}
     layout: dict[str, Any] = field(default_factory=dict)  # [layout], checked by doodlecam.trace.layout
     order: dict[str, Any] = field(default_factory=dict)  # [order], checked by doodlecam.trace.layout
+    warnings: tuple[str, ...] = ()  # implausible but possible values (doodlecam.plausible), shown with each job
 
     @property
     def x(self) -> Axis:
@@ -367,12 +370,16 @@ def parse_machine(data: dict[str, Any], path: str = "<profile>") -> Machine:
                 raise MachineError(f"{path}: [{group}.{name}] must be a table of options; fix the profile")
             plugin_options[f"{group}.{name}"] = dict(opts)
     m = vals["machine"]
-    return Machine(
+    solver = m.get("solver", "reach")
+    if solver not in SOLVERS:
+        raise MachineError(f"{path}: [machine] solver {solver!r} is unknown{did_you_mean(solver, SOLVERS)}; "
+                           f"use one of {', '.join(SOLVERS)}")
+    machine = Machine(
         name=m["name"],
         description=m.get("description", ""),
         kinematics=m.get("kinematics", "cartesian"),
         kinematics_params=dict(data.get("kinematics") or {}),
-        solver=m.get("solver", "reach"),
+        solver=solver,
         smoothing=m.get("smoothing", 1.0),
         width=wa["width"],
         height=wa["height"],
@@ -393,6 +400,10 @@ def parse_machine(data: dict[str, Any], path: str = "<profile>") -> Machine:
         layout=layout_options(vals["layout"], f"{path}: [layout]", MachineError),
         order=order_options(vals["order"], f"{path}: [order]", MachineError),
     )
+    found = findings(machine)
+    if found and found[0].error:
+        raise MachineError(found[0].message)
+    return replace(machine, warnings=tuple(f.message for f in found))
 
 
 def _parse_pens(path: str, entries: list) -> tuple[Pen, ...]:
@@ -428,9 +439,15 @@ def load_machine(spec: str | os.PathLike) -> Machine:
     """Load and validate a profile given by path or by name."""
     path = resolve_machine(str(spec))
     try:
-        data = tomllib.loads(path.read_text(encoding="utf-8"))
-    except (OSError, UnicodeDecodeError) as e:
-        raise MachineError(f"{path}: cannot read machine profile ({e}); check the file") from None
+        raw = path.read_bytes()
+    except OSError as e:
+        raise MachineError(f"{path}: cannot read machine profile ({e.strerror or e}); check the file") from None
+    if raw.startswith((b"\xff\xfe", b"\xfe\xff")) or b"\x00" in raw[:200]:
+        raise MachineError(f"{path}: is saved as UTF-16 (Windows \"Unicode\"); save it as UTF-8")
+    try:  # utf-8-sig: a byte-order mark (Notepad writes one) is no part of the TOML
+        data = tomllib.loads(raw.decode("utf-8-sig"))
+    except UnicodeDecodeError as e:
+        raise MachineError(f"{path}: is not UTF-8 text (byte {e.start} cannot be read); save it as UTF-8") from None
     except tomllib.TOMLDecodeError as e:
         raise MachineError(f"{path}: not valid TOML ({e}); fix the syntax") from None
     return parse_machine(data, str(path))

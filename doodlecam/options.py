@@ -31,6 +31,19 @@ class ConvertOptions:
     allow_deviation: bool = False  # write the job even when a measured figure is over its bound
     layer: str | None = None  # convert only this layer of the drawing
 
+    def __post_init__(self):
+        # Settings(posts="gcode") is one post, not the posts 'g', 'c', 'o', ...
+        if isinstance(self.posts, str):
+            object.__setattr__(self, "posts", (self.posts,))
+        if isinstance(self.plugin_dirs, str):
+            object.__setattr__(self, "plugin_dirs", (self.plugin_dirs,))
+        object.__setattr__(self, "posts", tuple(self.posts))
+        object.__setattr__(self, "plugin_dirs", tuple(self.plugin_dirs))
+
+
+# the planner's back-ends (doodlecam.plan.planner), named here so a profile is checked on load
+SOLVERS = ("reach", "lp", "lp:osqp", "lp:highs", "lp:clarabel", "qp", "qp:osqp", "qp:highs", "qp:clarabel")
+
 
 # ---------------------------------------------------------------- layout, order and travel
 # Checked here, below every stage, so that a machine profile is validated on load

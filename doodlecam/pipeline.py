@@ -11,7 +11,7 @@ from __future__ import annotations
 import time
 from dataclasses import dataclass, field, replace
 from pathlib import Path
-from typing import Any
+from typing import Any, Callable
 
 import numpy as np
 
@@ -23,6 +23,7 @@ from doodlecam.errors import (
     OutputError,
     PlanError,
     PluginError,
+    interrupted,
 )
 from doodlecam.machine import Machine
 from doodlecam.model import Drawing, Job, Stroke
@@ -37,6 +38,11 @@ class Settings(ConvertOptions):
     machine: Machine
     workers: int = 1  # processes planning the strokes (the job is the same with any number)
 
+    def __post_init__(self):
+        super().__post_init__()
+        for key, value in registry.canonical_fields(self).items():  # --post GCODE is the gcode post
+            object.__setattr__(self, key, value)
+
 
 def _guarded(what: str, fn, *args):
     """Call plugin code: its own DoodleErrors pass, anything else names the plugin."""
@@ -45,6 +51,8 @@ def _guarded(what: str, fn, *args):
     except DoodleError:
         raise
     except Exception as e:
+        if interrupted(e):  # Ctrl-C inside a compiled kernel: not the plugin's failure
+            raise KeyboardInterrupt from None
         raise PluginError(f"{what} failed: {type(e).__name__}: {e}") from e
 
 
@@ -76,17 +84,27 @@ def trace(path: Path, settings: Settings) -> Drawing:
     return drawing
 
 
+Progress = Callable[[str, int, int], None]  # (stage, done, total): where a conversion is, for a status line
+
+
+def _quiet(stage: str, done: int = 0, total: int = 0) -> None:
+    """No progress report."""
+
+
 def plan_job(drawing: Drawing, machine: Machine, solver: str = "reach", plugin_dirs=(), order: dict | None = None,
              smoothing: float | None = None, fitted: list[Stroke] | None = None, workers: int = 1,
-             progress=None) -> Job:
+             progress: Progress = _quiet) -> Job:
     """Order, fit, plan and sample a drawing already in machine millimetres.
+
+    ``progress(stage, done, total)`` is told each stage ("ordering", "fitting", "planning":
+    planning, sampling and their checks, stroke by stroke) and, within the last two, how many
+    of the strokes are done.
 
     ``order`` overrides the profile's [order] options (doodlecam.options.ORDER_DEFAULTS).
     ``fitted``: strokes already ordered and fitted (an edited job, e.g. from the
     studio): planned as given, without ordering or fitting ``drawing`` again.
     ``workers``: processes that plan the strokes (doodlecam.plan.stroke; the job is the
-    same with any number). ``progress(stage, total)`` returns a function called with the
-    number of strokes done, or None.
+    same with any number).
     """
     from doodlecam.geometry.fit import fit_pieces
     from doodlecam.geometry.order import order_strokes
@@ -105,6 +123,7 @@ def plan_job(drawing: Drawing, machine: Machine, solver: str = "reach", plugin_d
     timings: dict[str, float] = {}
 
     t0 = time.perf_counter()
+    progress("ordering", 0, len(drawing.polylines))
     if fitted is None:
         oo = order_options({**machine.order, **(order or {})})
         # One layer after another, strokes ordered within each; layers grouped by pen (each pen
@@ -133,7 +152,8 @@ def plan_job(drawing: Drawing, machine: Machine, solver: str = "reach", plugin_d
     # vector tracer's corners, joined hatching's zig-zags): each piece is fitted on its own, so
     # the corner is exactly where the drawing puts it and the pen stops there, pen down.
     corner = float(drawing.meta.get("split_corners_deg", 0.0))
-    for i, p, layer in ordered if fitted is None else ():
+    for k, (i, p, layer) in enumerate(ordered if fitted is None else ()):
+        progress("fitting", k, len(ordered))
         for spline, err in fit_pieces(p, machine.degree, machine.tolerance, corner=corner):
             strokes.append(Stroke(spline=spline, source_index=i, fit_error=err, layer=layer))
     timings["fit"] = time.perf_counter() - t0
@@ -153,8 +173,14 @@ def plan_job(drawing: Drawing, machine: Machine, solver: str = "reach", plugin_d
     ctx = Context(delta_time=machine.delta_time, solver=solver, smoothing=smoothing, path_tolerance=path_tol,
                   jerk=jerk, steps=steps, kinematics=kin, pens=by_pen)
     t0 = time.perf_counter()
-    done = progress("planning", len(strokes)) if progress else None
-    outcomes = plan_strokes(ctx, strokes, [pen_of[s.layer] for s in strokes], workers, done)
+    finished = [0]
+
+    def planned_some(k: int) -> None:
+        finished[0] += k
+        progress("planning", finished[0], len(strokes))
+
+    progress("planning", 0, len(strokes))
+    outcomes = plan_strokes(ctx, strokes, [pen_of[s.layer] for s in strokes], workers, planned_some)
     timings["plan"] = time.perf_counter() - t0  # plan, sample and re-plan: one pass per stroke
     planned = [o.stroke for o in outcomes]
     samples = tuple(o.samples for o in outcomes)
@@ -273,6 +299,7 @@ def warnings_for(job: Job, drawing_meta: dict[str, Any]) -> list[str]:
         named = (c["layer"] + (f" ({c['colour']})" if c["colour"] else "") + f" drawn with {c['pen']}" for c in spare)
         out.append("no pen of their own (by a pen's layers list, name or colour): " + ", ".join(named)
                    + "; give each a [[pen]] of its colour, or list it in a pen's layers")
+    out += job.machine.warnings  # the profile's implausible values (doodlecam.plausible)
     if job.duration > LONG_JOB_S:
         out.append(f"the job takes {job.duration / 3600:.1f} hours ({job.duration / 60:.0f} min); check the tracer "
                    "options (a noisy picture traces to many strokes) or draw it smaller")
@@ -363,7 +390,9 @@ def pen_choice(job: Job) -> list[dict[str, Any]]:
              "why": why.get(n, "")} for n, k in job.layer_pens.items() if n]
 
 
-def convert(path: str | Path, outdir: str | Path, settings: Settings) -> Result:
+def convert(path: str | Path, outdir: str | Path, settings: Settings, progress: Progress = _quiet) -> Result:
+    """Trace, plan and post one file into ``outdir``; ``progress`` as for :func:`plan_job`, plus
+    "tracing" first and "writing" last."""
     from doodlecam.trace.layout import fit_to_work_area
 
     path = Path(path)
@@ -372,6 +401,7 @@ def convert(path: str | Path, outdir: str | Path, settings: Settings) -> Result:
     checks.check_settings(settings, settings.machine, [path], Path(outdir))
     timings = {}
     t0 = time.perf_counter()
+    progress("tracing", 0, 0)
     drawing = trace(path, settings)
     timings["trace"] = time.perf_counter() - t0
     drawing_mm = select_layer(fit_to_work_area(drawing, settings.machine, settings.layout), settings.layer)
@@ -379,7 +409,8 @@ def convert(path: str | Path, outdir: str | Path, settings: Settings) -> Result:
     if settings.path_tolerance is not None:
         machine = replace(machine, path_tolerance=float(settings.path_tolerance))
     job = plan_job(drawing_mm, machine, settings.solver or settings.machine.solver, settings.plugin_dirs,
-                   smoothing=settings.smoothing, order=settings.order, workers=settings.workers)
+                   smoothing=settings.smoothing, order=settings.order, workers=settings.workers,
+                   progress=progress)
     timings.update(job.meta["timings"])
     over = over_bounds(job)
     if over and not settings.allow_deviation:  # before any file is written
@@ -387,6 +418,7 @@ def convert(path: str | Path, outdir: str | Path, settings: Settings) -> Result:
                         "demands, or pass --allow-deviation to write it anyway)")
     job.meta["allowed_deviations"] = over
     t0 = time.perf_counter()
+    progress("writing", 0, len(settings.posts))
     outputs = run_posts(job, settings)
     timings["post"] = time.perf_counter() - t0
     written = write_outputs(Path(outdir), path.stem, outputs)

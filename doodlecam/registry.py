@@ -14,12 +14,13 @@ import os
 import sys
 from dataclasses import dataclass
 from pathlib import Path
-from typing import TYPE_CHECKING, Callable, Iterable
+from typing import TYPE_CHECKING, Any, Callable, Iterable
 
-from doodlecam.errors import PluginError, did_you_mean
+from doodlecam.errors import MachineError, PluginError, did_you_mean
 
 if TYPE_CHECKING:
     from doodlecam.machine import Machine
+    from doodlecam.options import ConvertOptions
 
 GROUPS = {
     "tracer": "doodlecam.tracers",
@@ -147,20 +148,63 @@ def discover(plugin_dirs: Iterable[str | os.PathLike] = ()) -> list[PluginInfo]:
     return infos
 
 
+def _find(infos: list[PluginInfo], kind: str, name: str) -> PluginInfo | None:
+    """The plugin of that kind named ``name`` exactly, else the one whose name differs only
+    in case (``--post GCODE``)."""
+    mine = [i for i in infos if i.kind == kind]
+    for info in mine:
+        if info.name == name:
+            return info
+    folded = [i for i in mine if i.name.casefold() == str(name).casefold()]
+    return folded[0] if len(folded) == 1 else None
+
+
+def canonical_name(kind: str, name: str, plugin_dirs: Iterable[str | os.PathLike] = ()) -> str:
+    """The installed plugin's own spelling of ``name`` ('GCODE' -> 'gcode'); ``name`` itself when
+    none matches (the checks then say what exists)."""
+    try:
+        info = _find(discover(plugin_dirs), kind, name)
+    except PluginError:  # a missing --plugin-dir: reported by the checks
+        return name
+    return info.name if info is not None else name
+
+
+def canonical_fields(options: "ConvertOptions") -> dict[str, Any]:
+    """The plugin names of conversion options in the plugins' own spelling (tracer, posts, the
+    posts of post_options): what differs, for the options' __post_init__ to set."""
+    dirs = options.plugin_dirs
+    posts = tuple(canonical_name("postprocessor", p, dirs) for p in options.posts)
+    out: dict[str, Any] = {}
+    if options.tracer:
+        out["tracer"] = canonical_name("tracer", options.tracer, dirs)
+    if posts != tuple(options.posts):
+        out["posts"] = posts
+    if options.post_options:
+        fold = {p.casefold(): p for p in posts}
+        out["post_options"] = {fold.get(k.casefold(), k): v for k, v in options.post_options.items()}
+    return {k: v for k, v in out.items() if v != getattr(options, k)}
+
+
 def get(kind: str, name: str, plugin_dirs: Iterable[str | os.PathLike] = ()) -> type:
-    """The plugin class of that kind and name, or a PluginError saying what exists."""
+    """The plugin class of that kind and name (any case), or a PluginError saying what exists."""
     infos = discover(plugin_dirs)
-    for info in infos:
-        if info.kind == kind and info.name == name:
-            return info.load()
+    info = _find(infos, kind, name)
+    if info is not None:
+        return info.load()
     names = sorted(i.name for i in infos if i.kind == kind)
     broken = [i for i in infos if i.kind == "?"]
     extra = f"; broken drop-ins: {', '.join(i.origin for i in broken)}" if broken else ""
-    raise PluginError(f"unknown {kind} '{name}'{did_you_mean(name, names)}; available: {', '.join(names) or 'none'} "
-                      f"(see 'doodlecam plugins'){extra}")
+    raise PluginError(f"unknown {kind} '{name}'{did_you_mean(name, names)}; available: "
+                      f"{', '.join(names) or 'none'} (see 'doodlecam plugins'){extra}")
 
 
 def kinematics_for(machine: "Machine", plugin_dirs=()):
     """The machine's kinematics plugin, built for its profile."""
+    # exact: the profile's name is compared elsewhere too (a profile is fixed once, not typed each time)
+    if not any(i.kind == "machine" and i.name == machine.kinematics for i in discover(plugin_dirs)):
+        names = sorted(i.name for i in discover(plugin_dirs) if i.kind == "machine")
+        raise MachineError(f"{machine.source or machine.name}: [machine] kinematics '{machine.kinematics}' is unknown"
+                           f"{did_you_mean(machine.kinematics, names)}; use one of {', '.join(names)}, or give the "
+                           "folder of its plugin with --plugin-dir")
     cls = get("machine", machine.kinematics, plugin_dirs)
     return cls(machine, machine.kinematics_params)

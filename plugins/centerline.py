@@ -43,6 +43,10 @@ class CenterlineTracer(Tracer):
         Option("min_length", float, 0.0, "drop strokes shorter than this, in px; 0 = the line width"),
     )
 
+    @classmethod
+    def layer_names(cls, options):
+        return ()  # a picture's lines are one layer (--layer is refused before tracing)
+
     def trace(self, path: Path, options: dict[str, Any]) -> Drawing:
         """Polylines in pixels: x = column, y = row (down), a pixel's centre at its index."""
         opt = self.resolve_options(options)
@@ -301,6 +305,10 @@ class AutoTracer(Tracer):
     name = "auto"
     summary = "the default for pictures: centerline for line art (thin dark lines on paper), else edges"
     extensions = IMAGE_EXTENSIONS
+
+    @classmethod
+    def layer_names(cls, options):
+        return ()  # a picture's lines are one layer (--layer is refused before tracing)
 
     @classmethod
     def _options(cls) -> tuple[Option, ...]:

@@ -40,6 +40,10 @@ class ContoursTracer(Tracer):
                "min_area, simplify and fill_spacing are scaled to match"),
     )
 
+    @classmethod
+    def layer_names(cls, options):
+        return ()  # a picture's lines are one layer (--layer is refused before tracing)
+
     def trace(self, path: Path, options: dict[str, Any]) -> Drawing:
         """Polylines in pixels: x = column, y = row (down), pixel centres at integers."""
         from skimage import measure

@@ -46,8 +46,8 @@ class HatchTracer(Tracer):
     summary = "Tone by hatching: more layers of lines where the picture is darker (PNG, JPEG, ...)"
     extensions = IMAGE_EXTENSIONS
     options = (
-        Option("spacing_mm", float, 0.0, f"distance between the lines of one layer as drawn, in mm; 0 = {_PEN_FACTOR:g} "
-               "pen widths (never below one pen width)"),
+        Option("spacing_mm", float, None, f"distance between the lines of one layer as drawn, in mm, at least the pen "
+               f"width; unset = {_PEN_FACTOR:g} pen widths"),
         Option("spacing", float, 0.0, "the same in px of the picture, instead of spacing_mm; 0 = use spacing_mm "
                f"({_SPACING_PX:g} px when the drawn size is unknown)"),
         Option("levels", int, 4, "number of tone layers: the darkest pixels get them all (1-8)"),
@@ -67,19 +67,30 @@ class HatchTracer(Tracer):
                "(0 = the pen width), so px options mean the same drawn size at any resolution"),
     )
 
-    def trace(self, path: Path, options: dict[str, Any]) -> Drawing:
-        """Polylines in pixels: x = column, y = row (down), pixel centres at integers."""
-        opt = self.resolve_options(options)
+    @classmethod
+    def check_options(cls, opt: dict[str, Any], pen_mm: float | None = None) -> None:
         if opt["spacing"] != 0 and opt["spacing"] < 0.5:
             raise PluginError(f"tracer 'hatch': spacing must be >= 0.5 px (or 0: spacing_mm), got {opt['spacing']:g}")
-        if opt["spacing_mm"] < 0:
-            raise PluginError(f"tracer 'hatch': spacing_mm must be >= 0, got {opt['spacing_mm']:g}")
+        mm = opt["spacing_mm"]
+        if mm is not None and (mm <= 0 or (pen_mm and mm < pen_mm)):  # closer than the pen: solid ink
+            pen = f" ({pen_mm:g} mm)" if pen_mm else ""
+            raise PluginError(f"tracer 'hatch': spacing_mm must be at least the pen's width{pen}, got {mm:g} "
+                              f"(closer lines ink the paper solid); leave it out for {_PEN_FACTOR:g} pen widths")
         if not 1 <= opt["levels"] <= 8:
             raise PluginError(f"tracer 'hatch': levels must be 1 to 8, got {opt['levels']}")
         if opt["blur"] < 0 or opt["gamma"] <= 0 or opt["min_length"] < 0:
             raise PluginError("tracer 'hatch': blur and min_length must be >= 0 and gamma > 0")
         if opt["layers"] not in ("one", "tone"):
             raise PluginError(f"tracer 'hatch': layers must be 'one' or 'tone', got {opt['layers']!r}")
+
+    @classmethod
+    def layer_names(cls, opt: dict[str, Any]) -> tuple[str, ...]:
+        return tuple(f"tone {k}" for k in range(1, opt["levels"] + 1)) if opt["layers"] == "tone" else ()
+
+    def trace(self, path: Path, options: dict[str, Any]) -> Drawing:
+        """Polylines in pixels: x = column, y = row (down), pixel centres at integers."""
+        opt = self.resolve_options(options)
+        self.check_options(opt, self.pen_mm)
         gray, shape = load_working(path, self, opt["pixel_mm"])
         opt["spacing"] = spacing = _spacing_px(self, opt, gray.shape[1] / shape[1])
         dark = darkness(gray, opt["blur"], opt["gamma"], opt["equalize"])

@@ -191,3 +191,46 @@ def test_full_disk_ends_in_one_line_and_a_rerun_completes(tmp_path):
     again = subprocess.run(cmd, capture_output=True, text=True, timeout=120)
     assert again.returncode == 0, again.stderr
     assert _files(out) == _files(ref)
+
+
+def _alive(pid: int) -> bool:
+    """A process that still runs (a zombie waiting for a parent to reap it has ended)."""
+    try:
+        state = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()[0]
+    except (OSError, IndexError):
+        return False
+    return state != "Z"
+
+
+def _descendants(pid: int) -> set[int]:
+    kids = {p: int(Path(f"/proc/{p}/stat").read_text().rsplit(")", 1)[1].split()[1])
+            for p in (int(d) for d in os.listdir("/proc") if d.isdigit()) if Path(f"/proc/{p}/stat").exists()}
+    out, frontier = set(), {pid}
+    while frontier:
+        frontier = {c for c, parent in kids.items() if parent in frontier} - out
+        out |= frontier
+    return out
+
+
+@pytest.mark.skipif(not Path("/proc/self/stat").exists(), reason="needs /proc to list processes")
+def test_killed_coordinator_leaves_no_worker_running(tmp_path):
+    """kill -9 of the coordinator: its workers notice (multiprocessing's parent sentinel) and exit
+    instead of converting on as orphans; a re-run then completes the batch."""
+    src, plugins = _slow_folder(tmp_path, n=12)
+    out = tmp_path / "out"
+    proc = subprocess.Popen(_batch_cmd(src, out, plugins), stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    _wait_for(lambda: _manifest_files(out), proc, "a file was done")  # the workers are busy now
+    workers = _descendants(proc.pid)
+    assert len(workers) >= 2, workers  # two workers (and multiprocessing's resource tracker)
+    proc.kill()
+    proc.wait()
+    deadline = time.monotonic() + 60
+    while any(_alive(p) for p in workers) and time.monotonic() < deadline:
+        time.sleep(0.1)
+    left = [p for p in workers if _alive(p)]
+    for p in left:  # a failing run must not leave them behind either
+        os.kill(p, signal.SIGKILL)
+    assert not left, "workers outlived their coordinator"
+    again = subprocess.run(_batch_cmd(src, out, plugins), capture_output=True, text=True, timeout=120)
+    assert again.returncode == 0, again.stderr
+    assert not list((out / ".doodlecam-tmp").rglob("*")) if (out / ".doodlecam-tmp").exists() else True

@@ -438,3 +438,18 @@ def test_noise_is_estimated_and_smoothed_by_default(tmp_path):
     assert len(n_off.polylines) > 3 * len(c_on.polylines)  # what the issue saw
     assert len(n_on.polylines) < 1.3 * len(c_on.polylines)
     assert n_on.meta["length_px"] < 1.3 * c_on.meta["length_px"]
+
+
+def test_thin_is_scikit_images_thin():
+    """plugins.edges.thin builds Guo and Hall's tables itself (no private scikit-image import) and
+    thins only the set pixels: the result is morphology.thin's, on blobs, lines and Canny maps."""
+    from scipy import ndimage
+    from skimage import feature, morphology
+
+    from doodlecam.plugins.edges import thin
+
+    rng = np.random.default_rng(7)
+    for k in range(6):
+        blobs = ndimage.gaussian_filter(rng.random((90, 120)), 2 + k) > 0.5 + 0.01 * k
+        for img in (blobs, feature.canny(blobs.astype(float) + 0.2 * rng.random(blobs.shape), sigma=1.5)):
+            assert (thin(img) == morphology.thin(img)).all()

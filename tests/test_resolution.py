@@ -31,7 +31,7 @@ def test_the_same_photo_at_three_resolutions_gives_the_same_job(tmp_path, tracer
 def test_hatch_lines_are_never_closer_than_the_pen(tmp_path):
     m = parse_machine(dict(PROFILE, pen={"width": 0.8}), "t.toml")
     path = save(tmp_path, "grey.png", np.full((300, 400), 60, np.uint8))
-    for opts in ({}, {"spacing": "0.5"}, {"spacing_mm": "0.1"}):
+    for opts in ({}, {"spacing": "0.5"}):
         s = Settings(machine=m, tracer="hatch", tracer_options={**opts, "levels": "1", "cross": "false", "angle": "0",
                                                                   "join": "false"})  # one line per polyline
         d = trace(path, s)

@@ -24,6 +24,13 @@ class BatchOptions(ConvertOptions):
 
     machine: str = "doodlebot"
 
+    def __post_init__(self):
+        from doodlecam import registry
+
+        super().__post_init__()
+        for key, value in registry.canonical_fields(self).items():  # the manifest hashes the plugins' own names
+            object.__setattr__(self, key, value)
+
     def settings(self):
         from doodlecam.machine import load_machine
         from doodlecam.pipeline import Settings

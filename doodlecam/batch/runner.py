@@ -273,7 +273,6 @@ def _run_local(todo, stems, options, key, in_dir, out_dir, jobs, progress, finis
     bar = _progress_bar(len(todo), progress)
     failures = 0
     pools: list = []  # every pool started; the last one takes new files
-    processes: list[dict] = []  # each pool's pid -> process map (shutdown(wait=False) drops the pool's own reference)
     used = 0  # files given to the current pool
     pending: dict = {}  # future -> input
     queue = deque(todo)
@@ -284,7 +283,6 @@ def _run_local(todo, stems, options, key, in_dir, out_dir, jobs, progress, finis
         nonlocal used
         pool = ProcessPoolExecutor(max_workers=jobs, mp_context=ctx, initializer=_worker_init, initargs=(options, key))
         pools.append(pool)
-        processes.append(pool._processes)
         used = 0
 
     def submit_more():
@@ -348,9 +346,8 @@ def _run_local(todo, stems, options, key, in_dir, out_dir, jobs, progress, finis
                 for fut in done:
                     take(fut)
         except KeyboardInterrupt:
-            for procs in processes:  # stop now: kill our own workers
-                for p in list(procs.values()):
-                    p.terminate()
+            for p in multiprocessing.active_children():  # stop now: kill our own workers (every pool's)
+                p.terminate()
     finally:
         for pool in pools:
             pool.shutdown(wait=True, cancel_futures=True)

@@ -26,10 +26,31 @@ def _worker_init(options: BatchOptions, key: str) -> None:
     import signal
 
     signal.signal(signal.SIGINT, signal.SIG_IGN)  # the coordinator decides how to stop
+    _exit_with_parent()
     try:
         _settings_for(options, key)
     except Exception:  # an initializer that raises breaks the pool; convert_one reports it per file instead
         pass
+
+
+def _exit_with_parent() -> None:
+    """End this worker as soon as its coordinator process is gone (killed with -9, crashed):
+    a watch thread waits on multiprocessing's parent sentinel (a pipe or handle that becomes
+    ready when the parent exits, on every platform) and leaves without cleanup, as a killed
+    coordinator would want; the next run of the batch removes the staging files."""
+    import multiprocessing
+    import threading
+    from multiprocessing.connection import wait
+
+    parent = multiprocessing.parent_process()
+    if parent is None or parent.sentinel is None:  # not started by a pool (tests call convert_one directly)
+        return
+
+    def watch():
+        wait([parent.sentinel])
+        os._exit(3)
+
+    threading.Thread(target=watch, name="doodlecam-parent-watch", daemon=True).start()
 
 
 def _settings_for(options: BatchOptions, key: str):

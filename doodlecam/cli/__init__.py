@@ -12,7 +12,7 @@ import sys
 import click
 
 from doodlecam import __version__
-from doodlecam.errors import DoodleError
+from doodlecam.errors import DoodleError, interrupted
 
 # Commands that live in their own modules, imported only when invoked (or
 # when --help lists them): "name": "module:function".
@@ -50,39 +50,71 @@ class LazyGroup(click.Group):
 
 @click.group(cls=LazyGroup, context_settings={"help_option_names": ["-h", "--help"]})
 @click.version_option(__version__, prog_name="doodlecam")
-def cli():
+@click.option("-v", "--verbose", count=True, help="Say more: each stage's time (convert). Before the command: doodlecam -v convert ...")
+@click.pass_context
+def cli(ctx, verbose):
     """Turn pictures into time-optimal pen-plotter jobs.
 
     \b
     trace -> fit B-splines -> order -> plan (time-optimal) -> sample -> post
-    Start with:  doodlecam convert samples/images/camera.png -o out/
+    Start with:  doodlecam convert PICTURE -o out/    (a photo or sketch: PNG, JPEG; or an SVG, DXF)
+    No picture at hand:  doodlecam calibrate -o out/   (a test pattern for the default machine)
     """
+    ctx.meta["doodlecam.verbose"] = verbose  # shared with every sub-command's context (cli.progress)
 
 
 
 
 def main(argv=None) -> int:
     try:
-        rv = cli.main(args=argv, prog_name="doodlecam", standalone_mode=False)
-        if isinstance(rv, int):  # click returns Exit codes instead of raising without standalone mode
+        return _run(argv)
+    except SystemExit:
+        raise
+    except BaseException as e:  # Ctrl-C, wherever it lands (a compiled kernel turns it into a SystemError)
+        if not interrupted(e):
+            raise
+        return _interrupted()
+
+
+def _interrupted() -> int:
+    from doodlecam import atomic
+
+    click.echo("doodlecam: interrupted" + ("" if atomic.renamed else "; no file was written"), err=True)
+    return 130
+
+
+def _run(argv) -> int:
+    args = sys.argv[1:] if argv is None else list(argv)
+    try:
+        # make_context + invoke rather than cli.main: click's main turns Ctrl-C into Abort after
+        # printing a blank line, and the interrupt is one line here
+        with cli.make_context("doodlecam", args) as ctx:
+            rv = cli.invoke(ctx)
+        if isinstance(rv, int):
             return rv
     except click.exceptions.Exit as e:
         return e.exit_code
     except click.ClickException as e:
         e.show()
         return e.exit_code
-    except click.exceptions.Abort:
+    except click.exceptions.Abort as e:
+        if interrupted(e):
+            return _interrupted()
         click.echo("doodlecam: aborted", err=True)
         return 130
-    except KeyboardInterrupt:
-        click.echo("doodlecam: interrupted; no output was written", err=True)
-        return 130
     except DoodleError as e:
+        if interrupted(e):  # a wrapped Ctrl-C
+            return _interrupted()
         click.echo(f"doodlecam: error: {e}", err=True)
         return e.exit_code
+    except BrokenPipeError:  # `doodlecam convert ... | head`: the reader left; say nothing more
+        import os
+
+        os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())  # Python flushes stdout at exit
+        return 1
     return 0
 
 
 def entry() -> None:
-    """Console-script entry point."""
+    """The console-script entry point of installs made before it moved to doodlecam.__main__."""
     sys.exit(main())

@@ -29,14 +29,17 @@ def convert(input, outdir, as_json, workers, **options):
     from doodlecam.checks import check_input, check_settings
     from doodlecam.cli.firstrun import first_run_notice
 
-    kw = job_kwargs(**options)
     from doodlecam.plan.stroke import default_workers
 
+    kw = job_kwargs(**options)
     settings = Settings(**{**kw, "machine": load_machine(kw["machine"])}, workers=workers or default_workers())
     check_input(input)
     check_settings(settings, settings.machine, [input], outdir)  # (convert checks again: cheap)
+    from doodlecam.cli.progress import Stages, verbosity
+
     first_run_notice()
-    result = run(input, outdir, settings)
+    with Stages(input.name, verbosity()) as stages:  # a status line on a terminal; stage times with -v
+        result = run(input, outdir, settings, progress=stages)
     s = result.summary()
     if as_json:
         click.echo(json.dumps(s, indent=2))

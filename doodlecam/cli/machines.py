@@ -11,7 +11,6 @@ import click
 from doodlecam.errors import DoodleError, MachineError
 
 NAME_RE = re.compile(r"^[A-Za-z0-9][A-Za-z0-9_.-]*$")
-GRBL_MAX_STEP_RATE = 30_000.0  # steps/s: GRBL 1.1 on a 16 MHz AVR
 
 
 @click.group(invoke_without_command=True)
@@ -130,10 +129,6 @@ def explain(machine, origin: str = "") -> list[str]:
         lines.append("  GRBL settings  " + "  ".join([
             group(("$100", "$101"), "steps/mm"), group(("$110", "$111"), "mm/min"), group(("$120", "$121"), "mm/s^2"),
             group(("$130", "$131"), "mm, max travel"), group(("$11", "$1"), "junction deviation mm, step idle ms")]))
-        rate = max(ax.max_velocity * ax.steps_per_mm for ax in m.axes)
-        if rate > GRBL_MAX_STEP_RATE:
-            lines.append(f"  note           {rate / 1000:.0f} kHz of steps is more than GRBL 1.1 on an Arduino Uno gives "
-                         f"(about {GRBL_MAX_STEP_RATE / 1000:.0f} kHz); fine for the PLC")
     elif m.kinematics == "axidraw":
         lines.append("  board          an EiBotBoard: 'doodlecam convert --post ebb', then 'doodlecam send JOB.ebb --serial "
                      "auto' (docs/ebb.md)")
@@ -160,4 +155,7 @@ def check(name, plugin_dirs):
     origin = entry.origin if entry is not None and Path(entry.path) == Path(machine.source) else "path"
     for line in explain(machine, origin):
         click.echo(line)
-    click.echo("OK: the profile is valid")
+    for w in machine.warnings:  # plausible enough to run, but worth a look (doodlecam.plausible)
+        click.echo(f"  warning: {w}")
+    click.echo("OK: the profile is valid" + (f", with {len(machine.warnings)} warning"
+                                             f"{'s' if len(machine.warnings) > 1 else ''} above" if machine.warnings else ""))

@@ -40,7 +40,8 @@ def motion(design, outdir, machine, no_machine, samples, cycle_time, split, no_p
     meandering and continuity, and, given a machine, its workspace and
     actuator limits through the machine's kinematics plugin. Writes the table
     of position, velocity, acceleration and jerk (300 rows by default) and a plot.
-    Example:  doodlecam motion samples/motion/fuse.toml -o out/
+    Example:  doodlecam motion DESIGN.toml -o out/   (the format: docs/motion.md;
+    examples in the source tree's samples/motion/)
     """
     from doodlecam.motion.design import check, load_design, solve_design
     from doodlecam.motion.export import atomic_write, axis_csv, plot_png, table_csv

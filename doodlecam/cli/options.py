@@ -103,7 +103,7 @@ def job_kwargs(machine, tracer, tracer_opt, posts, post_opt, solver, smoothing, 
     posts = tuple(posts) or ("plc", "gcode", "svg")
     if path_tolerance is not None and not path_tolerance >= 0:
         raise click.BadParameter(f"must be 0 (off) or a distance in mm, got {path_tolerance:g}", param_hint="--path-tolerance")
-    unused = set(post_opts) - set(posts)
+    unused = {k for k in post_opts if k.casefold() not in {p.casefold() for p in posts}}  # names in any case
     if unused:
         raise click.BadParameter(f"options given for '{sorted(unused)[0]}', which is not among the posts {', '.join(posts)}",
                                  param_hint="--post-opt")

@@ -102,7 +102,7 @@ def show(ctx, name, kind, plugin_dirs):
             click.echo("")
             click.echo(f"  set with     {flag.format(name=info.name)}, or in a machine profile:")
             click.echo(f"               [{table}.{info.name}]")
-            o = opts[0]
+            o = next((o for o in opts if o.default is not None), opts[0])  # unset defaults have no TOML
             click.echo(f"               {o.name} = {_toml(o.default)}")
 
 

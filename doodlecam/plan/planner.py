@@ -25,11 +25,11 @@ from typing import Any
 
 import numpy as np
 
-from doodlecam.errors import PlanError
+from doodlecam.errors import PlanError, did_you_mean
+from doodlecam.options import SOLVERS
 from doodlecam.model import Profile, Spline
 from doodlecam.plan import constraints, convex, reach
 
-SOLVERS = ("reach", "lp", "lp:osqp", "lp:highs", "lp:clarabel", "qp", "qp:osqp", "qp:highs", "qp:clarabel")
 CHECK_REFINE = 20  # the verification grid is this many times finer
 # jerk_max: the rows take sqrt(b) from a profile b_hat the solution stays below. The
 # first solve takes the plan without the bound; the next min(that, 2 x the last),
@@ -262,7 +262,7 @@ def _capped(rows: constraints.Rows, cap: np.ndarray) -> constraints.Rows:
 
 def check_solver(solver: str) -> None:
     if solver not in SOLVERS:
-        raise PlanError(f"unknown solver '{solver}'; choose one of {', '.join(SOLVERS)}")
+        raise PlanError(f"unknown solver '{solver}'{did_you_mean(solver, SOLVERS)}; choose one of {', '.join(SOLVERS)}")
 
 
 def plan_stroke(spline: Spline, limits: Limits, solver: str = "reach", spacing: float = 0.5,
