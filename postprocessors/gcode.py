@@ -428,6 +428,57 @@ class GcodePost(PostProcessor):
         # never above the pen-speed cap (a very short last segment has a tiny planned time)
         return p, np.clip(feed, min_feed, max(cap, min_feed)), {}
 
+    def _cap_paths(self, strokes, feeds, tol: float, machine, grbl, baud: int):
+        """feeds = cap without arcs for every stroke, as _stroke_points chooses them, but each level
+        of chords of all strokes still refining is timed with GRBL's model in one call (one call
+        per stroke and level cost more than the model on drawings of 10^4 strokes)."""
+        from doodlecam.link.grbl.timing import _segment_time
+
+        spm = np.array([machine.x.steps_per_mm, machine.y.steps_per_mm])
+        out: list = [None] * len(strokes)
+        best: dict[int, tuple] = {}  # stroke -> (points, time) of its best level so far
+        levels = {}
+        for i, st in enumerate(strokes):
+            if st.profile is None:
+                raise OutputError("job is not planned (a stroke has no feed profile); plan it before writing G-code")
+            if st.spline.straight:  # one chord
+                p = np.round(st.spline(np.array([0.0, 1.0])), 3)
+                out[i] = p[_one_step_apart(p, spm)]
+            else:
+                levels[i] = self._cap_candidates(st, tol)  # coarse to fine
+        active = list(levels)
+        while active:
+            cand = []
+            for i in active:
+                u = next(levels[i], None)
+                if u is None:
+                    continue
+                p = np.round(strokes[i].spline(u), 3)
+                cand.append((i, p[_one_step_apart(p, spm)]))
+            if not cand:
+                break
+            # one program of all candidates, each from rest to rest (the pen commands empty GRBL's
+            # planner): the block joining two candidates starts from rest and its time is dropped
+            pts = np.concatenate([p for _, p in cand])
+            n = np.array([len(p) for _, p in cand])
+            first = np.concatenate([[0], np.cumsum(n)[:-1]])  # index of each candidate's first point
+            rest = np.zeros(len(pts) - 1, bool)
+            rest[first] = True  # its first block
+            rest[first[1:] - 1] = True  # the joining block
+            feed = np.repeat([feeds[i] / 60.0 for i, _ in cand], n)[:-1]
+            bt = _segment_time(np.c_[pts, np.zeros(len(pts))], feed, grbl, rest)
+            active = []
+            for (i, p), a in zip(cand, first):
+                times = bt[a:a + len(p) - 1]
+                t = float(times.sum())
+                if i in best and (t >= best[i][1] or not _serial_keeps_up(p, times, baud)):
+                    continue  # finer chords stopped paying or outrun the line: keep the best
+                best[i] = (p, t)
+                active.append(i)
+        for i, (p, _) in best.items():
+            out[i] = p
+        return [(p, np.full(len(p) - 1, feeds[i]), {}) for i, p in enumerate(out)]
+
     def write(self, job, options: dict[str, Any]) -> bytes:
         d, options = self._resolve(options)
         m = job.machine
@@ -445,9 +496,13 @@ class GcodePost(PostProcessor):
         changes = set(job.pen_changes)
         pauses = set(job.pen_pauses)  # the changes, and the first pen when the machine has several
         caps = {k: _pen_cap(m, k, float(options["max_feed"])) for k in set(pen_no)}
-        paths = [self._stroke_points(s, dts[i] if dts else m.delta_time, tol, min_feed, options["feeds"],
-                                     caps[pen_no[i]], m, grbl, int(options["baud"]), bool(options["arcs"]))
-                 for i, s in enumerate(job.strokes)]
+        if options["feeds"] == "cap" and not options["arcs"]:  # the default: every stroke's chords at once
+            paths = self._cap_paths(job.strokes, [max(caps[k], min_feed) for k in pen_no], tol, m, grbl,
+                                    int(options["baud"]))
+        else:
+            paths = [self._stroke_points(s, dts[i] if dts else m.delta_time, tol, min_feed, options["feeds"],
+                                         caps[pen_no[i]], m, grbl, int(options["baud"]), bool(options["arcs"]))
+                     for i, s in enumerate(job.strokes)]
         home = job.travels[-1].end if job.travels else np.asarray(m.home, float)
 
         from doodlecam.link.grbl.timing import parse_gcode
