@@ -212,7 +212,8 @@ def plan_job(drawing: Drawing, machine: Machine, solver: str = "reach", plugin_d
         "layer_colours": dict(colours or {}),
         "layer_pens": {s.layer: pen_of[s.layer] for s in planned},  # in plotting order
         "pen_reasons": {n: pens[n][1] for n in dict.fromkeys(s.layer for s in planned)},
-        "layer_order": oo["layers"] if fitted is None else "file",
+        # grouped by pen only where pens are shared ([[pen]]); else each layer has a pen of its own, in file order
+        "layer_order": oo["layers"] if fitted is None and machine.pens else "file",
         "timings": timings,
     }
     return Job(machine=machine, strokes=tuple(planned), travels=travels, samples=samples,

@@ -51,8 +51,8 @@ class EdgesTracer(Tracer):
         Option("min_length", float, 4.0, "drop strokes shorter than this, in px"),
         Option("denoise", bool, True, "estimate the picture's noise and raise smooth and sigma to match "
                "(up to smooth=3 sigma=3 for heavy noise; clean pictures are untouched); false = off"),
-        Option("pixel_mm", float, 0.0, "trace finer pictures scaled down to this many mm per pixel as drawn "
-               "(0 = the pen width), so px options mean the same drawn size at any resolution"),
+        Option("pixel_mm", float, 0.0, "trace the picture scaled (down, or up if coarser) to this many mm per pixel "
+               "as drawn (0 = the pen width), so px options mean the same drawn size at any resolution"),
     )
 
     @classmethod
@@ -62,7 +62,8 @@ class EdgesTracer(Tracer):
     def trace(self, path: Path, options: dict[str, Any]) -> Drawing:
         """Polylines in pixels: x = column, y = row (down), a pixel's centre at its index."""
         opt = self.resolve_options(options)
-        gray, shape = load_working(path, self, opt["pixel_mm"])
+        # on the pen-width grid whatever the input: sigma, join, min_length ... are the same drawn size
+        gray, shape = load_working(path, self, opt["pixel_mm"], upscale=True)
         return in_picture_px(self.trace_gray(gray, path, opt), shape)
 
     def trace_gray(self, gray: np.ndarray, path: Path, opt: dict[str, Any]) -> Drawing:

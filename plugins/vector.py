@@ -35,6 +35,7 @@ import numpy as np
 from doodlecam.api import Option, Tracer
 from doodlecam.errors import InputError, PluginError
 from doodlecam.model import Drawing
+from doodlecam.plugins.svgrules import render_rules
 
 MESH_EXTENSIONS = (".stl", ".obj", ".ply", ".off")
 _UNIT_MM = {"mm": 1.0, "cm": 10.0, "in": 25.4, "pt": 25.4 / 72, "pc": 25.4 / 6, "px": 25.4 / 96, "": 25.4 / 96,
@@ -367,80 +368,13 @@ def _layer_names(found, by: str) -> list[str]:
     return ["0"] * len(found)
 
 
-def _number(text: str | None, default: float) -> float:
-    """A plain SVG length in user units; ``default`` when absent or given in units or percent."""
-    try:
-        return float(text) if text is not None else default
-    except ValueError:
-        return default
-
-
-def _symbol_transform(use, symbol) -> str:
-    """The transform that maps a symbol's viewBox into its <use>'s viewport (x, y, width, height) as SVG's
-    viewBox and preserveAspectRatio rules say (default xMidYMid meet; 'none' stretches; 'slice' covers)."""
-    x, y = _number(use.get("x"), 0.0), _number(use.get("y"), 0.0)
-    box = [_number(v, 0.0) for v in (symbol.get("viewBox") or "").replace(",", " ").split()]
-    if len(box) != 4 or box[2] <= 0 or box[3] <= 0:
-        return f"translate({x:g},{y:g})"
-    bx, by, bw, bh = box
-    w, h = _number(use.get("width"), bw), _number(use.get("height"), bh)
-    sx, sy = w / bw, h / bh
-    par = (symbol.get("preserveAspectRatio") or "xMidYMid meet").split()
-    align = par[0] if par else "xMidYMid"
-    if align != "none":
-        sx = sy = (max if len(par) > 1 and par[1] == "slice" else min)(sx, sy)
-        fx = {"xMin": 0.0, "xMid": 0.5, "xMax": 1.0}.get(align[:4], 0.5)
-        fy = {"YMin": 0.0, "YMid": 0.5, "YMax": 1.0}.get(align[4:], 0.5)
-        x, y = x + (w - bw * sx) * fx, y + (h - bh * sy) * fy
-    return f"translate({x - bx * sx:g},{y - by * sy:g}) scale({sx:g},{sy:g})"
-
-
-def _render_symbols(path: Path) -> bytes | None:
-    """The SVG with SVG's rendering rule for symbols applied (SVG 2, 5.6.3: a <use> of a <symbol> renders the
-    symbol's content in the use's viewport, x, y, width and height, through the symbol's viewBox and
-    preserveAspectRatio; a symbol is never rendered by itself). svgelements draws a symbol's content where it
-    stands and at its own size, so the file is rewritten (each such <use> becomes a group with that
-    transform) before it is parsed. None when the file has no symbol."""
-    import copy
-    import xml.etree.ElementTree as ET
-
-    SVG_NS, XLINK = "http://www.w3.org/2000/svg", "{http://www.w3.org/1999/xlink}href"
-    ET.register_namespace("", SVG_NS)
-    ET.register_namespace("xlink", XLINK[1:].split("}")[0])
-    tree = ET.parse(str(path))
-    root = tree.getroot()
-    tag = lambda el: str(el.tag).rpartition("}")[2]  # noqa: E731
-    symbols = {el.get("id"): el for el in root.iter() if tag(el) == "symbol"}
-    if not symbols:
-        return None
-    parents = {child: parent for parent in root.iter() for child in parent}
-    for el in list(root.iter()):
-        if tag(el) != "use":
-            continue
-        ref = (el.get(XLINK) or el.get("href") or "").lstrip("#")
-        sym = symbols.get(ref)
-        if sym is None:
-            continue
-        attrs = {k: v for k, v in el.attrib.items() if k not in (XLINK, "href", "x", "y", "width", "height")}
-        place = _symbol_transform(el, sym)
-        attrs["transform"] = f"{attrs.get('transform', '')} {place}".strip()
-        group = ET.Element(f"{{{SVG_NS}}}g", attrs)
-        for child in sym:
-            group.append(copy.deepcopy(child))
-        parent = parents[el]
-        parent[list(parent).index(el)] = group
-    for sym in symbols.values():  # never rendered where it stands
-        parents[sym].remove(sym)
-    return ET.tostring(root)
-
-
 def _svg(path: Path, opt) -> Drawing:
     import svgelements as se
 
     not_drawn = _svg_scan(path)
     _svg_check_numbers(path)
     try:
-        rendered = _render_symbols(path)
+        rendered = render_rules(path)
         svg = se.SVG.parse(io.BytesIO(rendered) if rendered is not None else str(path), reify=True, ppi=96.0)
     except Exception as e:  # the parser raises anything on a malformed file
         msg = _printable(e) or type(e).__name__

@@ -343,6 +343,34 @@ def test_symbols_are_drawn_as_a_real_renderer_draws_them(tmp_path, par, size, wa
     assert len(d.polylines) == 1  # the symbol where it stands and the invisible rectangle draw nothing
 
 
+R10 = 0.1 * math.sqrt((200 ** 2 + 100 ** 2) / 2)  # r="10%": of the viewport's normalised diagonal
+
+
+@pytest.mark.skipif(__import__("shutil").which("rsvg-convert") is None, reason="rsvg-convert (librsvg2-bin) not installed")
+@pytest.mark.parametrize("head, body, want", [
+    (HEAD, '<circle cx="50%" cy="50%" r="10%"/>', (100 - R10, 50 - R10, 100 + R10, 50 + R10)),
+    (HEAD, '<ellipse cx="80%" cy="70%" rx="5%" ry="10%"/>', (150, 60, 170, 80)),
+    (HEAD, '<rect x="10%" y="10%" width="20%" height="30%" rx="5%"/>', (20, 10, 60, 40)),
+    (HEAD, '<line x1="0%" y1="95%" x2="50%" y2="5%"/>', (0, 5, 100, 95)),
+    # a nested viewport: percentages of its own viewBox (50 units drawn 100 mm wide)
+    (HEAD, '<svg x="100" y="0" width="100" height="100" viewBox="0 0 50 50"><circle cx="50%" cy="50%" r="20%"/></svg>',
+     (130, 30, 170, 70)),
+    # no viewBox: the viewport is the root's size in px (200 mm = 755.9 px), drawn at 96 px per inch
+    ('<svg xmlns="http://www.w3.org/2000/svg" width="200mm" height="100mm">', '<circle cx="25%" cy="50%" r="10%"/>',
+     (50 - R10, 50 - R10, 50 + R10, 50 + R10)),
+])
+def test_percentages_are_of_the_viewport_as_a_real_renderer_draws_them(tmp_path, head, body, want):
+    """x-like lengths are of the viewport's width, y-like of its height, r of its normalised diagonal
+    (svgelements alone draws r="10%" as an ellipse 20 x 10 units); checked against librsvg."""
+    path = tmp_path / "percent.svg"
+    width = 0.1 if "viewBox" in head else 0.4  # 0.1 mm: user units are mm, else px
+    path.write_text(head + body.replace("/>", f' stroke="black" stroke-width="{width}" fill="none"/>') + "</svg>")
+    d = VEC.trace(path, {})
+    pts = np.vstack(d.polylines)
+    np.testing.assert_allclose((*pts.min(axis=0), *pts.max(axis=0)), want, atol=1e-4)  # px: svgelements' 1e-6
+    np.testing.assert_allclose(rsvg_ink_boxes(path), want, atol=0.25)
+
+
 @pytest.mark.parametrize("body, words", [
     ('<path id="p" d="M 0 0 L 10 NaN" stroke="black"/>', "line 2: <path id='p'> has a number that is not finite in d="),
     ('<path d="M 0 0 L 1e999 10" stroke="black"/>', "line 2: <path> has a number that is not finite"),

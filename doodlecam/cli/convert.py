@@ -77,16 +77,16 @@ def convert(input, outdir, as_json, workers, **options):
         click.echo("                     (the PLC's linear ramps; set [sampling] path_tolerance in the machine profile "
                    "to keep within it, docs/sampling.md)")
     if s["layers"]:
-        how = "grouped by pen" if s["layer_order"] == "pen" else "in the file's order ([order] layers = \"file\")"
+        how = "grouped by pen" if s["layer_order"] == "pen" else "one after another"
         click.echo(f"  layers             {len(s['layers'])}, plotted {how}: "
                    + ", ".join(f"{n} with {s['pens'][n]}" for n in s["layers"]))
         for c in s["pen_choice"]:
             click.echo(f"                     {c['layer']}" + (f" ({c['colour']})" if c["colour"] else "")
                        + f" -> {c['pen']}: {c['why']}")
     if s["pen_changes"] or s["first_pen_prompt"]:
-        first = f"; the job first pauses to fit {s['first_pen_prompt']}" if s["first_pen_prompt"] else ""
-        click.echo(f"  pen changes        {s['pen_changes']}{first}; each pause is pen up (G-code M0, PLC PAUSE), "
-                   "'doodlecam send' asks the operator")
+        first = f" and first to fit {s['first_pen_prompt']}" if s["first_pen_prompt"] else ""
+        click.echo(f"  pen changes        {s['pen_changes']}: the job pauses for each{first}, pen up (G-code M0, PLC "
+                   "PAUSE); 'doodlecam send' asks the operator")
     click.echo("  wrote              " + ", ".join(s["outputs"]))
     for w in s["warnings"]:
         click.echo(f"  warning: {w}", err=True)

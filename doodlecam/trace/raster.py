@@ -187,15 +187,19 @@ def picture_size(path: str | os.PathLike) -> tuple[int, int] | None:
         return None
 
 
-def working_picture(gray: np.ndarray, mm_per_px: float | None, pixel_mm: float) -> tuple[np.ndarray, float]:
-    """``gray`` scaled down so that one pixel is drawn ``pixel_mm`` mm (never scaled up), and the factor.
+def working_picture(gray: np.ndarray, mm_per_px: float | None, pixel_mm: float,
+                    upscale: bool = False) -> tuple[np.ndarray, float]:
+    """``gray`` scaled down so that one pixel is drawn ``pixel_mm`` mm, and the factor; with
+    ``upscale`` a coarser picture is also scaled up to that grid (bilinear), else left as it is.
 
     Detail finer than the pen cannot be drawn, and tracer options in px then
     mean the same drawn size whatever the picture's resolution: the same
     photo at 512 and at 4000 px gives nearly the same job. Area-averaged
     (anti-aliased), in float32.
     """
-    if not mm_per_px or pixel_mm <= 0 or mm_per_px >= pixel_mm * 0.95:  # within 5 %: not worth a resample
+    if not mm_per_px or pixel_mm <= 0 or abs(mm_per_px / pixel_mm - 1) <= 0.05:  # within 5 %: not worth a resample
+        return gray, 1.0
+    if mm_per_px > pixel_mm and not upscale:
         return gray, 1.0
     from skimage.transform import resize
 
@@ -205,13 +209,14 @@ def working_picture(gray: np.ndarray, mm_per_px: float | None, pixel_mm: float) 
     return resize(gray.astype(np.float32), shape, order=1, anti_aliasing=True).astype(np.float64), k
 
 
-def load_working(path: str | os.PathLike, tracer, pixel_mm: float) -> tuple[np.ndarray, tuple[int, int]]:
+def load_working(path: str | os.PathLike, tracer, pixel_mm: float,
+                 upscale: bool = False) -> tuple[np.ndarray, tuple[int, int]]:
     """(working picture, the picture's own (rows, cols)): ``load_gray`` then
     ``working_picture`` at ``pixel_mm`` mm per pixel (0 = the pen width), when
     the pipeline told the tracer its drawn scale (``Tracer.mm_per_px``)."""
     gray = load_gray(path)
     pixel = pixel_mm if pixel_mm > 0 else (getattr(tracer, "pen_mm", None) or 0.0)
-    return working_picture(gray, getattr(tracer, "mm_per_px", None), pixel)[0], gray.shape
+    return working_picture(gray, getattr(tracer, "mm_per_px", None), pixel, upscale)[0], gray.shape
 
 
 def in_picture_px(drawing, shape: tuple[int, int]):
