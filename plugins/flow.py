@@ -12,8 +12,10 @@ Lines are placed by Jobard and Lefer's evenly spaced streamlines
 parallel lines of width w spaced s apart ink w / s of the paper, so the
 separation wanted at darkness d is ``spacing_mm`` / d, and tones lighter than
 ``spacing_mm`` / ``max_spacing_mm`` get no lines. A line ends where it would
-come nearer another than half the separation wanted there, and never nearer
-than the pen's width (checked between samples too, not only at them).
+come nearer another than ``gap`` times the separation wanted there (0.7:
+Jobard and Lefer's 0.5 lets converging lines bunch to twice the ink, which
+blotches the tone), and never nearer than the pen's width (checked between
+samples too, not only at them).
 """
 
 from __future__ import annotations
@@ -28,7 +30,6 @@ from doodlecam.errors import InputError, PluginError
 from doodlecam.model import Drawing
 from doodlecam.trace.raster import IMAGE_EXTENSIONS
 
-D_TEST = 0.5  # lines end nearer than this share of the separation (Jobard and Lefer's d_test)
 _BIAS = 0.02  # the flat-area direction's weight, of the tensor's mean trace
 _MAX_STEPS = 100_000  # steps per half line at most
 
@@ -38,8 +39,10 @@ class FlowTracer(Tracer):
     summary = "Flow lines: long strokes along the picture's structure, spaced by its tone (PNG, JPEG, ...)"
     extensions = IMAGE_EXTENSIONS
     options = (
-        Option("spacing_mm", float, 0.0, "line separation in the darkest tone, mm; 0 = 2 pen widths (lines then "
-               "come no nearer than one pen width); never below that"),
+        Option("spacing_mm", float, 0.0, "line separation in the darkest tone, mm; 0 = 2 pen widths"),
+        Option("gap", float, 0.7, "a line ends where it comes nearer another than this share of the separation "
+               "(Jobard and Lefer's d_test, 0.3-0.95): higher = more even tone, shorter lines; never nearer than "
+               "the pen's width whatever the settings"),
         Option("max_spacing_mm", float, 0.0, "separation in the lightest tone still drawn, mm; lighter tones get "
                "no lines; 0 = 8 x spacing_mm"),
         Option("sigma_mm", float, 1.0, "scale of the picture's gradient, mm as drawn"),
@@ -64,8 +67,10 @@ class FlowTracer(Tracer):
                 raise PluginError(f"tracer 'flow': {key} must be >= 0, got {opt[key]:g}")
         if opt["sigma_mm"] <= 0 or opt["smooth_mm"] < 0 or opt["gamma"] <= 0:
             raise PluginError("tracer 'flow': sigma_mm and gamma must be > 0 and smooth_mm >= 0")
+        if not 0.3 <= opt["gap"] <= 0.95:
+            raise PluginError(f"tracer 'flow': gap must be 0.3-0.95, got {opt['gap']:g}")
         pen = self.pen_mm or 0.5
-        spacing = max(opt["spacing_mm"], pen / D_TEST)
+        spacing = opt["spacing_mm"] or 2 * pen
         widest = opt["max_spacing_mm"] or 8 * spacing
         if widest <= spacing:
             raise PluginError(f"tracer 'flow': max_spacing_mm ({widest:g}) must be more than spacing_mm ({spacing:g})")
@@ -98,7 +103,7 @@ class FlowTracer(Tracer):
         seeds = seeds[order][tone[order] * widest > spacing]
         min_len = opt["min_length_mm"] or 2 * spacing
         xy, off = evenly_spaced(np.ascontiguousarray(fa), np.ascontiguousarray(fb), np.ascontiguousarray(sep), g,
-                                w_mm, h_mm, D_TEST, step, pen, min_len, _MAX_STEPS, np.ascontiguousarray(seeds))
+                                w_mm, h_mm, opt["gap"], step, pen, min_len, _MAX_STEPS, np.ascontiguousarray(seeds))
         lines = [xy[a:b] for a, b in zip(off[:-1], off[1:]) if b - a >= 2]
         if not lines:
             raise InputError(f"{path}: no flow line is longer than {min_len:g} mm; "
@@ -108,5 +113,5 @@ class FlowTracer(Tracer):
                 f"{spacing:.2f}-{widest:.2f} mm apart")
         return grid.drawing(lines, path, {
             "tracer": self.name, "options": opt, "made": made, "lines": len(lines), "line_mm": float(lengths.sum()),
-            "spacing_mm": spacing, "max_spacing_mm": widest, "min_gap_mm": max(D_TEST * spacing, pen),
+            "spacing_mm": spacing, "max_spacing_mm": widest, "min_gap_mm": max(opt["gap"] * spacing, pen),
             "grid_mm": g, "polylines": len(lines), "vertices": int(len(xy))})

@@ -39,7 +39,7 @@ from doodlecam.trace.raster import IMAGE_EXTENSIONS, load_gray
 UNKNOWN_SIZE_MM = 200.0  # the picture's longer side as drawn, when the tracer is not told (direct calls, fit=ink)
 _PEN_MM = 0.5  # pen width assumed when the tracer is not told
 _HEX = 2 / np.sqrt(3)  # points per s^2 of a hexagonal packing at spacing s
-_CELLS = 9.0  # grid cells per dot region in the darkest tone (the centroid's resolution)
+_CELLS = 16.0  # grid cells per dot region in the darkest tone (the centroid's resolution)
 _MAX_CELLS = 1_500_000  # grid cells at most (memory and time): the grid coarsens on huge drawings
 _COARSE = 2  # the first steps run on a grid this many times coarser
 _CIRCLE = 8  # vertices of a dot circle (the fitter rounds the octagon within its tolerance)
@@ -129,7 +129,9 @@ def stipple_points(grid: ToneGrid, n: int, iterations: int = 30, seed: int = 0) 
     for (cells, wt, size), count in zip(levels, steps):
         wx, wy = wt * cells[:, 0], wt * cells[:, 1]
         for _ in range(count):
-            owner = cKDTree(pts).query(cells, workers=-1)[1]
+            at = cells + (rng.random(cells.shape) - 0.5) * size  # a random spot in each cell: no grid lock
+            wx, wy = wt * at[:, 0], wt * at[:, 1]
+            owner = cKDTree(pts).query(at, workers=-1)[1]
             mass = np.bincount(owner, wt, n)
             has = mass > 0
             pts[has, 0] = np.bincount(owner, wx, n)[has] / mass[has]

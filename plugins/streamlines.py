@@ -118,7 +118,11 @@ def evenly_spaced(fa, fb, sep, cell, width, height, d_test, h, pen, min_len, max
         if not (0.0 <= sx <= width and 0.0 <= sy <= height):
             continue
         s0 = _bilinear(sep, sx, sy, cell)
-        if not np.isfinite(s0) or _near(sx, sy, s0, -1, 0.0, 0.0, X, Y, L, A, alive, head, nxt, hc, hx, hy):
+        if not np.isfinite(s0):
+            continue
+        # a seed one separation from every line, and never nearer than the steps below may come
+        r0 = max(s0, np.sqrt(max(d_test * s0, pen) ** 2 + half))
+        if _near(sx, sy, r0, -1, 0.0, 0.0, X, Y, L, A, alive, head, nxt, hc, hx, hy):
             continue
         line = nlines
         if line == alive.shape[0]:
