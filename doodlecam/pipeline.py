@@ -343,6 +343,7 @@ class Result:
             "machine": j.machine.name,
             "tracer": d.get("tracer"),
             "tracer_reason": d.get("tracer_reason"),
+            "tracer_made": d.get("made"),  # the tracer's own line on what it drew (dots, a tour, flow lines)
             "line_width_mm": round(width_px * scale, 4) if width_px and scale else None,
             "scale_mm_per_px": scale if d.get("units_in") == "px" else None,
             "dropped_strokes": {"shorter_than_pen": d.get("dropped_short", 0)},

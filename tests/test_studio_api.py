@@ -88,7 +88,7 @@ def test_bad_uploads_say_one_line_and_write_nothing(tmp_path):
 def test_tracer_panel_options_and_retrace(tmp_path):
     c = make_client(tmp_path)
     tracers = {t["name"]: t for t in c.get("/api/tracers").json()}
-    assert {"edges", "contours", "hatch", "vector"} <= set(tracers)
+    assert {"edges", "contours", "hatch", "vector", "stipple", "tsp", "flow"} <= set(tracers)
     sigma = next(o for o in tracers["edges"]["options"] if o["name"] == "sigma")
     assert sigma["type"] == "float" and sigma["default"] == 2.0 and sigma["help"]
     n0 = c.post("/api/load?name=coins.png", content=PICTURE.read_bytes(), headers=UPLOAD).json()["strokes"]

@@ -48,6 +48,8 @@ def convert(input, outdir, as_json, workers, **options):
     if s.get("tracer"):
         click.echo(f"  tracer             {s['tracer']} ({s['tracer_reason']})"
                    + (f"; ink lines {s['line_width_mm']:.2f} mm wide" if s.get("line_width_mm") else ""))
+    if s.get("tracer_made"):
+        click.echo(f"  made               {s['tracer_made']}")
     click.echo(f"  strokes            {s['strokes']}  ({s['control_points']} control points, fit within {s['max_fit_error_mm']:.3f} mm; "
                f"{s['pen_lifts']} pen lift{'s' if s['pen_lifts'] != 1 else ''})")
     click.echo(f"  pen-down length    {s['pen_down_mm']:.1f} mm")

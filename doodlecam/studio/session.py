@@ -132,8 +132,10 @@ class Session:
         mm = fit_to_work_area(drawing, settings.machine, settings.layout)
         if not mm.polylines:
             raise InputError(f"{name}: nothing to draw with these tracer options; loosen them (e.g. a lower threshold)")
-        return plan_job(mm, self.machine, settings.solver or self.machine.solver, settings.plugin_dirs,
-                        smoothing=settings.smoothing, order=settings.order)
+        job = plan_job(mm, self.machine, settings.solver or self.machine.solver, settings.plugin_dirs,
+                       smoothing=settings.smoothing, order=settings.order)
+        job.meta["tracer_made"] = drawing.meta.get("made")  # the tracer's line on what it drew, for the page
+        return job
 
     def _require(self) -> Job:
         if self.job is None:
@@ -343,6 +345,7 @@ class Session:
                 "worst_acceleration_ratio": round(job.meta.get("worst_acceleration_ratio", 0.0), 6),
                 "worst_velocity_ratio": round(job.meta.get("worst_velocity_ratio", 0.0), 6),
                 "tracer": self.tracer, "tracer_options": self.tracer_options,
+                "tracer_made": job.meta.get("tracer_made"),
                 "can_undo": bool(self.undo_stack), "can_redo": bool(self.redo_stack),
                 "job": self.job_id, "version": self.version}
 

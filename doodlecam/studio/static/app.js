@@ -188,6 +188,7 @@ function summary(s) {
   $("stat-travel").textContent = `${(s.travel_mm / 1000).toFixed(3)} m`;
   $("stat-time").textContent = `${s.job_time_s.toFixed(2)} s`;
   $("stat-ratio").textContent = `a ${s.worst_acceleration_ratio.toFixed(4)}, v ${s.worst_velocity_ratio.toFixed(4)}`;
+  $("stat-made").textContent = s.tracer_made || "–";
   $("undo").disabled = !s.can_undo; $("redo").disabled = !s.can_redo;
   document.body.dataset.jobTime = s.job_time_s;
 }
