@@ -99,7 +99,12 @@ def path_deviation(spline: Spline, samples: StrokeSamples, sub: int = SUB) -> np
     span = np.maximum(np.diff(su), 1e-9)
     lo = np.repeat(np.maximum(su[:-1] - span / 2, 0.0), sub + 1)
     hi = np.repeat(np.minimum(su[1:] + span / 2, 1.0), sub + 1)
-    dist = distance_to_stretch(spline, x, lo, hi).reshape(m, sub + 1)
+    if spline.straight:  # q(u) = a + u d: the nearest point of the stretch in closed form
+        a, d = spline.start, spline.end - spline.start
+        u = np.clip((x - a) @ d / float(d @ d), lo, hi)
+        dist = np.hypot(*(x - a - u[:, None] * d).T).reshape(m, sub + 1)
+    else:
+        dist = distance_to_stretch(spline, x, lo, hi).reshape(m, sub + 1)
     # the peak usually falls between the points: a parabola through the largest
     # and its neighbours in time recovers it (a kink where the curve turns tightly still reads a little low)
     k = np.clip(dist.argmax(axis=1), 1, sub - 1)
