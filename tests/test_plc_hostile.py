@@ -215,6 +215,21 @@ def test_a_captured_header_replayed_from_another_port_never_moves_the_session():
     b.close()
 
 
+def test_a_cancel_needs_the_current_challenge_and_uses_it_up():
+    job = synth_job(n_strokes=3, samples=200, seed=9)
+    b = Bench(job, key=KEY, buffer_size=16)
+    b.start()
+    b.pump(3)
+    jid = b.sim.job.id
+    b.legit(P.cancel(b.nonce, b.next_seq(), jid, b.token, KEY, b.bound))  # the session's, used up by its HEADER
+    assert b.sim.job is not None and b.sim.stats["stale_challenges"] == 1
+    current = b.sim.challenge
+    cancel = P.cancel(b.nonce, b.next_seq(), jid, b.token, KEY, current)
+    b.legit(cancel)
+    assert b.sim.job is None and b.sim.finished[jid][0] == Fault.CANCELLED and b.sim.challenge != current
+    b.close()
+
+
 # ---------------------------------------------------------------- fuzzing
 
 INTERESTING_U32 = [0, 1, 2, 63, 64, 65, 2**16 - 1, 2**31 - 1, 2**31, 2**32 - 64, 2**32 - 2, 2**32 - 1]
@@ -495,6 +510,41 @@ def test_a_captured_session_never_runs_on_a_plc_that_forgot_everything(sims, tmp
     assert sim2.finished == {}
     _replay(capture, sim2)
     assert len(sim2.executed_log) == 0 and sim2.job is None
+
+
+def test_a_restarted_sender_re_attaches_and_a_replayed_header_does_not(sims, tmp_path):
+    """With a key, while the PLC runs a job: a second run of the same sender (same record: job id and token)
+    takes the session over with the PLC's current challenge; the first run's captured HEADER, played back
+    from another port of the same computer afterwards, leaves the session with the second run."""
+    import threading
+
+    data = synth_job(n_strokes=20, samples=98, seed=23)
+    sim = sims(RecordingSim, key=KEY, speed=20.0)
+    rec = tmp_path / "job.json"
+    first = UdpSender(*sim.address, data, state_file=rec, key=KEY, timeout=2.0, rto=0.05)
+    box = {}
+
+    def run_first():
+        try:
+            first.run()
+        except LinkError as e:  # the PLC talks to the second run now: this one hears nothing more
+            box["first"] = str(e)
+
+    t = threading.Thread(target=run_first, daemon=True)
+    t.start()
+    wait_for(lambda: len(sim.executed_log) > 200, 30, "the job under way")
+    capture = [(d, a) for d, a in sim.captured if d[3] == Msg.HEADER]
+    second = UdpSender(*sim.address, data, state_file=rec, key=KEY, timeout=5.0, rto=0.05)
+    t2 = threading.Thread(target=lambda: box.update(r=second.run()), daemon=True)
+    t2.start()
+    wait_for(lambda: sim.session and sim.session[1] == second.session, 10, "the second run bound")
+    bound = sim.session
+    _replay(capture, sim)
+    assert sim.session == bound and sim.stats["stale_challenges"] >= 1
+    t2.join(60)
+    t.join(10)
+    assert "r" in box, "the second run did not finish"
+    assert_drawn_as_planned(sim, data, box["r"].job_id)
 
 
 def test_power_cycle_mid_job_is_reported_and_the_resume_repeats_nothing(sims, tmp_path):
