@@ -1,16 +1,18 @@
-"""A minimal PLC written only from docs/protocol.md section 1 (version 2), with no doodlecam imports.
+"""A minimal PLC written only from docs/protocol.md section 1 (version 3), with no doodlecam imports.
 
 It is the check that the document is enough to build a PLC: the real sender
 must complete jobs against it. It executes a command the moment it is next
 in order (no motion), and keeps what a PLC must: the window and slots, the
-session (address + nonce), the owner (IP + token), the ended jobs and the
-contents that ran to their end, the replay window and the HMAC key.
+session (address + nonce + challenge), the current challenge, the owner
+(IP + token), the ended jobs and the contents that ran to their end, the
+replay window and the HMAC key.
 """
 
 from __future__ import annotations
 
 import hashlib
 import hmac
+import secrets
 import select
 import socket
 import struct
@@ -18,13 +20,13 @@ import threading
 import time
 import zlib
 
-COMMON = struct.Struct("<2sBBIQIB3x")  # 1.2
+COMMON = struct.Struct("<2sBBIQIB3xQ")  # 1.2
 STATUS = struct.Struct("<BBBBIIIIiiII")  # 1.3, status block
 HEADER = struct.Struct("<IIIIdddiiiiddiiQ")  # 1.3, 88 bytes
 RECORD = struct.Struct("<IHHii")
 HELLO, HDR, DATA, STOP, CANCEL = 1, 2, 3, 4, 5
 READY, REQUEST, STAT, DONE, FAULT, NAK = 0x10, 0x11, 0x12, 0x13, 0x14, 0x15
-BUSY, FINISHED, START_MISMATCH, BAD_HEADER, ALREADY_DONE, AUTH_REQUIRED = 1, 2, 3, 4, 6, 7
+BUSY, FINISHED, START_MISMATCH, BAD_HEADER, ALREADY_DONE, AUTH_REQUIRED, STALE_CHALLENGE = 1, 2, 3, 4, 6, 7, 8
 B_READY, D_OPERATING = 2, 4
 
 
@@ -36,7 +38,8 @@ class DocPlc:
         self.address = self.sock.getsockname()
         self.boot, self.seq = 0x1234_5678_9ABC_DEF1, 0
         self.job = None  # dict: id, n, crc, token, executed, slots
-        self.session = None  # ((ip, port), nonce)
+        self.session = None  # ((ip, port), nonce, challenge)
+        self.challenge = secrets.randbits(64) or 1  # 1.9: the next HEADER or CANCEL must carry it
         self.owner = None  # (ip, token)
         self.top, self.seen = 0, set()  # replay window of the session (1.9)
         self.ended: dict[int, int] = {}  # job id -> fault
@@ -48,27 +51,27 @@ class DocPlc:
         self._thread = threading.Thread(target=self._run, daemon=True)
 
     # --- framing (1.2)
-    def _frame(self, kind, job_id, body, key):
-        msg = COMMON.pack(b"DP", 2, kind, job_id, self.boot, self.seq, 1 if key else 0) + body
+    def _frame(self, kind, job_id, body, key, challenge):
+        msg = COMMON.pack(b"DP", 3, kind, job_id, self.boot, self.seq, 1 if key else 0, challenge) + body
         if key:
             msg += hmac.new(key, msg, hashlib.sha256).digest()
         return msg + struct.pack("<I", zlib.crc32(msg))
 
     def _parse(self, d: bytes):
-        if len(d) < 28 or struct.unpack_from("<I", d, len(d) - 4)[0] != zlib.crc32(d[:-4]):
+        if len(d) < 36 or struct.unpack_from("<I", d, len(d) - 4)[0] != zlib.crc32(d[:-4]):
             return None
-        magic, version, kind, job_id, origin, seq, flags = COMMON.unpack_from(d)
-        if magic != b"DP" or version != 2 or flags & ~1:
+        magic, version, kind, job_id, origin, seq, flags, challenge = COMMON.unpack_from(d)
+        if magic != b"DP" or version != 3 or flags & ~1:
             return None
         end = len(d) - 4
         if flags & 1:
             end -= 32
-            if not self.key or end < 24 or not hmac.compare_digest(
+            if not self.key or end < 32 or not hmac.compare_digest(
                     hmac.new(self.key, d[:end], hashlib.sha256).digest(), d[end:end + 32]):
                 return "auth"
         elif self.key:
             return "auth"
-        return kind, job_id, origin, seq, d[24:end]
+        return kind, job_id, origin, seq, challenge, d[32:end]
 
     def _send(self, kind, addr, job_id=None, extra=b"", key_ok=True):
         j = self.job
@@ -77,7 +80,7 @@ class DocPlc:
                          0, 0, 0, self.B, j["executed"] if j else 0, j["buffered"] if j else 0, 0, 0, 0,
                          self.last_done, j["crc"] if j else 0) if key_ok else bytes(STATUS.size)
         jid = job_id if job_id is not None else (j["id"] if j else 0)
-        self.sock.sendto(self._frame(kind, jid, st + extra, self.key if key_ok else None), addr)
+        self.sock.sendto(self._frame(kind, jid, st + extra, self.key if key_ok else None, self.challenge), addr)
 
     def _nak(self, addr, job_id, reason, detail=0, owner=("0.0.0.0", 0), when=0):
         ip = struct.unpack(">I", socket.inet_aton(owner[0]))[0]
@@ -90,12 +93,13 @@ class DocPlc:
             if d[3] == HELLO:
                 self.seq += 1
                 self.sock.sendto(self._frame(NAK, 0, bytes(STATUS.size) + struct.pack("<HHIII", AUTH_REQUIRED, 0, 0, 0, 0),
-                                             None), addr)
+                                             None, 0), addr)
             return
         if p is None:
             return
-        kind, job_id, origin, seq, body = p
-        mine = self.session == (addr, origin)
+        kind, job_id, origin, seq, challenge, body = p
+        mine = self.session == (addr, origin, challenge)
+        fresh = challenge == self.challenge
         if mine:  # replay window, 64 wide
             if seq <= self.top - 64 or seq in self.seen:
                 return
@@ -113,8 +117,12 @@ class DocPlc:
             crc, n, start, flags, dt, sx, sy, ax, ay, vx, vy, rx, ry, rvx, rvy, token = HEADER.unpack(body)
             if j is not None:
                 if job_id == j["id"] and (addr[0], token) == self.owner:
-                    self._bind(addr, origin, seq)
-                    self._send(STAT, addr)
+                    if mine or fresh:  # a duplicate, or the owner's restarted sender with the current challenge
+                        if not mine:
+                            self._bind(addr, origin, seq, challenge)
+                        self._send(STAT, addr)
+                    else:
+                        self._nak(addr, job_id, STALE_CHALLENGE)
                 else:
                     self.refused += 1
                     self._nak(addr, job_id, BUSY, j["id"], self.session[0])
@@ -122,6 +130,8 @@ class DocPlc:
                 self._nak(addr, job_id, FINISHED, self.ended[job_id])
             elif job_id == 0 or not 1 <= start <= n or not 0 < dt <= 1 or min(sx, sy, ax, ay, vx, vy) <= 0 or flags & ~1:
                 self._nak(addr, job_id, BAD_HEADER)
+            elif not fresh:
+                self._nak(addr, job_id, STALE_CHALLENGE)
             elif crc in self.done_crcs and not flags & 1:
                 self._nak(addr, job_id, ALREADY_DONE, *self.done_crcs[crc][:1], when=self.done_crcs[crc][1])
             elif start != 1:
@@ -130,7 +140,7 @@ class DocPlc:
                 self.job = {"id": job_id, "n": n, "crc": crc, "executed": 0, "buffered": 0,
                             "slots": [None] * self.B}
                 self.owner = (addr[0], token)
-                self._bind(addr, origin, seq)
+                self._bind(addr, origin, seq, challenge)
                 self._request(addr)
         elif kind == DATA and mine and j and job_id == j["id"] and len(body) >= 8:
             first, count = struct.unpack_from("<IH", body)
@@ -148,12 +158,17 @@ class DocPlc:
             self._send(STAT, addr)
         elif kind == CANCEL and len(body) == 8 and j and job_id == j["id"] \
                 and (addr[0], struct.unpack("<Q", body)[0]) == self.owner:
+            if not fresh:
+                self._nak(addr, job_id, STALE_CHALLENGE)
+                return
+            self.challenge = secrets.randbits(64) or 1  # used up
             self.ended[j["id"]] = 5
             self.job = None
             self._send(READY, addr, job_id)
 
-    def _bind(self, addr, origin, seq):
-        self.session, self.top, self.seen = (addr, origin), seq, {seq}
+    def _bind(self, addr, origin, seq, challenge):
+        self.session, self.top, self.seen = (addr, origin, challenge), seq, {seq}
+        self.challenge = secrets.randbits(64) or 1  # used up: a captured HEADER never binds again
 
     def _execute(self, addr):
         j = self.job

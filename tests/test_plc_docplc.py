@@ -58,7 +58,10 @@ def test_document_plc_refuses_a_second_sender_and_a_keyless_one(docplc, tmp_path
     with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as first:  # a PC that started a job and sends no data
         first.bind(("127.0.0.1", 0))
         h = P.JobHeader.from_plc(header, 0xABCD, token=99)
-        first.sendto(P.header(5, 1, 4242, h), plc.address)
+        first.settimeout(2.0)
+        first.sendto(P.hello(5, 1), plc.address)
+        ready = P.decode(first.recv(2048))  # its challenge: what a HEADER must carry
+        first.sendto(P.header(5, 2, 4242, h, challenge=ready.challenge), plc.address)
         time.sleep(0.2)
         with pytest.raises(LinkError, match=rf"busy: job 4242 from 127\.0\.0\.1:{first.getsockname()[1]} is running"):
             bounded(lambda: UdpSender(*plc.address, data, timeout=3.0).run())

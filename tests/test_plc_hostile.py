@@ -47,6 +47,7 @@ class Bench:
         self.crc = P.job_crc(data)
         self.nonce, self.token, self.job_id, self.seq = 0x5EED_0001_CAFE_F00D, 0x70C3_0000_0000_0001, 77, 0
         self.done = False
+        self.bound = 0  # the challenge of the session's HEADER: its DATA carry it
         self.sent: list[bytes] = []  # every legit datagram, for replays
 
     def legit(self, datagram: bytes) -> None:
@@ -57,10 +58,15 @@ class Bench:
         self.seq += 1
         return self.seq
 
+    def challenges(self) -> tuple[int, int]:
+        """The PLC's current challenge and the session's: both on the wire for whoever listens."""
+        return self.sim.challenge, self.bound
+
     def start(self, start_at: int = 1) -> None:
         resume = P.resume_state(self.arr, self.header.delta_time, start_at)
         h = P.JobHeader.from_plc(self.header, self.crc, start_at, resume, token=self.token)
-        self.legit(P.header(self.nonce, self.next_seq(), self.job_id, h, self.key))
+        self.bound = self.sim.challenge  # as announced in the PLC's READY
+        self.legit(P.header(self.nonce, self.next_seq(), self.job_id, h, self.key, self.bound))
 
     def pump(self, steps: int = 1) -> None:
         """Advance the clock; answer every REQUEST addressed to the PC with DATA."""
@@ -81,7 +87,8 @@ class Bench:
                         lo, hi = max(first, 1), min(first + count - 1, len(self.arr))
                         for a in range(lo, hi + 1, P.MAX_PER_DATA):
                             b = min(a + P.MAX_PER_DATA - 1, hi)
-                            self.legit(P.data(self.nonce, self.next_seq(), self.job_id, self.arr[a - 1:b], self.key))
+                            self.legit(P.data(self.nonce, self.next_seq(), self.job_id, self.arr[a - 1:b], self.key,
+                                              self.bound))
 
     def finish(self, max_steps: int = 3000) -> None:
         for _ in range(max_steps):
@@ -133,7 +140,8 @@ def test_resume_header_with_non_finite_or_huge_position_is_refused_or_faults(sma
     start = 5  # a DRAW in the first stroke: the resume needs a re-entry move
     assert arr["type"][start - 1] == P.DRAW
     h = P.JobHeader.from_plc(b.header, b.crc, start, (resume, (100, 100)), token=b.token)
-    b.legit(P.header(b.nonce, b.next_seq(), b.job_id, h))
+    b.bound = b.sim.challenge
+    b.legit(P.header(b.nonce, b.next_seq(), b.job_id, h, challenge=b.bound))
     for _ in range(300):
         b.pump()
     sim = b.sim
@@ -154,7 +162,7 @@ def test_stop_with_an_undefined_mode_is_invalid_and_a_later_stop_still_works(sma
     assert b.sim.job is not None
     b.legit(P.frame(Msg.STOP, b.job_id, b.nonce, b.next_seq(), struct.pack("<B3x", 7)))
     assert b.sim.stats["dropped_invalid"] == 1 and b.sim.job.stop_mode is None
-    b.legit(P.stop(b.nonce, b.next_seq(), b.job_id, now=True))
+    b.legit(P.stop(b.nonce, b.next_seq(), b.job_id, now=True, challenge=b.bound))
     assert b.sim.job is None and b.sim.held is not None and b.sim.held.reason == Fault.STOPPED
     b.close()
 
@@ -200,10 +208,25 @@ def test_a_captured_header_replayed_from_another_port_never_moves_the_session():
     for port in (LEGIT[1] + 1, LEGIT[1] + 2, 1):
         b.sim._handle(header, (LEGIT[0], port), b.now)
         assert b.sim.session == session
-    assert b.sim.stats["replayed_headers"] == 3
+    assert b.sim.stats["stale_challenges"] == 3
     b.finish()
     assert b.sim.stats["underruns"] == 0
     assert_drawn_as_planned(b.sim, job, b.job_id)
+    b.close()
+
+
+def test_a_cancel_needs_the_current_challenge_and_uses_it_up():
+    job = synth_job(n_strokes=3, samples=200, seed=9)
+    b = Bench(job, key=KEY, buffer_size=16)
+    b.start()
+    b.pump(3)
+    jid = b.sim.job.id
+    b.legit(P.cancel(b.nonce, b.next_seq(), jid, b.token, KEY, b.bound))  # the session's, used up by its HEADER
+    assert b.sim.job is not None and b.sim.stats["stale_challenges"] == 1
+    current = b.sim.challenge
+    cancel = P.cancel(b.nonce, b.next_seq(), jid, b.token, KEY, current)
+    b.legit(cancel)
+    assert b.sim.job is None and b.sim.finished[jid][0] == Fault.CANCELLED and b.sim.challenge != current
     b.close()
 
 
@@ -217,8 +240,10 @@ EXAMPLES = 334  # 334 x 300 = 100 200 datagrams per run
 
 
 def _templates(b: Bench, rng, key, sniffed_token: bool) -> list[bytes]:
-    """Well-formed datagrams of every kind, as a forger who sniffed the job id and nonce (and token) would make."""
+    """Well-formed datagrams of every kind, as a forger who sniffed the job id, nonce and challenges (and token)
+    would make."""
     nonce = int(rng.choice([b.nonce, rng.integers(1, 2**63)]))
+    challenge = int(rng.choice([*b.challenges(), rng.integers(0, 2**63)]))
     jid = int(rng.choice([b.job_id, rng.integers(0, 2**32)]))
     seq = int(rng.integers(0, 2**32))
     first = int(rng.integers(1, len(b.arr) + 1))
@@ -234,10 +259,11 @@ def _templates(b: Bench, rng, key, sniffed_token: bool) -> list[bytes]:
                              flags=int(rng.integers(0, 2)))
     status = P.Status(int(rng.integers(0, 5)), int(rng.integers(0, 8)), 0, 0, 32, 0, 0, 0, 0, 0, 0, 0)
     return [
-        P.hello(nonce, seq, jid, key), P.header(nonce, seq, jid, h, key), P.data(nonce, seq, jid, recs, key),
-        P.stop(nonce, seq, jid, bool(rng.integers(0, 2)), key), P.cancel(nonce, seq, jid, h.token, key),
+        P.hello(nonce, seq, jid, key, challenge), P.header(nonce, seq, jid, h, key, challenge),
+        P.data(nonce, seq, jid, recs, key, challenge), P.stop(nonce, seq, jid, bool(rng.integers(0, 2)), key, challenge),
+        P.cancel(nonce, seq, jid, h.token, key, challenge),
         P.plc_message(Msg(int(rng.choice([0x10, 0x11, 0x12, 0x13, 0x14, 0x15]))), nonce, seq, jid, status,
-                      ranges=[(first, count)], reason=1, key=key),
+                      ranges=[(first, count)], reason=1, key=key, challenge=challenge),
     ]
 
 
@@ -332,13 +358,16 @@ def _forger(sim: PlcSimulator, data: bytes, stop, seed: int) -> int:
             recs["command_no"] = np.arange(first, first + 64)
             recs["type"] = rng.integers(0, 2, 64)
             recs["x"], recs["y"] = rng.integers(0, 20000, (2, 64))
-            nonce = sim.session[1] if sim.session else 1  # even the sniffed nonce, from another address
+            nonce = sim.session[1] if sim.session else 1  # even the sniffed nonce and challenges, from another address
+            bound = sim.session[2] if sim.session else 1
             forged = dataclasses.replace(job.h, token=int(rng.integers(1, 2**63)))  # the token is not sniffed
             seen = types.SimpleNamespace(nonce=nonce, job_id=job.id, token=0, arr=arr, header=header,
-                                         crc=job.h.job_crc)
+                                         crc=job.h.job_crc, challenges=lambda: (sim.challenge, bound))
             fuzzed = [_mutate(d, rng, None) for d in _templates(seen, rng, None, sniffed_token=False)]
-            for d in (P.data(nonce, sent + 1, job.id, recs), P.stop(nonce, sent + 2, job.id, True),
-                      P.cancel(nonce, sent + 3, job.id, 12345), P.header(nonce, sent + 4, job.id, forged), *fuzzed):
+            for d in (P.data(nonce, sent + 1, job.id, recs, challenge=bound),
+                      P.stop(nonce, sent + 2, job.id, True, challenge=bound),
+                      P.cancel(nonce, sent + 3, job.id, 12345, challenge=sim.challenge),
+                      P.header(nonce, sent + 4, job.id, forged, challenge=sim.challenge), *fuzzed):
                 s.sendto(d, sim.address)
                 sent += 1
             stop.wait(0.002)
@@ -418,6 +447,104 @@ def test_replayed_session_and_a_finished_job_never_run_again_even_after_a_restar
                                    again=True).run())
     assert r2.job_id != r.job_id
     assert_drawn_as_planned(sim2, data, r2.job_id)
+
+
+def _replay(capture: list[tuple[bytes, tuple]], sim: PlcSimulator) -> None:
+    """Send a captured session to ``sim`` again, from the address it came from when that port is free
+    (else from another port of the same host), and wait until the PLC has read every datagram."""
+    import socket as so
+
+    seen = len(sim.captured)
+    with so.socket(so.AF_INET, so.SOCK_DGRAM) as s:
+        try:
+            s.bind(capture[0][1])
+        except OSError:
+            s.bind(("127.0.0.1", 0))
+        for d, _ in capture:
+            s.sendto(d, sim.address)
+            time.sleep(0.0002)  # as fast as a sender; the PLC's socket buffer keeps every one
+    wait_for(lambda: len(sim.captured) >= seen + len(capture), 10, "the replay read by the PLC")
+    time.sleep(0.5)  # time to act on it: run, request, execute
+
+
+def test_a_captured_keyed_session_never_runs_again_after_70_jobs_or_a_restart(sims, tmp_path):
+    """The issue's case: with a key and a state file, after 64 other jobs the PLC has forgotten a finished
+    job, and a replay of its captured session ran all its commands again. Each session is now bound to a
+    challenge the PLC drew for it: the captured HEADER carries a challenge that is not the PLC's current
+    one, so nothing starts, and the captured DATA belong to no session."""
+    data = synth_job(n_strokes=6, samples=98, seed=19)  # 595 commands
+    nv = tmp_path / "plc.nv"
+    sim = sims(RecordingSim, key=KEY, state_file=nv)
+    r = bounded(lambda: UdpSender(*sim.address, data, state_file=tmp_path / "j.json", key=KEY).run())
+    assert_drawn_as_planned(sim, data, r.job_id)
+    capture = list(sim.captured)
+    assert sum(d[3] == Msg.DATA for d, _ in capture) >= 10
+    for i in range(70):
+        other = synth_job(n_strokes=1, samples=8, seed=1000 + i)
+        bounded(lambda: UdpSender(*sim.address, other, state_file=tmp_path / "o.json", key=KEY).run())
+    assert r.job_id not in sim.finished and len(sim.finished) == 64  # forgotten: only the challenge is left
+    before = len(sim.executed_log)
+    _replay(capture, sim)
+    assert len(sim.executed_log) == before and sim.job is None and sim.held is None
+    assert sim.stats["stale_challenges"] >= 1 and sim.stats["handler_errors"] == 0
+    sim.stop()  # a power cycle: the same non-volatile memory, a new challenge
+    sim2 = sims(RecordingSim, key=KEY, state_file=nv)
+    _replay(capture, sim2)
+    assert len(sim2.executed_log) == 0 and sim2.job is None and sim2.held is None
+    assert sim2.stats["stale_challenges"] >= 1
+    # The legitimate sender is unaffected: the same file again (with --again) draws it once more.
+    r2 = bounded(lambda: UdpSender(*sim2.address, data, state_file=tmp_path / "k.json", key=KEY, again=True).run())
+    assert_drawn_as_planned(sim2, data, r2.job_id)
+
+
+def test_a_captured_session_never_runs_on_a_plc_that_forgot_everything(sims, tmp_path):
+    """Without a key and without non-volatile memory (the issue: 257 commands ran again after a restart):
+    the restarted PLC draws a new challenge, so the capture still runs nothing."""
+    data = synth_job(n_strokes=3, samples=98, seed=20)
+    sim = sims(RecordingSim)
+    r = bounded(lambda: UdpSender(*sim.address, data, timeout=5.0).run())
+    assert_drawn_as_planned(sim, data, r.job_id)
+    capture = list(sim.captured)
+    sim.stop()
+    sim2 = sims(RecordingSim)
+    assert sim2.finished == {}
+    _replay(capture, sim2)
+    assert len(sim2.executed_log) == 0 and sim2.job is None
+
+
+def test_a_restarted_sender_re_attaches_and_a_replayed_header_does_not(sims, tmp_path):
+    """With a key, while the PLC runs a job: a second run of the same sender (same record: job id and token)
+    takes the session over with the PLC's current challenge; the first run's captured HEADER, played back
+    from another port of the same computer afterwards, leaves the session with the second run."""
+    import threading
+
+    data = synth_job(n_strokes=20, samples=98, seed=23)
+    sim = sims(RecordingSim, key=KEY, speed=20.0)
+    rec = tmp_path / "job.json"
+    first = UdpSender(*sim.address, data, state_file=rec, key=KEY, timeout=2.0, rto=0.05)
+    box = {}
+
+    def run_first():
+        try:
+            first.run()
+        except LinkError as e:  # the PLC talks to the second run now: this one hears nothing more
+            box["first"] = str(e)
+
+    t = threading.Thread(target=run_first, daemon=True)
+    t.start()
+    wait_for(lambda: len(sim.executed_log) > 200, 30, "the job under way")
+    capture = [(d, a) for d, a in sim.captured if d[3] == Msg.HEADER]
+    second = UdpSender(*sim.address, data, state_file=rec, key=KEY, timeout=5.0, rto=0.05)
+    t2 = threading.Thread(target=lambda: box.update(r=second.run()), daemon=True)
+    t2.start()
+    wait_for(lambda: sim.session and sim.session[1] == second.session, 10, "the second run bound")
+    bound = sim.session
+    _replay(capture, sim)
+    assert sim.session == bound and sim.stats["stale_challenges"] >= 1
+    t2.join(60)
+    t.join(10)
+    assert "r" in box, "the second run did not finish"
+    assert_drawn_as_planned(sim, data, box["r"].job_id)
 
 
 def test_power_cycle_mid_job_is_reported_and_the_resume_repeats_nothing(sims, tmp_path):
@@ -528,7 +655,7 @@ def test_sender_declines_a_version_1_plc_with_one_clear_line():
 
         t = threading.Thread(target=answer_like_v1, daemon=True)
         t.start()
-        with pytest.raises(LinkError, match="speaks protocol version 1, this doodlecam speaks 2; update the PLC"):
+        with pytest.raises(LinkError, match=f"speaks protocol version 1, this doodlecam speaks {P.VERSION}; update the PLC"):
             bounded(lambda: UdpSender(*plc.getsockname(), data, timeout=3.0).run())
         t.join(5)
 
@@ -547,7 +674,7 @@ def test_sender_survives_fuzzed_plc_datagrams_with_one_line_errors_only():
         s._open()
         s.job_id, s.token = 77, 5
         b = types.SimpleNamespace(nonce=1, job_id=77, token=5, arr=read_plc_array(data)[1],
-                                  header=read_plc_array(data)[0], crc=s.crc)
+                                  header=read_plc_array(data)[0], crc=s.crc, challenges=lambda: (1, 2))
         errors = handled = 0
         try:
             for i in range(5000):

@@ -405,7 +405,8 @@ def sim_plc(host, port, machine, buffer_size, realtime, speed, loss, dup, reorde
             plc.write_trace_csv(record)
         net = plc._inbound.stats + plc._outbound.stats
         refused = {k: plc.stats[k] for k in ("dropped_foreign", "dropped_replayed", "dropped_unauthenticated",
-                                             "dropped_old_version", "refused_busy", "handler_errors") if plc.stats[k]}
+                                             "dropped_old_version", "stale_challenges", "refused_busy",
+                                             "handler_errors") if plc.stats[k]}
         click.echo(f"PLC simulator stopped: {len(plc.executed_log)} commands executed, "
                    f"{plc.stats['dropped_invalid']} corrupt datagrams dropped, impairments {dict(net) or 'none'}"
                    + (f", refused {refused}" if refused else ""), err=True)

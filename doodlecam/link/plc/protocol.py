@@ -17,12 +17,19 @@ corruption and delay:
 * the PLC drives retransmission: it re-requests what has not arrived within
   its retransmission timeout; the PC only answers requests (stateless, so a
   duplicate or late REQUEST costs bandwidth, never correctness);
-* version 2 (this one) adds, for shared networks: every field range-checked
-  in ``decode``; a random session nonce per PC run in ``origin`` and a job
-  owner token in HEADER / CANCEL (the PLC binds a job to them); an optional
-  HMAC-SHA256 tag with a pre-shared key and ``ReplayWindow`` over ``seq``;
-  NAK reasons that name the busy job's owner and when a content finished.
-  Version 1 datagrams are recognised (``OldVersion``) and declined.
+* version 2 added, for shared networks: every field range-checked in
+  ``decode``; a random session nonce per PC run in ``origin`` and a job owner
+  token in HEADER / CANCEL (the PLC binds a job to them); an HMAC-SHA256 tag
+  with a pre-shared key and ``ReplayWindow`` over ``seq``; NAK reasons that
+  name the busy job's owner and when a content finished;
+* version 3 (this one) binds every session to a **challenge** the PLC draws
+  at random (a fresh one at power-up and each time a HEADER or CANCEL uses
+  it up) and carries in every datagram: a HEADER or CANCEL must carry the
+  PLC's current challenge, every DATA / STOP / HELLO of the session the one
+  its HEADER carried. A captured session (or HEADER) names a challenge that
+  is used up, however many jobs or restarts later, so it starts and moves
+  nothing (``Nak.STALE_CHALLENGE``). Versions 1 and 2 are recognised
+  (``OldVersion``) and declined.
 
 Pure encoding and decoding here; the PLC simulator is ``simulator``, the PC side
 ``sender``. Also the PLC command semantics both need: the planned position
@@ -45,14 +52,14 @@ import numpy as np
 from doodlecam.link.plc.packetfile import DRAW, MOVE, PAUSE, RECORD_DTYPE, PlcHeader
 
 MAGIC = b"DP"
-VERSION = 2
-OLD_VERSIONS = (1,)  # recognised, and declined with a clear message
-COMMON = struct.Struct("<2sBBIQIB3x")  # magic, version, type, job_id, origin, seq, flags
+VERSION = 3
+OLD_VERSIONS = (1, 2)  # recognised, and declined with a clear message
+COMMON = struct.Struct("<2sBBIQIB3xQ")  # magic, version, type, job_id, origin, seq, flags, challenge
 CRC = struct.Struct("<I")
 TAG_SIZE = 32  # HMAC-SHA256 tag before the CRC when the AUTH flag is set
 AUTH = 0x01  # COMMON flags: the datagram carries an HMAC-SHA256 tag
 MAX_DATAGRAM = 1472  # one Ethernet frame (1500 - IP 20 - UDP 8): no IP fragmentation
-MAX_PER_DATA = 64  # 64 x 16-byte records + 24 + 8 + 32 + 4 bytes of framing = 1092 bytes
+MAX_PER_DATA = 64  # 64 x 16-byte records + 32 + 8 + 32 + 4 bytes of framing = 1100 bytes
 MAX_RANGES = 16  # ranges per REQUEST
 MAX_COMMAND = 0xFFFFFFFF  # command numbers are uint32, from 1
 AGAIN = 0x01  # HEADER flags: run this content even though the PLC finished it before
@@ -105,6 +112,7 @@ class Nak(IntEnum):
     NOT_READY = 5  # PLC is not in B_ready (not initialised); detail = State
     ALREADY_DONE = 6  # this content (job_crc) ran to its end; detail = that job id, when = its end (Unix s)
     AUTH_REQUIRED = 7  # the PLC has a key and the datagram had no valid tag
+    STALE_CHALLENGE = 8  # a HEADER / CANCEL without the PLC's current challenge (the NAK carries it): nothing done
 
 
 FAULT_TEXT = {
@@ -284,6 +292,9 @@ class Message:
     owner: tuple[str, int] | None = None  # NAK BUSY: the address of the sender whose job runs
     when: int = 0  # NAK ALREADY_DONE: Unix s the content finished
     authenticated: bool = False  # carried a valid HMAC tag
+    # PC -> PLC: the PLC challenge the datagram answers (HEADER / CANCEL: the current one; DATA / STOP / HELLO:
+    # its session's); PLC -> PC: the PLC's current challenge, the one the next HEADER or CANCEL must carry
+    challenge: int = 0
 
 
 # ---------------------------------------------------------------- encoding
@@ -292,39 +303,43 @@ def _tag(key: bytes, msg) -> bytes:
     return hmac.new(key, msg, sha256).digest()
 
 
-def frame(kind: int, job_id: int, origin: int, seq: int, body: bytes = b"", key: bytes | None = None) -> bytes:
+def frame(kind: int, job_id: int, origin: int, seq: int, body: bytes = b"", key: bytes | None = None,
+          challenge: int = 0) -> bytes:
     """One datagram: common header, body, HMAC-SHA256 tag (when ``key``), CRC-32."""
     head = COMMON.pack(MAGIC, VERSION, kind, job_id & 0xFFFFFFFF, origin & 0xFFFFFFFFFFFFFFFF, seq & 0xFFFFFFFF,
-                       AUTH if key else 0)
+                       AUTH if key else 0, challenge & 0xFFFFFFFFFFFFFFFF)
     msg = head + body
     if key:
         msg += _tag(key, msg)
     return msg + CRC.pack(zlib.crc32(msg))
 
 
-def hello(origin: int, seq: int, job_id: int = 0, key: bytes | None = None) -> bytes:
-    return frame(Msg.HELLO, job_id, origin, seq, key=key)
+# PC -> PLC. ``challenge``: HEADER and CANCEL the PLC's current one, DATA / STOP / HELLO their session's.
+
+def hello(origin: int, seq: int, job_id: int = 0, key: bytes | None = None, challenge: int = 0) -> bytes:
+    return frame(Msg.HELLO, job_id, origin, seq, key=key, challenge=challenge)
 
 
-def header(origin: int, seq: int, job_id: int, h: JobHeader, key: bytes | None = None) -> bytes:
-    return frame(Msg.HEADER, job_id, origin, seq, h.pack(), key)
+def header(origin: int, seq: int, job_id: int, h: JobHeader, key: bytes | None = None, challenge: int = 0) -> bytes:
+    return frame(Msg.HEADER, job_id, origin, seq, h.pack(), key, challenge)
 
 
-def data(origin: int, seq: int, job_id: int, records: np.ndarray, key: bytes | None = None) -> bytes:
+def data(origin: int, seq: int, job_id: int, records: np.ndarray, key: bytes | None = None,
+         challenge: int = 0) -> bytes:
     """DATA with consecutive records (RECORD_DTYPE, at most MAX_PER_DATA)."""
     if not 0 < len(records) <= MAX_PER_DATA:
         raise ValueError(f"DATA carries 1..{MAX_PER_DATA} records, got {len(records)}")
     return frame(Msg.DATA, job_id, origin, seq,
                  _DATA.pack(int(records["command_no"][0]), len(records)) + records.astype(RECORD_DTYPE, copy=False).tobytes(),
-                 key)
+                 key, challenge)
 
 
-def stop(origin: int, seq: int, job_id: int, now: bool = False, key: bytes | None = None) -> bytes:
-    return frame(Msg.STOP, job_id, origin, seq, _STOP.pack(1 if now else 0), key)
+def stop(origin: int, seq: int, job_id: int, now: bool = False, key: bytes | None = None, challenge: int = 0) -> bytes:
+    return frame(Msg.STOP, job_id, origin, seq, _STOP.pack(1 if now else 0), key, challenge)
 
 
-def cancel(origin: int, seq: int, job_id: int, token: int, key: bytes | None = None) -> bytes:
-    return frame(Msg.CANCEL, job_id, origin, seq, _CANCEL.pack(token), key)
+def cancel(origin: int, seq: int, job_id: int, token: int, key: bytes | None = None, challenge: int = 0) -> bytes:
+    return frame(Msg.CANCEL, job_id, origin, seq, _CANCEL.pack(token), key, challenge)
 
 
 def _ipv4(addr: str) -> int:
@@ -336,7 +351,7 @@ def _ipv4(addr: str) -> int:
 
 def plc_message(kind: Msg, origin: int, seq: int, job_id: int, status: Status, *,
                 ranges=(), reason: int = 0, detail: int = 0, owner: tuple[str, int] | None = None, when: int = 0,
-                key: bytes | None = None) -> bytes:
+                key: bytes | None = None, challenge: int = 0) -> bytes:
     """READY, STATUS, DONE, FAULT (status only), REQUEST (+ ranges) or NAK (+ reason)."""
     body = status.pack()
     if kind == Msg.REQUEST:
@@ -345,7 +360,7 @@ def plc_message(kind: Msg, origin: int, seq: int, job_id: int, status: Status, *
     elif kind == Msg.NAK:
         ip, port = (_ipv4(owner[0]), owner[1]) if owner else (0, 0)
         body += _NAK.pack(reason, port, detail & 0xFFFFFFFF, ip, max(0, min(int(when), 0xFFFFFFFF)))
-    return frame(kind, job_id, origin, seq, body, key)
+    return frame(kind, job_id, origin, seq, body, key, challenge)
 
 
 # ---------------------------------------------------------------- decoding
@@ -372,16 +387,18 @@ def decode(datagram: bytes, key: bytes | None = None) -> Message:
     (``JobHeader.problem``).
     """
     n = len(datagram)
-    if n < COMMON.size + CRC.size:
+    if n < 3 + CRC.size:
         raise ProtocolError(f"short datagram ({n} bytes)")
     (crc,) = CRC.unpack_from(datagram, n - CRC.size)
     if zlib.crc32(memoryview(datagram)[:n - CRC.size]) != crc:
         raise ProtocolError("CRC mismatch")
     if datagram[:2] != MAGIC:
         raise ProtocolError("bad magic")
-    if datagram[2] != VERSION:
+    if datagram[2] != VERSION:  # before the length: an older version's common header is shorter
         raise OldVersion(datagram[2]) if datagram[2] in OLD_VERSIONS else ProtocolError(f"unknown version {datagram[2]}")
-    magic, version, kind, job_id, origin, seq, flags = COMMON.unpack_from(datagram)
+    if n < COMMON.size + CRC.size:
+        raise ProtocolError(f"short datagram ({n} bytes)")
+    magic, version, kind, job_id, origin, seq, flags, challenge = COMMON.unpack_from(datagram)
     if flags & ~AUTH:
         raise ProtocolError(f"unknown flags 0x{flags:x}")
     end = n - CRC.size
@@ -400,7 +417,7 @@ def decode(datagram: bytes, key: bytes | None = None) -> Message:
     except ValueError:
         raise ProtocolError(f"unknown message type {kind}") from None
     body = bytes(datagram[COMMON.size:end])
-    base = dict(type=kind, job_id=job_id, origin=origin, seq=seq, authenticated=bool(flags & AUTH))
+    base = dict(type=kind, job_id=job_id, origin=origin, seq=seq, authenticated=bool(flags & AUTH), challenge=challenge)
     if kind in _FIXED:
         if len(body) != _FIXED[kind]:
             raise ProtocolError(f"{kind.name} body is {len(body)} bytes, expected {_FIXED[kind]}")

@@ -12,8 +12,11 @@ in a small state file next to the job (written atomically, mode 0600), so a
 restarted sender re-attaches to a job the PLC is still running, resumes one
 the PLC holds (after Ctrl-C, an underrun, a killed sender or a power cycle),
 and only falls back on its own record when the PLC no longer remembers the
-job. Each run has its own random session nonce; with a key every datagram is
-HMAC-tagged. A PAUSE command (a pen change) makes the PLC hold the job with the
+job. Each run has its own random session nonce; every HEADER (and CANCEL)
+carries the challenge the PLC announces in every message, and every DATA, STOP
+and HELLO of the job the challenge its accepted HEADER carried, so the PLC can
+tell this run's datagrams from a captured session played back; with a key
+every datagram is HMAC-tagged. A PAUSE command (a pen change) makes the PLC hold the job with the
 pen up; the sender asks the operator (``pen_change``) and resumes after it, and
 so does any run that resumes right after a PAUSE, so a pen change is never
 skipped. Silence is judged against the PLC's buffer: the sender waits
@@ -103,6 +106,8 @@ class UdpSender:
         self.pen_changes = 0
         # This run's session nonce: the PLC takes DATA / STOP only from this address with this nonce.
         self.session = secrets.randbits(64) | 1
+        self.challenge = 0  # the PLC's current challenge, from its latest message: the next HEADER / CANCEL carries it
+        self.bound = 0  # the challenge of the HEADER the PLC took: this run's DATA / STOP / HELLO carry it
         self.seq = 0
         self.job_id: int | None = None
         self.token = 0  # the job's owner token (random, in the record): proves the job is ours after a restart
@@ -201,6 +206,7 @@ class UdpSender:
             self.stats["stale_received"] += 1
             return None
         self.last_seq = m.seq
+        self.challenge = m.challenge
         self.last_heard = time.monotonic()
         self.last_status = m.status
         return m
@@ -222,7 +228,7 @@ class UdpSender:
         m = None
         while time.monotonic() < deadline:
             if time.monotonic() >= next_hello:
-                self._send(P.hello(self.session, self._next_seq(), self.job_id or 0, self.key))
+                self._send(P.hello(self.session, self._next_seq(), self.job_id or 0, self.key, self.bound))
                 next_hello = time.monotonic() + min(0.25, self.timeout / 4)
             got = self._recv(min(next_hello, deadline) - time.monotonic())
             if got is None:
@@ -300,13 +306,15 @@ class UdpSender:
                                        flags=P.AGAIN if self.again else 0)
             deadline = time.monotonic() + self.timeout
             next_send = 0.0
+            sent_with = 0
             while True:
                 now = time.monotonic()
                 if now >= deadline:
                     raise LinkError(f"the PLC at {self.where} did not take the job header within {self.timeout:g} s; "
                                     "check that it is idle (B_ready) and the link is up")
                 if now >= next_send:
-                    self._send(P.header(self.session, self._next_seq(), self.job_id, hdr, self.key))
+                    sent_with = self.challenge  # the PLC's latest: if it takes this header, the session has it
+                    self._send(P.header(self.session, self._next_seq(), self.job_id, hdr, self.key, sent_with))
                     next_send = now + self.rto
                 m = self._recv(min(next_send, deadline) - time.monotonic())
                 if m is None:
@@ -331,8 +339,11 @@ class UdpSender:
                                         f"{m.detail}); to draw it again, add --again")
                     if m.reason == Nak.BAD_HEADER:
                         raise LinkError(f"the PLC at {self.where} rejected the header of {self.name}; re-export the job")
+                    if m.reason == Nak.STALE_CHALLENGE:
+                        next_send = 0.0  # at once, with the challenge this NAK carries
                     continue  # NOT_READY: keep trying until the deadline
                 if m.job_id == self.job_id and (s.state in (State.C_BUFFER, State.D_OPERATING) or m.type == Msg.DONE):
+                    self.bound = sent_with
                     self._on_message(m)
                     return
         raise LinkError(f"the PLC at {self.where} keeps changing its resume point; cancel the job with --cancel")
@@ -354,7 +365,7 @@ class UdpSender:
         lo, hi = max(first, 1), min(first + count - 1, self.n)
         for a in range(lo, hi + 1, P.MAX_PER_DATA):
             b = min(a + P.MAX_PER_DATA - 1, hi)
-            self._send(P.data(self.session, self._next_seq(), self.job_id, self.records[a - 1:b], self.key))
+            self._send(P.data(self.session, self._next_seq(), self.job_id, self.records[a - 1:b], self.key, self.bound))
             self.stats["commands_sent"] += b - a + 1
 
     def _on_message(self, m: P.Message) -> str | None:
@@ -406,7 +417,7 @@ class UdpSender:
                     raise LinkError(f"the PLC at {self.where} stopped answering for {silent:.1f} s after command "
                                     f"{self.executed} of {self.n}; check it, then send the job again to resume")
                 if silent > 2 * self.rto and now >= next_hello:  # ask: a restarted PLC answers with its new boot id
-                    self._send(P.hello(self.session, self._next_seq(), self.job_id, self.key))
+                    self._send(P.hello(self.session, self._next_seq(), self.job_id, self.key, self.bound))
                     next_hello = now + max(self.rto, 0.25)
                 continue
             outcome = self._on_message(m)
@@ -445,7 +456,8 @@ class UdpSender:
         self.last_heard = time.monotonic()
         while True:
             try:
-                self._send(P.stop(self.session, self._next_seq(), self.job_id, now=bool(mode), key=self.key))
+                self._send(P.stop(self.session, self._next_seq(), self.job_id, now=bool(mode), key=self.key,
+                                  challenge=self.bound))
                 end = time.monotonic() + self.rto * 3
                 while time.monotonic() < end:
                     m = self._recv(end - time.monotonic())
@@ -533,7 +545,7 @@ class UdpSender:
             self.job_id, self.token = victim, int(saved.get("token") or 0)
             deadline = time.monotonic() + self.timeout
             while time.monotonic() < deadline:
-                self._send(P.cancel(self.session, self._next_seq(), victim, self.token, self.key))
+                self._send(P.cancel(self.session, self._next_seq(), victim, self.token, self.key, self.challenge))
                 end = time.monotonic() + self.rto * 3
                 while time.monotonic() < end:
                     r = self._recv(end - time.monotonic())

@@ -1,7 +1,7 @@
 """A DoodleBot PLC simulator on a real UDP socket (``doodlecam sim plc``).
 
 It runs the report's programs (section 3.4) against the wire format of
-``protocol`` (version 2, docs/protocol.md):
+``protocol`` (version 3, docs/protocol.md):
 
 * Governor: POWER_ON -> A_Init (home) -> B_ready (READY every
   ``ready_interval``) -> C_buffer (request commands until the buffer is full
@@ -20,8 +20,10 @@ It runs the report's programs (section 3.4) against the wire format of
   boundaries); limit switches just outside it stop it at once if anything
   gets there anyway.
 * A hostile network: every datagram is range-checked by ``protocol.decode``
-  and counted when dropped; a running job is bound to the address and nonce
-  of the PC that drives it and owned by its IP and token; an optional key
+  and counted when dropped; a running job is bound to the address, nonce and
+  challenge of the PC run that drives it and owned by its IP and token; a
+  HEADER or CANCEL must carry the PLC's current challenge, which it then uses
+  up, so a captured session never starts or moves anything again; a key
   requires an HMAC tag on every datagram, with a replay window per session.
 * Non-volatile memory (``nvram``): the ended jobs with their content CRC, the
   current job and its command counter survive a restart (a new simulator on
@@ -39,6 +41,7 @@ from __future__ import annotations
 
 import math
 import random
+import secrets
 import select
 import socket
 import threading
@@ -115,9 +118,6 @@ class _Job:
         self.stop_mode: int | None = None
         self.starving_since: float | None = None
         self.filling_since: float | None = None
-        # the session nonces of the sender runs that have driven this job: a sender that restarts draws a
-        # fresh one, so a HEADER with a nonce already seen is a capture played back, never a re-attach
-        self.origins: set[int] = set()
         self.started = False
 
 
@@ -131,6 +131,11 @@ class _Held:
 
 
 _INT32 = (-2**31, 2**31 - 1)
+
+
+def _challenge() -> int:
+    """A session challenge: 64 random bits from the OS's CSPRNG, never 0 (0 = none)."""
+    return secrets.randbits(64) or 1
 
 
 
@@ -152,7 +157,9 @@ class PlcSimulator:
         self.seq = 0
         self.state = State.POWER_ON
         self.peer: tuple | None = None  # where periodic messages go: the bound session's address
-        self.session: tuple[tuple, int] | None = None  # ((IP, port), nonce) of the PC run that drives the job
+        # ((IP, port), nonce, challenge) of the PC run that drives the job: its HEADER's address, origin and challenge
+        self.session: tuple[tuple, int, int] | None = None
+        self.challenge = _challenge()  # what the next HEADER or CANCEL must carry; used up by it
         self.owner: str = ""  # IP of the PC that started the running job (with its token)
         self.window = P.ReplayWindow()  # the bound session's seq numbers: each accepted once
         self.job: _Job | None = None
@@ -325,7 +332,8 @@ class PlcSimulator:
         if job_id is None:
             job_id = self.job.id if self.job else (self.held.id if self.held else self.last_job)
         self.seq += 1
-        data = P.plc_message(kind, self.boot_id, self.seq, job_id, self._status(), key=self.cfg.key, **kw)
+        data = P.plc_message(kind, self.boot_id, self.seq, job_id, self._status(), key=self.cfg.key,
+                             challenge=self.challenge, **kw)
         self.stats[f"sent_{kind.name}"] += 1
         self._outbound.schedule(now, data, dest)
 
@@ -402,7 +410,7 @@ class PlcSimulator:
             self.log(f"internal error on {m.type.name} from {addr[0]}:{addr[1]}: {e!r}")
 
     def _dispatch(self, m: P.Message, addr, now: float) -> None:
-        mine = self.session is not None and (tuple(addr[:2]), m.origin) == self.session
+        mine = self.session is not None and (tuple(addr[:2]), m.origin, m.challenge) == self.session
         if mine and not self.window.accept(m.seq):
             self.stats["dropped_replayed"] += 1  # a duplicate or a replay of the bound session
             return
@@ -433,6 +441,13 @@ class PlcSimulator:
     def _on_cancel(self, m: P.Message, addr, now: float) -> None:
         """CANCEL carries the job's owner token: only the PC that started the job can end it."""
         job, held = self.job, self.held
+        ours = (job and m.job_id == job.id and (addr[0], m.token) == (self.owner, job.h.token)) or (
+            held and m.job_id == held.id and (addr[0], m.token) == (held.owner, held.h.token))
+        if ours and m.challenge != self.challenge:
+            self._stale(m, addr, now)  # a CANCEL captured earlier (or sent before the challenge changed)
+            return
+        if ours:
+            self.challenge = _challenge()  # used up
         if job and m.job_id == job.id and (addr[0], m.token) == (self.owner, job.h.token):
             self._halt(now)
             self._forget(job.id, Fault.CANCELLED)
@@ -463,21 +478,27 @@ class PlcSimulator:
             self.finished.popitem(last=False)
 
     def _bind(self, m: P.Message, addr) -> None:
-        """The sending PC run becomes the session: its address and nonce; a fresh replay window."""
-        self.session, self.peer = (tuple(addr[:2]), m.origin), addr
+        """The sending PC run becomes the session: its address, nonce and the challenge its HEADER carried,
+        which is used up (a fresh one for the next HEADER); a fresh replay window."""
+        self.session, self.peer = (tuple(addr[:2]), m.origin, m.challenge), addr
+        self.challenge = _challenge()
         self.window = P.ReplayWindow()
         self.window.accept(m.seq)
+
+    def _stale(self, m: P.Message, addr, now: float) -> None:
+        """A HEADER or CANCEL without the current challenge: nothing changes; the NAK carries the current one."""
+        self.stats["stale_challenges"] += 1
+        self._send(Msg.NAK, now, to=addr, job_id=m.job_id, reason=Nak.STALE_CHALLENGE)
 
     def _on_header(self, m: P.Message, addr, mine: bool, now: float) -> None:
         h, job, held = m.header, self.job, self.held
         if job is not None:
             if m.job_id == job.id and (addr[0], h.token) == (self.owner, job.h.token):
                 if not mine:
-                    if m.origin in job.origins:  # a captured header replayed (from another port): ignored
-                        self.stats["replayed_headers"] += 1
+                    if m.challenge != self.challenge:  # a captured header played back: the session stays
+                        self._stale(m, addr, now)
                         return
                     self._bind(m, addr)  # the job's PC restarted its sender: the new run drives the job
-                    job.origins.add(m.origin)
                     self.log(f"job {job.id}: sender re-attached from {addr[0]}:{addr[1]}")
                 self._send(Msg.STATUS, now)  # a duplicate of the header we run: idempotent
             else:
@@ -494,6 +515,9 @@ class PlcSimulator:
         if problem:
             self.stats["bad_headers"] += 1
             self._send(Msg.NAK, now, to=addr, job_id=m.job_id, reason=Nak.BAD_HEADER)
+            return
+        if m.challenge != self.challenge:  # a HEADER captured from an earlier session: starts nothing
+            self._stale(m, addr, now)
             return
         resuming = held is not None and m.job_id == held.id
         if resuming:
@@ -515,7 +539,6 @@ class PlcSimulator:
         self._bind(m, addr)
         self.owner = addr[0]
         self.job = _Job(m.job_id, h, self.cfg.buffer_size)
-        self.job.origins.add(m.origin)
         self.fault, self.fault_cmd = Fault.NONE, 0
         self.nv.progress(m.job_id, h.start_at - 1)
         self._nv_save()
