@@ -106,6 +106,12 @@ class Tracer(Plugin):
         width when known). Called before anything is traced; optional to override."""
 
     @classmethod
+    def check_extension(cls, ext: str) -> None:
+        """Raise a DoodleError when files with this extension (lower-case, with the dot) cannot be
+        read here, e.g. an optional library is missing (doodlecam.extras.require). Called before
+        anything is traced; optional to override."""
+
+    @classmethod
     def layer_names(cls, options: dict[str, Any]) -> tuple[str, ...] | None:
         """The layers this tracer's drawings can have with these resolved options, when that is
         known before tracing: ``()`` for one unnamed layer (a photo's edges); ``None``, the

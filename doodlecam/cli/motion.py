@@ -43,9 +43,12 @@ def motion(design, outdir, machine, no_machine, samples, cycle_time, split, no_p
     Example:  doodlecam motion DESIGN.toml -o out/   (the format: docs/motion.md;
     examples in the source tree's samples/motion/)
     """
+    from doodlecam.extras import require
     from doodlecam.motion.design import check, load_design, solve_design
     from doodlecam.motion.export import atomic_write, axis_csv, plot_png, table_csv
 
+    if not no_plot:
+        require("plot", "the motion plot (NAME.png)", "or --no-plot")
     d = load_design(design)
     if cycle_time is not None:
         d = d.scaled(cycle_time)

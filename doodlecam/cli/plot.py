@@ -27,12 +27,14 @@ def plot(input, out, machine, strokes, tracer, tracer_opt, solver, plugin_dirs, 
     velocities and accelerations against their limits (report Fig. 2.4.1-2.4.5)."""
     from doodlecam.checks import check_input, check_settings
     from doodlecam.cli.firstrun import first_run_notice
+    from doodlecam.extras import require
     from doodlecam.machine import load_machine
     from doodlecam.pipeline import Settings, plan_job, select_layer, trace
     from doodlecam.registry import kinematics_for
     from doodlecam.plot import output_paths, pick_strokes, plot_job
     from doodlecam.trace.layout import fit_to_work_area
 
+    require("plot", "doodlecam plot")
     out = Path(out) if out is not None else Path("out") / f"{Path(input).stem}.png"
     output_paths(out, [0])  # a bad extension fails before any work
     settings = Settings(machine=load_machine(machine), tracer=tracer, tracer_options=_pairs(tracer_opt, "--tracer-opt"),
