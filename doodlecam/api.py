@@ -17,7 +17,7 @@ from typing import Any, ClassVar
 
 import numpy as np
 
-from doodlecam.errors import PluginError, did_you_mean
+from doodlecam.errors import PlanError, PluginError, did_you_mean
 
 API_VERSION = 1
 
@@ -106,6 +106,12 @@ class Tracer(Plugin):
         width when known). Called before anything is traced; optional to override."""
 
     @classmethod
+    def check_extension(cls, ext: str) -> None:
+        """Raise a DoodleError when files with this extension (lower-case, with the dot) cannot be
+        read here, e.g. an optional library is missing (doodlecam.extras.require). Called before
+        anything is traced; optional to override."""
+
+    @classmethod
     def layer_names(cls, options: dict[str, Any]) -> tuple[str, ...] | None:
         """The layers this tracer's drawings can have with these resolved options, when that is
         known before tracing: ``()`` for one unnamed layer (a photo's edges); ``None``, the
@@ -153,7 +159,21 @@ class Kinematics(Plugin):
         return q @ M, dq @ M, ddq @ M
 
     def check_reachable(self, points) -> None:
-        """Raise a DoodleError naming the first point the machine cannot reach."""
+        """Raise a DoodleError naming the first point the machine cannot reach (a machine that
+        reaches its whole rectangular work area: ``check_in_work_area(self.machine, points)``)."""
+
+
+def check_in_work_area(machine, points) -> None:
+    """Raise a PlanError naming the first of ``points`` ((n, 2) mm) outside the machine's work
+    area, 0..width x 0..height mm: ``check_reachable`` for machines that reach all of it."""
+    p = np.asarray(points, dtype=float).reshape(-1, 2)
+    eps = 1e-9  # points on the edge, up to rounding, are inside
+    bad = np.flatnonzero((p[:, 0] < -eps) | (p[:, 0] > machine.width + eps) |
+                         (p[:, 1] < -eps) | (p[:, 1] > machine.height + eps))
+    if bad.size:
+        x, y = p[bad[0]]
+        raise PlanError(f"point ({x:.2f}, {y:.2f}) mm is outside the {machine.width:g} x {machine.height:g} mm "
+                        f"work area of '{machine.name}'")
 
 
 class PostProcessor(Plugin):

@@ -17,6 +17,7 @@ from typing import Iterable
 
 from doodlecam import registry
 from doodlecam.errors import DoodleError, InputError, MachineError, OutputError, PluginError, did_you_mean
+from doodlecam.extras import require
 from doodlecam.machine import Machine
 from doodlecam.options import ConvertOptions, layout_options, order_options
 
@@ -98,6 +99,7 @@ def check_scheduler(address: str, timeout: float = 3.0) -> None:
     """A Dask scheduler address has a host and a port and something listens there."""
     from urllib.parse import urlsplit
 
+    require("dask", "--scheduler")
     parts = urlsplit(address if "://" in address else f"tcp://{address}")
     try:
         port = parts.port
@@ -157,6 +159,7 @@ def check_settings(options: ConvertOptions, machine: Machine, inputs: Iterable[P
     if options.tracer and not tracers:
         tracers[""] = registry.get("tracer", options.tracer, dirs)
     for ext, cls in tracers.items():
+        cls.check_extension(ext)
         resolved = cls.resolve_options(machine.plugin_options.get(f"trace.{cls.name}", {}), options.tracer_options)
         cls.check_options(resolved, machine.pen.width)
         if options.layer is not None:

@@ -32,8 +32,8 @@ from typing import Any
 
 import numpy as np
 
-from doodlecam.api import Kinematics
-from doodlecam.errors import MachineError, PlanError
+from doodlecam.api import Kinematics, check_in_work_area
+from doodlecam.errors import MachineError
 
 _KEYS = ("steps_per_mm", "max_velocity", "max_acceleration")
 _OPTIONAL = ("pen_acceleration",)
@@ -116,9 +116,4 @@ class AxiDraw(Kinematics):
         return np.column_stack([p[:, 0], self.machine.height - p[:, 1]])
 
     def check_reachable(self, points) -> None:
-        m = self.machine
-        p = np.asarray(points, dtype=float)
-        bad = np.flatnonzero((p[:, 0] < -1e-9) | (p[:, 0] > m.width + 1e-9) | (p[:, 1] < -1e-9) | (p[:, 1] > m.height + 1e-9))
-        if bad.size:
-            x, y = p[bad[0]]
-            raise PlanError(f"point ({x:.2f}, {y:.2f}) mm is outside the {m.width:g} x {m.height:g} mm travel of '{m.name}'")
+        check_in_work_area(self.machine, points)  # the H-bot reaches its whole travel

@@ -8,8 +8,7 @@ are applied only at the machine edge (the posts).
 
 import numpy as np
 
-from doodlecam.api import Kinematics
-from doodlecam.errors import PlanError
+from doodlecam.api import Kinematics, check_in_work_area
 
 
 class Cartesian(Kinematics):
@@ -24,9 +23,4 @@ class Cartesian(Kinematics):
                 np.array([m.x.max_acceleration, m.y.max_acceleration]))
 
     def check_reachable(self, points) -> None:
-        m = self.machine
-        p = np.asarray(points, dtype=float)
-        bad = np.flatnonzero((p[:, 0] < -1e-9) | (p[:, 0] > m.width + 1e-9) | (p[:, 1] < -1e-9) | (p[:, 1] > m.height + 1e-9))
-        if bad.size:
-            x, y = p[bad[0]]
-            raise PlanError(f"point ({x:.2f}, {y:.2f}) mm is outside the {m.width:g} x {m.height:g} mm work area of '{m.name}'")
+        check_in_work_area(self.machine, points)  # every point of the work area is reachable

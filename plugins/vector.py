@@ -1,17 +1,17 @@
-"""The built-in ``vector`` tracer: SVG and DXF drawings, and STL meshes, through trimesh.
+"""The built-in ``vector`` tracer: SVG and DXF drawings, and STL meshes.
 
-* **SVG** (trimesh.path): paths, lines, polylines, polygons, rectangles,
+* **SVG** (svgelements): paths, lines, polylines, polygons, rectangles,
   circles and ellipses, with every ``transform`` applied. Lengths are in mm:
   the root's ``width`` / ``height`` with units (mm, cm, in, pt, pc, px at 96
   per inch) against its ``viewBox`` give the size of one user unit; without
   them a user unit is a CSS px (0.2646 mm). The viewBox is the canvas the
   layout fits, so the drawing keeps its place on the page. Text is not
   drawn: convert it to paths first.
-* **DXF** (trimesh.path): lines, arcs, circles, (LW)polylines, splines and
+* **DXF** (ezdxf): lines, arcs, circles, (LW)polylines, splines and
   ellipses in model space; ``$INSUNITS`` gives the unit (mm when unset).
-  Entities trimesh cannot read (text, hatches, dimensions, ...) are counted
-  in the drawing's metadata; a file with none it can read is an error.
-* **STL / OBJ / PLY / OFF** (trimesh): the outline of the mesh's section by
+  Entities it cannot draw (text, hatches, dimensions, ...) are counted
+  in the drawing's metadata; a file with none it can draw is an error.
+* **STL / OBJ / PLY / OFF** (trimesh, the ``mesh`` extra): the outline of the mesh's section by
   a plane (``mesh = section``, ``plane = z=50%``: the plane at right angles
   to z half-way up; ``z=12.5`` is 12.5 mm; ``0,1,1=30%`` a tilted plane), or
   its silhouette seen along a direction (``mesh = silhouette``,
@@ -34,6 +34,7 @@ import numpy as np
 
 from doodlecam.api import Option, Tracer
 from doodlecam.errors import InputError, PluginError
+from doodlecam.extras import require
 from doodlecam.model import Drawing
 from doodlecam.plugins.svgrules import render_rules
 
@@ -59,6 +60,11 @@ class VectorTracer(Tracer):
         Option("plane", str, "z=50%", "section plane: AXIS=POS with AXIS x, y, z or a normal 'a,b,c' and POS in mm or % of the extent"),
         Option("direction", str, "z", "silhouette view direction: x, y, z or 'a,b,c' (seen looking down it)"),
     )
+
+    @classmethod
+    def check_extension(cls, ext: str) -> None:
+        if ext in MESH_EXTENSIONS:
+            require("mesh", "a mesh (STL, OBJ, PLY, OFF)")
 
     def trace(self, path: Path, options: dict[str, Any]) -> Drawing:
         """Polylines in mm, y up (SVG: y down, as the file has it)."""
@@ -536,6 +542,7 @@ def _basis(normal: np.ndarray) -> np.ndarray:
 
 
 def _mesh(path: Path, opt) -> Drawing:
+    VectorTracer.check_extension(path.suffix.lower())  # for callers that skipped the checks
     import logging
 
     import trimesh

@@ -82,3 +82,49 @@ def scribble(seed: int = 3) -> tuple[list[np.ndarray], tuple[int, int]]:
     t = np.linspace(0.0, 1.8 * np.pi, 3001)
     ph = rng.uniform(0.3, 1.2)
     return [np.column_stack([150 + 115 * np.sin(3 * t + ph), 150 + 115 * np.sin(2 * t)])], (300, 300)
+
+
+def big_drawing(seed: int = 1, shape: tuple[int, int] = (2200, 3000)) -> np.ndarray:
+    """A large made-up line drawing (8-bit grey, rows x cols), drawn with skimage.draw: straight
+    lines, circles and ellipses, Bézier curves and words of the stroke font, in 3, 5 and 9 px wide
+    lines. At 3000 x 2200 it gives ~700 strokes, ~90 of which the path tolerance re-plans."""
+    from scipy import ndimage as ndi
+    from skimage import draw
+
+    rng = np.random.default_rng(seed)
+    h, w = shape
+    widths = (3, 5, 9)
+    masks = [np.zeros(shape, bool) for _ in widths]
+
+    def ink(rr, cc):
+        masks[rng.integers(len(widths))][rr, cc] = True
+
+    for _ in range(60):
+        r0, r1 = rng.integers(40, h - 40, 2)
+        c0, c1 = rng.integers(40, w - 40, 2)
+        ink(*draw.line(r0, c0, r1, c1))
+    for _ in range(25):
+        rad = int(rng.integers(20, 400))
+        r, c = int(rng.integers(rad + 5, h - rad - 5)), int(rng.integers(rad + 5, w - rad - 5))
+        if rng.random() < 0.5:
+            ink(*draw.circle_perimeter(r, c, rad, shape=shape))
+        else:
+            ink(*draw.ellipse_perimeter(r, c, rad, int(rad * rng.uniform(0.2, 1)), orientation=rng.uniform(0, np.pi),
+                                        shape=shape))
+    for _ in range(30):
+        p = rng.integers(40, min(h, w) - 40, 6)
+        ink(*draw.bezier_curve(p[0], p[1] + 500, p[2], p[3] + 900, p[4], p[5], float(rng.uniform(0.5, 5)), shape=shape))
+    letters = list(_FONT)
+    for k in range(8):  # words: letters of the stroke font, 6-16 px per grid unit
+        size, r0, c0 = rng.uniform(6, 16), 100 + k * (h - 200) / 8, rng.uniform(80, w / 2)
+        m = masks[rng.integers(len(widths))]
+        for j in range(int(rng.integers(4, 9))):
+            for stroke in _FONT[letters[rng.integers(len(letters))]]:
+                pts = [(r0 + y * size, c0 + (x + 6 * j) * size) for x, y in stroke]
+                for (ra, ca), (rb, cb) in zip(pts, pts[1:]):
+                    rr, cc = draw.line(int(ra), int(ca), int(rb), int(cb))
+                    m[rr, cc] = True
+    drawn = np.zeros(shape, bool)
+    for width, m in zip(widths, masks):
+        drawn |= ndi.binary_dilation(m, np.ones((width, width), bool))
+    return np.where(drawn, 0, 255).astype(np.uint8)

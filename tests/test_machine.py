@@ -72,3 +72,19 @@ def test_path_tolerance_defaults_to_the_fit_tolerance_and_is_not_negative():
     assert parse_machine(data, "p.toml").path_tolerance == 0.0  # 0: not enforced
     assert "path_tolerance" in broken(lambda d: d["sampling"].__setitem__("path_tolerance", -0.1))
     assert "path_tolerance" in broken(lambda d: d["sampling"].__setitem__("path_tolerance", "tight"))
+
+
+@pytest.mark.parametrize("profile", ["doodlebot", "grbl-servo", "axidraw-v3"])  # cartesian, cartesian, axidraw
+def test_machines_that_reach_their_work_area_say_so_the_same_way(profile):
+    from doodlecam.errors import PlanError
+    from doodlecam.registry import kinematics_for
+
+    m = load_machine(profile)
+    kin = kinematics_for(m)
+    w, h = m.width, m.height
+    kin.check_reachable([[0, 0], [w, h], [w, 0], [0, h], [w / 2, h / 3]])  # edges included
+    kin.check_reachable([[w + 1e-10, -1e-10]])  # rounding on an edge
+    for point, shown in (([w + 0.5, 1.0], f"({w + 0.5:.2f}, 1.00)"), ([1.0, -0.25], "(1.00, -0.25)")):
+        with pytest.raises(PlanError) as e:
+            kin.check_reachable([[1.0, 1.0], point, [-5.0, -5.0]])  # the first point outside is named
+        assert str(e.value) == f"point {shown} mm is outside the {w:g} x {h:g} mm work area of '{m.name}'"

@@ -56,6 +56,7 @@ from doodlecam.batch.options import BatchOptions
 from doodlecam.batch.report import write_reports
 from doodlecam.batch.worker import _one_line, _worker_init, convert_one
 from doodlecam.errors import DoodleError, InputError, OutputError
+from doodlecam.extras import require
 
 # Files a local worker converts before a fresh process replaces it: bounds what a long
 # batch can leak, while start-up (imports, plugins, JIT warm-up) stays rare.
@@ -358,10 +359,9 @@ def _run_local(todo, stems, options, key, in_dir, out_dir, jobs, progress, finis
 def _run_dask(todo, stems, options, key, in_dir, out_dir, scheduler, progress, finished) -> bool:
     """Submit to a Dask distributed cluster; results come back to this process,
     which alone writes the manifest and reports. Returns True if interrupted."""
-    try:
-        from distributed import Client, as_completed
-    except ImportError:
-        raise DoodleError("--scheduler needs Dask: pip install 'doodlecam[dask]'") from None
+    require("dask", "--scheduler")
+    from distributed import Client, as_completed
+
     bar = _progress_bar(len(todo), progress)
     failures = 0
     interrupted = False

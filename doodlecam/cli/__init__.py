@@ -83,8 +83,17 @@ def _interrupted() -> int:
     return 130
 
 
+COMPLETE_VAR = "_DOODLECAM_COMPLETE"  # the shell's completion script sets it (README: shell completion)
+
+
 def _run(argv) -> int:
     args = sys.argv[1:] if argv is None else list(argv)
+    import os
+
+    if os.environ.get(COMPLETE_VAR):  # what click's main would do; this main does not call it (below)
+        from click.shell_completion import shell_complete
+
+        return shell_complete(cli, {}, "doodlecam", COMPLETE_VAR, os.environ[COMPLETE_VAR])
     try:
         # make_context + invoke rather than cli.main: click's main turns Ctrl-C into Abort after
         # printing a blank line, and the interrupt is one line here

@@ -7,6 +7,8 @@ from pathlib import Path
 
 import click
 
+from doodlecam.cli import complete
+
 from doodlecam.cli.options import PLUGIN_DIR, post_options
 
 
@@ -21,12 +23,12 @@ def _factors(ctx, param, value: str) -> tuple[float, ...]:
 
 
 @click.command()
-@click.option("-m", "--machine", default="doodlebot", show_default=True, help="Machine profile: a name or a .toml path.")
+@click.option("-m", "--machine", default="doodlebot", show_default=True, shell_complete=complete.machines, help="Machine profile: a name or a .toml path.")
 @click.option("-o", "--out", "outdir", type=click.Path(path_type=Path), default=Path("out"), show_default=True,
               help="Output folder: writes calibrate.plc, .gcode, .svg (or the --post files).")
 @click.option("--factors", default="0.5,0.75,1,1.25,1.5", show_default=True, callback=_factors,
               help="One row per factor: the profile's speeds and accelerations times it (bottom row first).")
-@click.option("--post", "posts", multiple=True, metavar="NAME", help="Post-processor (repeatable). Default: plc, gcode, svg.")
+@click.option("--post", "posts", multiple=True, metavar="NAME", shell_complete=complete.posts, help="Post-processor (repeatable). Default: plc, gcode, svg.")
 @click.option("--post-opt", multiple=True, metavar="POST.KEY=VALUE", help="Post option, e.g. gcode.pen_up='M5'.")
 @PLUGIN_DIR
 def calibrate(machine, outdir, factors, posts, post_opt, plugin_dirs):

@@ -8,6 +8,8 @@ from pathlib import Path
 
 import click
 
+from doodlecam.cli import complete
+
 from doodlecam.errors import DoodleError, MachineError
 
 NAME_RE = re.compile(r"^[A-Za-z0-9][A-Za-z0-9_.-]*$")
@@ -39,7 +41,7 @@ def machines(ctx):
 
 @machines.command()
 @click.argument("name")
-@click.option("--from", "template", default="doodlebot", show_default=True, metavar="PROFILE",
+@click.option("--from", "template", default="doodlebot", show_default=True, metavar="PROFILE", shell_complete=complete.machines,
               help="Start from this profile: doodlebot (PLC), grbl-servo, grbl-z, fivebar, or any name or .toml path.")
 @click.option("--force", is_flag=True, help="Replace a profile of that name in your folder.")
 def new(name, template, force):
@@ -138,7 +140,7 @@ def explain(machine, origin: str = "") -> list[str]:
 
 
 @machines.command()
-@click.argument("name")
+@click.argument("name", shell_complete=complete.machines)
 @click.option("--plugin-dir", "plugin_dirs", multiple=True, type=click.Path(file_okay=False),
               help="Folder of drop-in plugin .py files (for the profile's plugin sections).")
 def check(name, plugin_dirs):

@@ -8,6 +8,8 @@ from pathlib import Path
 
 import click
 
+from doodlecam.cli import complete
+
 from doodlecam.motion import MotionError
 
 
@@ -21,7 +23,7 @@ class ChecksFailed(MotionError):
 @click.argument("design", type=click.Path(path_type=Path))
 @click.option("-o", "--out", "outdir", type=click.Path(path_type=Path), default=Path("out"), show_default=True,
               help="Output folder for NAME.csv (the MOTDES table) and NAME.png.")
-@click.option("-m", "--machine", help="Check workspace and actuator limits on this profile (default: the design's [motion] machine).")
+@click.option("-m", "--machine", shell_complete=complete.machines, help="Check workspace and actuator limits on this profile (default: the design's [motion] machine).")
 @click.option("--no-machine", is_flag=True, help="Skip the workspace and actuator-limit check.")
 @click.option("--samples", type=click.IntRange(min=2), help="Rows of the table (default: the design's, else 300).")
 @click.option("--cycle-time", type=float, help="Run the design in this many seconds (times stretch, derivatives scale).")
@@ -43,9 +45,12 @@ def motion(design, outdir, machine, no_machine, samples, cycle_time, split, no_p
     Example:  doodlecam motion DESIGN.toml -o out/   (the format: docs/motion.md;
     examples in the source tree's samples/motion/)
     """
+    from doodlecam.extras import require
     from doodlecam.motion.design import check, load_design, solve_design
     from doodlecam.motion.export import atomic_write, axis_csv, plot_png, table_csv
 
+    if not no_plot:
+        require("plot", "the motion plot (NAME.png)", "or --no-plot")
     d = load_design(design)
     if cycle_time is not None:
         d = d.scaled(cycle_time)

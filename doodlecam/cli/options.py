@@ -5,6 +5,8 @@ from __future__ import annotations
 
 import click
 
+from doodlecam.cli import complete
+
 PLUGIN_DIR = click.option("--plugin-dir", "plugin_dirs", multiple=True, type=click.Path(file_okay=False),
                           help="Folder of drop-in plugin .py files (repeatable; also $DOODLECAM_PLUGIN_PATH).")
 
@@ -70,14 +72,15 @@ def layout_kwargs(width, height, page, landscape, scale, margin, rotate, fit, la
 def job_options(f):
     """The options every job-making command shares (convert, batch, plot ...)."""
     opts = [
-        click.option("-m", "--machine", default="doodlebot", show_default=True, help="Machine profile: a name or a .toml path."),
-        click.option("--tracer", help="Tracer plugin (default: chosen by file type; 'auto' for pictures: centre lines for line art, else edges)."),
+        click.option("-m", "--machine", default="doodlebot", show_default=True, shell_complete=complete.machines,
+                     help="Machine profile: a name or a .toml path."),
+        click.option("--tracer", shell_complete=complete.tracers, help="Tracer plugin (default: chosen by file type; 'auto' for pictures: centre lines for line art, else edges)."),
         click.option("--tracer-opt", multiple=True, metavar="KEY=VALUE", help="Tracer option (repeatable)."),
-        click.option("--post", "posts", multiple=True, metavar="NAME",
+        click.option("--post", "posts", multiple=True, metavar="NAME", shell_complete=complete.posts,
                      help="Post-processor (repeatable). Default: plc, gcode and svg."),
         click.option("--post-opt", multiple=True, metavar="POST.KEY=VALUE",
                      help="Post option, e.g. gcode.pen_up='M5' (repeatable)."),
-        click.option("--solver", help="Planner: reach (exact, fast; default), lp[:clarabel|highs|osqp] (cross-check), "
+        click.option("--solver", shell_complete=complete.solvers, help="Planner: reach (exact, fast; default), lp[:clarabel|highs|osqp] (cross-check), "
                      "qp[:clarabel|highs|osqp] (smoothed). Default: the profile's [machine] solver."),
         click.option("--smoothing", type=float, help="Weight of the smoothing QP against time (solver qp). Default: the profile's."),
         click.option("--path-tolerance", type=float, metavar="MM",

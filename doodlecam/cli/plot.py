@@ -6,6 +6,8 @@ from pathlib import Path
 
 import click
 
+from doodlecam.cli import complete
+
 from doodlecam.cli.options import PLUGIN_DIR, _pairs, layout_kwargs, layout_options
 
 
@@ -14,12 +16,12 @@ from doodlecam.cli.options import PLUGIN_DIR, _pairs, layout_kwargs, layout_opti
 @click.option("-o", "--out", type=click.Path(path_type=Path), default=None,
               help="Figure file, .png or .svg (or .pdf). Default: out/<picture>.png. "
                    "Several strokes give FILE_strokeN.png each.")
-@click.option("-m", "--machine", default="doodlebot", show_default=True, help="Machine profile: a name or a .toml path.")
+@click.option("-m", "--machine", default="doodlebot", show_default=True, shell_complete=complete.machines, help="Machine profile: a name or a .toml path.")
 @click.option("--stroke", "strokes", multiple=True, type=int, metavar="N",
               help="Stroke to plot, numbered from 1 in drawing order (repeatable). Default: the longest.")
-@click.option("--tracer", help="Tracer plugin (default: chosen by file type; 'edges' for pictures).")
+@click.option("--tracer", shell_complete=complete.tracers, help="Tracer plugin (default: chosen by file type; 'edges' for pictures).")
 @click.option("--tracer-opt", multiple=True, metavar="KEY=VALUE", help="Tracer option (repeatable).")
-@click.option("--solver", help="Planner back-end (as for convert). Default: the profile's.")
+@click.option("--solver", shell_complete=complete.solvers, help="Planner back-end (as for convert). Default: the profile's.")
 @layout_options
 @PLUGIN_DIR
 def plot(input, out, machine, strokes, tracer, tracer_opt, solver, plugin_dirs, **layout):
@@ -27,12 +29,14 @@ def plot(input, out, machine, strokes, tracer, tracer_opt, solver, plugin_dirs, 
     velocities and accelerations against their limits (report Fig. 2.4.1-2.4.5)."""
     from doodlecam.checks import check_input, check_settings
     from doodlecam.cli.firstrun import first_run_notice
+    from doodlecam.extras import require
     from doodlecam.machine import load_machine
     from doodlecam.pipeline import Settings, plan_job, select_layer, trace
     from doodlecam.registry import kinematics_for
     from doodlecam.plot import output_paths, pick_strokes, plot_job
     from doodlecam.trace.layout import fit_to_work_area
 
+    require("plot", "doodlecam plot")
     out = Path(out) if out is not None else Path("out") / f"{Path(input).stem}.png"
     output_paths(out, [0])  # a bad extension fails before any work
     settings = Settings(machine=load_machine(machine), tracer=tracer, tracer_options=_pairs(tracer_opt, "--tracer-opt"),

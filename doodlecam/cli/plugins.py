@@ -6,6 +6,8 @@ import inspect as _inspect
 
 import click
 
+from doodlecam.cli import complete
+
 from doodlecam.errors import PluginError
 
 PLUGIN_DIR = click.option("--plugin-dir", "plugin_dirs", multiple=True, type=click.Path(file_okay=False),
@@ -50,7 +52,7 @@ def _fmt(value) -> str:
 
 
 @plugins.command()
-@click.argument("name")
+@click.argument("name", shell_complete=complete.plugins)
 @click.option("--kind", type=click.Choice(["tracer", "machine", "postprocessor", "transport"]),
               help="Which kind, when several plugins share NAME.")
 @PLUGIN_DIR

@@ -13,6 +13,8 @@ from pathlib import Path
 
 import click
 
+from doodlecam.cli import complete
+
 from doodlecam.errors import DoodleError
 
 GCODE_EXTENSIONS = (".gcode", ".nc", ".gc", ".ngc", ".g")
@@ -79,7 +81,7 @@ class _Progress:
 @click.option("--restart", is_flag=True, help="Start from the first command even if an earlier run was interrupted.")
 @click.option("--cancel", is_flag=True, help="PLC: cancel the job it is running or holding, and forget the resume point.")
 @click.option("--again", is_flag=True, help="PLC: draw a job the PLC has already finished once more.")
-@click.option("-m", "--machine", help="Machine profile whose [transport.udp] / [transport.serial] table sets options "
+@click.option("-m", "--machine", shell_complete=complete.machines, help="Machine profile whose [transport.udp] / [transport.serial] table sets options "
               "(e.g. the PLC's pre-shared key).")
 @click.option("--from-line", type=int, metavar="N", help="GRBL: start at line N of the file (after a stop you checked).")
 @click.option("--timeout", type=float, help="Seconds without an answer before giving up (default 5).")
@@ -322,7 +324,7 @@ def plc_key(machine: str, profile, key: str | None, key_file: Path | None, no_au
 @sim.command("plc")
 @click.option("--host", default="127.0.0.1", show_default=True, help="Address to listen on.")
 @click.option("--port", type=int, default=5005, show_default=True, help="UDP port to listen on (0 = any).")
-@click.option("-m", "--machine", default="doodlebot", show_default=True, help="Profile for boundaries and pen delays.")
+@click.option("-m", "--machine", default="doodlebot", show_default=True, shell_complete=complete.machines, help="Profile for boundaries and pen delays.")
 @click.option("--buffer-size", type=int, default=256, show_default=True, help="BUFFER_SIZE: commands the PLC buffers.")
 @click.option("--realtime", is_flag=True, help="Execute in real time (default: simulated time, as fast as possible).")
 @click.option("--speed", type=float, help="Execute this many times faster than real time.")

@@ -27,6 +27,9 @@ def studio(file, port, host, no_browser, folders, max_upload, **options):
     import threading
     import webbrowser
 
+    from doodlecam.extras import require
+
+    require("studio", "the studio")
     import uvicorn
 
     from doodlecam.errors import InputError

@@ -26,6 +26,7 @@ from typing import Any
 import numpy as np
 
 from doodlecam.errors import PlanError, did_you_mean
+from doodlecam.extras import require
 from doodlecam.options import SOLVERS
 from doodlecam.model import Profile, Spline
 from doodlecam.plan import constraints, convex, reach
@@ -263,6 +264,8 @@ def _capped(rows: constraints.Rows, cap: np.ndarray) -> constraints.Rows:
 def check_solver(solver: str) -> None:
     if solver not in SOLVERS:
         raise PlanError(f"unknown solver '{solver}'{did_you_mean(solver, SOLVERS)}; choose one of {', '.join(SOLVERS)}")
+    if solver != "reach":  # the LP and the QP go through qpsolvers; the default needs none of it
+        require("solvers", f"the {solver.partition(':')[0]} solver", "or use the default, --solver reach")
 
 
 def plan_stroke(spline: Spline, limits: Limits, solver: str = "reach", spacing: float = 0.5,
