@@ -345,7 +345,7 @@ class AutoTracer(Tracer):
             from doodlecam.trace.raster import in_picture_px, working_picture
 
             pixel = opt["pixel_mm"] if opt["pixel_mm"] > 0 else (self.pen_mm or 0.0)
-            work = working_picture(gray, self.mm_per_px, pixel)[0]
+            work = working_picture(gray, self.mm_per_px, pixel, upscale=True)[0]  # as edges itself does
             d = in_picture_px(EdgesTracer().trace_gray(work, path, opt), gray.shape)
         return replace(d, meta={**d.meta, "tracer_reason": f"auto: {reason}"})
 

@@ -458,18 +458,24 @@ class GcodePost(PostProcessor):
             if not cand:
                 break
             # one program of all candidates, each from rest to rest (the pen commands empty GRBL's
-            # planner): the block joining two candidates starts from rest and its time is dropped
-            pts = np.concatenate([p for _, p in cand])
-            n = np.array([len(p) for _, p in cand])
-            first = np.concatenate([[0], np.cumsum(n)[:-1]])  # index of each candidate's first point
-            rest = np.zeros(len(pts) - 1, bool)
-            rest[first] = True  # its first block
-            rest[first[1:] - 1] = True  # the joining block
-            feed = np.repeat([feeds[i] / 60.0 for i, _ in cand], n)[:-1]
-            bt = _segment_time(np.c_[pts, np.zeros(len(pts))], feed, grbl, rest)
+            # planner): the block joining two candidates starts from rest and its time is dropped;
+            # a candidate of one point (the stroke within one step) has no block
+            moving = [(i, p) for i, p in cand if len(p) > 1]
+            bt = np.zeros(0)
+            first = np.zeros(0, int)
+            if moving:
+                pts = np.concatenate([p for _, p in moving])
+                n = np.array([len(p) for _, p in moving])
+                first = np.concatenate([[0], np.cumsum(n)[:-1]])  # index of each candidate's first point
+                rest = np.zeros(len(pts) - 1, bool)
+                rest[first] = True  # its first block
+                rest[first[1:] - 1] = True  # the joining block
+                feed = np.repeat([feeds[i] / 60.0 for i, _ in moving], n)[:-1]
+                bt = _segment_time(np.c_[pts, np.zeros(len(pts))], feed, grbl, rest)
+            start = dict(zip((i for i, _ in moving), first))
             active = []
-            for (i, p), a in zip(cand, first):
-                times = bt[a:a + len(p) - 1]
+            for i, p in cand:
+                times = bt[start[i]:start[i] + len(p) - 1] if i in start else np.zeros(0)
                 t = float(times.sum())
                 if i in best and (t >= best[i][1] or not _serial_keeps_up(p, times, baud)):
                     continue  # finer chords stopped paying or outrun the line: keep the best

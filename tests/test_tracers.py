@@ -285,3 +285,20 @@ def test_hatch_lines_stay_on_the_mask_and_cover_it(seed, spacing, angle, offset,
         pts = np.vstack([densify(p, 0.5) for p in lines])
         near = cKDTree(pts).query(np.argwhere(mask)[:, ::-1])[0]
         assert (near <= spacing / 2 + 1.0).mean() > 0.97
+
+
+def test_auto_on_a_photo_traces_exactly_as_edges():
+    """auto hands a photo to edges on the same working picture (the pen-width grid, scaled up or
+    down), so the studio's default and `convert --tracer edges` draw the same strokes."""
+    from pathlib import Path
+
+    from doodlecam.machine import load_machine
+    from doodlecam.pipeline import Settings, trace
+
+    photo = Path(__file__).resolve().parent.parent / "samples" / "images" / "coins.png"
+    m = load_machine("doodlebot")
+    auto = trace(photo, Settings(machine=m, tracer="auto", tracer_options={"sigma": 3}))
+    edges = trace(photo, Settings(machine=m, tracer="edges", tracer_options={"sigma": 3}))
+    assert auto.meta["tracer_reason"].startswith("auto: ")
+    assert len(auto.polylines) == len(edges.polylines) > 5
+    assert all(np.array_equal(a, b) for a, b in zip(auto.polylines, edges.polylines))
