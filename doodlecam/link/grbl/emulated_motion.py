@@ -136,7 +136,7 @@ class Planner:
     def _recalculate(self) -> None:
         """planner_recalculate: backward pass down to the planned block, forward pass from it."""
         blocks, last = self.blocks, len(self.blocks) - 1
-        if last == self.planned:
+        if last <= self.planned:
             return
         self._sync_head()
         cur = blocks[last]

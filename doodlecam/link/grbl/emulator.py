@@ -225,6 +225,14 @@ class GrblEmulator:
         return self.gc.wco
 
     @property
+    def g54(self) -> list[float]:
+        return self.gc.coords[0]
+
+    @property
+    def g92(self) -> list[float]:
+        return self.gc.coord_offset
+
+    @property
     def overrides(self) -> int:
         return self.motion.feed_override
 
