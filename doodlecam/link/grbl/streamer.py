@@ -400,8 +400,8 @@ def settle_doubt(lines: list[GcodeLine], k: int, status: GrblStatus | None, name
         raise GrblError(f"GRBL reports no position, so it is unknown whether {name}:{lines[k].lineno} ran before the "
                         "last run stopped; check the drawing and send again with --from-line N")
 
-    def at(p) -> bool:
-        return all(v is None or abs(v - h) <= 2e-3 for v, h in zip(p, here[:2]))
+    def at(p) -> bool:  # GRBL stands on whole steps: half a step off the line's target (0.00625 mm at 80/mm)
+        return all(v is None or abs(v - h) <= 1e-2 for v, h in zip(p, here[:2]))
 
     if at(after):
         return k + 1
