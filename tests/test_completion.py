@@ -62,7 +62,7 @@ def test_drop_in_plugins_count_and_plugins_show():
     assert values(["convert", "x.png", "--plugin-dir", dropins, "--post"], "st") == ["stats"]
     assert values(["convert", "x.png", "--post"], "st") == []
     assert values(["plugins", "show"], "ax") == ["axidraw"]
-    assert values(["plugins", "--plugin-dir", dropins, "show"], "s") == ["serial", "stats", "svg"]
+    assert values(["plugins", "--plugin-dir", dropins, "show"], "s") == ["serial", "stats", "stipple", "svg"]
     assert values(["plugins", "show", "--kind", "transport"], "") == ["ebb", "serial", "udp"]
     # a missing plugin folder completes nothing rather than printing a traceback into the shell
     assert values(["convert", "x.png", "--plugin-dir", "nowhere", "--post"], "") == []

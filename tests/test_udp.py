@@ -207,7 +207,8 @@ def test_lossy_network_executes_every_command_exactly_once_in_order(sim_factory,
     net = sim._inbound.stats + sim._outbound.stats
     assert net["lost"] > 50 and net["duplicated"] > 10 and net["reordered"] > 10 and net["corrupted"] > 0
     assert sim.stats["dropped_invalid"] + r.stats["invalid_received"] > 0  # corrupt datagrams were seen and dropped
-    assert sim.stats["dup_or_late_commands"] > 0  # duplicates reached the PLC and were ignored
+    # duplicates reached the PLC and were ignored: by the session's sequence window, or as commands it has
+    assert sim.stats["dup_or_late_commands"] + sim.stats["dropped_replayed"] > 0
     assert sim.stats["rerequested_commands"] > 0  # losses were repaired by re-requests
     assert not state.exists()  # a finished job leaves no resume record
 
