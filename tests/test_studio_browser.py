@@ -491,15 +491,14 @@ def test_13_the_layers_panel_shows_hides_colours_by_pen_and_plots_one_layer(page
     assert page.text_content("#send-status").startswith(f"done: {n} commands in ") and n < summary_commands(server)
 
 
-def test_14_an_axidraw_sends_to_its_eibotboard_with_pause_and_resume(tmp_path):
+def test_14_an_axidraw_sends_to_its_eibotboard_with_pause_and_resume(page, tmp_path):
     """With the axidraw-v3 profile the page offers the EiBotBoard (emulator, serial port) instead of the PLC
     and GRBL; a send to the EBB emulator shows its progress, pauses at a stroke end with the pen up, resumes,
     and the board receives every command of the job once, in order."""
     from doodlecam.link.ebb.jobfile import read_ebb
 
-    with serve(tmp_path, "axidraw-v3") as srv, playwright_api.sync_playwright() as p:
-        browser = p.chromium.launch(executable_path=CHROMIUM, args=CHROMIUM_ARGS)
-        pg = browser.new_page(viewport={"width": 1400, "height": 850})
+    with serve(tmp_path, "axidraw-v3") as srv:  # a second studio, in a second tab of the same browser
+        pg = page.context.browser.new_page(viewport={"width": 1400, "height": 850})
         errors = []
         pg.on("pageerror", lambda e: errors.append(str(e)))
         pg.goto(srv["url"])
@@ -528,6 +527,6 @@ def test_14_an_axidraw_sends_to_its_eibotboard_with_pause_and_resume(tmp_path):
         pg.wait_for_selector("#send-status[data-state=done]", timeout=120_000)
         assert pg.text_content("#send-status").startswith(f"done: {len(lines)} commands in ")
         assert [c for c in emu.received if c.split(",")[0] not in ("V", "QM", "QS")] == lines
-        browser.close()
+        pg.close()
         sender.close()
     assert not errors, errors
