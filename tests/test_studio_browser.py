@@ -9,6 +9,7 @@ Screenshots of the main views go to docs/ (DOODLECAM_SCREENSHOTS=1).
 
 from __future__ import annotations
 
+import contextlib
 import os
 import shutil
 import socket
@@ -45,13 +46,12 @@ def free_port() -> int:
         return s.getsockname()[1]
 
 
-@pytest.fixture(scope="module")
-def server(tmp_path_factory):
+@contextlib.contextmanager
+def serve(folder: Path, machine: str = "doodlebot"):
     """The studio on 127.0.0.1:<free port> in a thread, shut down at the end."""
     import uvicorn
 
-    folder = tmp_path_factory.mktemp("studio")
-    session = Session(Settings(machine=load_machine("doodlebot")))
+    session = Session(Settings(machine=load_machine(machine)))
     cfg = StudioConfig(token="browser-test-token", folders=(folder,))
     app = create_app(session, cfg)
     port = free_port()
@@ -65,6 +65,12 @@ def server(tmp_path_factory):
     yield {"url": f"http://127.0.0.1:{port}/?token={cfg.token}", "app": app, "folder": folder}
     srv.should_exit = True
     thread.join(10)
+
+
+@pytest.fixture(scope="module")
+def server(tmp_path_factory):
+    with serve(tmp_path_factory.mktemp("studio")) as srv:
+        yield srv
 
 
 @pytest.fixture(scope="module")
@@ -483,3 +489,44 @@ def test_13_the_layers_panel_shows_hides_colours_by_pen_and_plots_one_layer(page
     session = server["app"].state.session
     n = len(read_plc_array(session.export("plc", [layers[1]["name"]])[1])[1])
     assert page.text_content("#send-status").startswith(f"done: {n} commands in ") and n < summary_commands(server)
+
+
+def test_14_an_axidraw_sends_to_its_eibotboard_with_pause_and_resume(page, tmp_path):
+    """With the axidraw-v3 profile the page offers the EiBotBoard (emulator, serial port) instead of the PLC
+    and GRBL; a send to the EBB emulator shows its progress, pauses at a stroke end with the pen up, resumes,
+    and the board receives every command of the job once, in order."""
+    from doodlecam.link.ebb.jobfile import read_ebb
+
+    with serve(tmp_path, "axidraw-v3") as srv:  # a second studio, in a second tab of the same browser
+        pg = page.context.browser.new_page(viewport={"width": 1400, "height": 850})
+        errors = []
+        pg.on("pageerror", lambda e: errors.append(str(e)))
+        pg.goto(srv["url"])
+        pg.wait_for_selector("body[data-ready='1']")
+        offered = pg.evaluate("Array.from(document.querySelectorAll('#target option')).filter((o) => !o.hidden)"
+                              ".map((o) => o.value)")
+        assert offered == ["ebb-simulator", "ebb-serial"] and pg.input_value("#target") == "ebb-simulator"
+        pg.select_option("#target", "ebb-serial")
+        assert pg.is_visible("#target-ebb") and not pg.is_visible("#send-speed-label")
+        pg.select_option("#target", "ebb-simulator")
+        pg.set_input_files("#file", str(ROOT / "samples" / "vectors" / "badge.svg"))
+        pg.wait_for_function("document.getElementById('machine').textContent.endsWith('badge.svg')", timeout=60_000)
+        sender = srv["app"].state.sender
+        lines = list(read_ebb(srv["app"].state.session.export("ebb")[1]).lines)
+        pg.select_option("#send-speed", "10")
+        pg.click("#send")
+        pg.wait_for_function("() => /^sending: command \\d+ of \\d+ answered, [\\d.]+ %, [\\d.]+ s left at \\(/"
+                             ".test(document.getElementById('send-status').textContent)", timeout=30_000)
+        pg.click("#pause")
+        pg.wait_for_selector("#send-status[data-state=paused]", timeout=30_000)
+        emu = sender._ebb.emulator
+        assert emu.idle and emu.pen_up == 1  # at rest at a stroke's end, pen up
+        assert pg.is_visible("#resume") and not pg.is_visible("#pause") and not pg.is_visible("#hold")
+        shot(pg, "send-ebb")
+        pg.click("#resume")
+        pg.wait_for_selector("#send-status[data-state=done]", timeout=120_000)
+        assert pg.text_content("#send-status").startswith(f"done: {len(lines)} commands in ")
+        assert [c for c in emu.received if c.split(",")[0] not in ("V", "QM", "QS")] == lines
+        pg.close()
+        sender.close()
+    assert not errors, errors

@@ -28,12 +28,15 @@ from fastapi.staticfiles import StaticFiles
 
 from doodlecam.errors import DoodleError, InputError, OutputError
 from doodlecam.studio import motion as studio_motion
+from doodlecam.studio import ebb as studio_ebb
 from doodlecam.studio import grbl as studio_grbl
 from doodlecam.studio.sending import ACTIVE, Sender
 from doodlecam.studio.session import Session, StaleEdit
 
 STATIC = Path(__file__).parent / "static"
 TOKEN_HEADER = "x-doodlecam-token"
+TARGETS = ("target must be 'simulator' or HOST:PORT (PLC), 'grbl-simulator' or serial:PORT (GRBL), "
+           "'ebb-simulator' or ebb:PORT (AxiDraw's EiBotBoard)")
 
 
 # the host names a loopback studio answers to; any other Host header is a DNS-rebinding attempt
@@ -209,7 +212,10 @@ def create_app(session: Session, config: StudioConfig | None = None) -> FastAPI:
     @app.get("/api/state")
     def state():
         m = session.machine
-        return {"machine": m.name, "loaded": session.job is not None,
+        # the page offers the targets that drive this machine: an AxiDraw's EiBotBoard, else a PLC or GRBL
+        targets = ["ebb-simulator", "ebb-serial"] if studio_ebb.wants_ebb(m) else \
+            ["simulator", "host", "grbl-simulator", "serial"]
+        return {"machine": m.name, "targets": targets, "loaded": session.job is not None,
                 "summary": session.summary() if session.job is not None else None,
                 "folders": [str(f) for f in config.folders], "send": sender.snapshot()[1]}
 
@@ -401,11 +407,15 @@ def create_app(session: Session, config: StudioConfig | None = None) -> FastAPI:
         doc = await payload(request)
         target = doc.get("target") or "simulator"
         if not isinstance(target, str):
-            raise InputError("target must be 'simulator' or HOST:PORT (PLC), 'grbl-simulator' or serial:PORT (GRBL)")
+            raise InputError(TARGETS)
         grbl = target == studio_grbl.EMULATOR or target.startswith(studio_grbl.SERIAL_PREFIX)
 
         def start():
             layers = doc.get("layers")  # plot one layer (or a few): only their strokes are sent
+            if studio_ebb.is_ebb(target):  # an AxiDraw: the ebb post's command stream (it refuses other machines)
+                _, data = session.export("ebb", layers)
+                return sender.start_ebb(data, session.machine, target, doc.get("speed"),
+                                        restart=doc.get("restart") is True, plugin_dirs=session.settings.plugin_dirs)
             if grbl:
                 _, data = session.export("gcode", layers)
                 return sender.start_grbl(data, session.machine, target, doc.get("speed"),
@@ -420,9 +430,9 @@ def create_app(session: Session, config: StudioConfig | None = None) -> FastAPI:
     async def send_abandon(request: Request):
         target = (await payload(request)).get("target") or "simulator"
         if not isinstance(target, str):
-            raise InputError("target must be 'simulator' or HOST:PORT (PLC), 'grbl-simulator' or serial:PORT (GRBL)")
+            raise InputError(TARGETS)
         grbl = target == studio_grbl.EMULATOR or target.startswith(studio_grbl.SERIAL_PREFIX)
-        data = session.export("gcode" if grbl else "plc")[1]
+        data = b"" if studio_ebb.is_ebb(target) else session.export("gcode" if grbl else "plc")[1]
         return await run_in_threadpool(sender.abandon, target, data, session.machine)
 
     @app.post("/api/send/stop")
@@ -433,7 +443,7 @@ def create_app(session: Session, config: StudioConfig | None = None) -> FastAPI:
     async def send_control(request: Request):
         action = (await payload(request)).get("action")
         if not isinstance(action, str):
-            raise InputError("action must be pause, hold, resume, stop, feed+, feed- or feed=")
+            raise InputError("action must be pause, hold, resume, stop, continue, feed+, feed- or feed=")
         return sender.control(action)
 
     # ------------------------------------------------------------ GRBL machine control

@@ -1,8 +1,11 @@
-"""Sending the studio's job to a PLC over UDP or to GRBL over serial, as ``doodlecam send`` does.
+"""Sending the studio's job to a PLC over UDP, to GRBL or to an EiBotBoard over serial, as ``doodlecam send`` does.
 
 PLC: the same ``UdpSender``; GRBL: the same serial transport (``send_gcode``:
 character counting, resume record, pause/hold/stop controls), against a real
-port or the built-in GRBL emulator on a pseudo-terminal (``studio.grbl``).
+port or the built-in GRBL emulator on a pseudo-terminal (``studio.grbl``);
+EiBotBoard (AxiDraw): the ``ebb`` transport (one command in flight, pause/stop
+at a stroke's end with the pen up), against a real port or the built-in EBB
+emulator (``studio.ebb``).
 
 The send runs in its own thread, owned by the server, not by a page: closing
 the tab does not touch it, so the job runs to its end (the PLC never sees a
@@ -16,6 +19,7 @@ server, so a job it holds can be resumed too.
 from __future__ import annotations
 
 import hashlib
+import itertools
 import math
 import re
 import tempfile
@@ -28,6 +32,7 @@ from typing import Any
 
 from doodlecam.errors import DoodleError, InputError
 from doodlecam.link.grbl.timing import time_left
+from doodlecam.studio.ebb import EbbTargets, is_ebb, work_positions
 from doodlecam.studio.grbl import GrblTargets, work_position
 
 
@@ -39,14 +44,18 @@ ACTIVE = ("sending", "pausing", "paused", "held", "stopping", "waiting")
 GRBL_CONTROLS = {"sending": ("pause", "hold", "stop", "feed+", "feed-", "feed="), "pausing": ("stop",),
                  "paused": ("resume", "stop"), "held": ("resume", "stop"), "stopping": (), "waiting": ("continue", "stop")}
 PLC_CONTROLS = {"sending": ("stop",), "waiting": ("continue", "stop")}
+# the EiBotBoard stops only at a stroke's end with the pen up: pause and stop both wait for it
+EBB_CONTROLS = {"sending": ("pause", "stop"), "pausing": ("stop",), "paused": ("resume", "stop"), "stopping": (),
+                "waiting": ("continue", "stop")}
+CONTROLS = {"grbl": GRBL_CONTROLS, "ebb": EBB_CONTROLS, "plc": PLC_CONTROLS}
 
 
 @dataclass
 class SendState:
     state: str = "idle"  # idle | done | stopped | failed, or one of ACTIVE
-    transport: str = ""  # plc | grbl
+    transport: str = ""  # plc | grbl | ebb
     target: str = ""
-    executed: int = 0  # PLC: commands executed; GRBL: lines answered
+    executed: int = 0  # PLC: commands executed; GRBL: lines answered; EBB: commands answered
     total: int = 0
     line: int | None = None  # GRBL: the G-code file's line number being sent next
     time_left_s: float = 0.0
@@ -58,7 +67,7 @@ class SendState:
 
     def public(self) -> dict[str, Any]:
         pct = 100.0 * self.executed / self.total if self.total else 0.0
-        controls = (GRBL_CONTROLS if self.transport == "grbl" else PLC_CONTROLS).get(self.state, ())
+        controls = CONTROLS.get(self.transport, PLC_CONTROLS).get(self.state, ())
         return {"state": self.state, "transport": self.transport, "target": self.target, "executed": self.executed,
                 "total": self.total, "line": self.line, "percent": round(pct, 2),
                 "time_left_s": round(self.time_left_s, 2), "position_mm": self.position_mm,
@@ -78,6 +87,7 @@ class Sender:
         self._sim = None
         self._thread: threading.Thread | None = None
         self._grbl = GrblTargets()
+        self._ebb = EbbTargets()
         self._controls: deque[str] = deque()  # GRBL: the page's controls, taken by the streamer at safe points
         self._operator = threading.Event()  # set by Continue (or Stop) while the job waits for a pen change
         self._stop_waiting = False
@@ -236,7 +246,7 @@ class Sender:
         """PLC: stop at the end of the current stroke, pen up (the sender's Ctrl-C). GRBL: ``control('stop')``."""
         if not self.busy:
             raise InputError("no send is running")
-        if self.s.transport == "grbl":
+        if self.s.transport in ("grbl", "ebb"):
             return self.control("stop")
         if self.s.state == "waiting":
             return self._answer("stop")
@@ -320,43 +330,119 @@ class Sender:
             self.s = SendState(state="sending", transport="grbl", target=label, total=len(lines),
                                line=lines[0].lineno, time_left_s=float(left[0]), version=self.s.version + 1)
             self.changed.notify_all()
-        self._thread = threading.Thread(target=self._run_grbl, args=(run, path, acked), name="studio-send-grbl",
-                                        daemon=True)
+        def done(r) -> str:
+            return f"{r['lines']} lines in {r['elapsed_s']:.2f} s" + (f", resumed at line {r['start_line']}"
+                                                                      if r["resumed"] else "")
+
+        self._thread = threading.Thread(target=self._run_serial, args=(run, path, acked, done),
+                                        name="studio-send-grbl", daemon=True)
         self._thread.start()
         return self.snapshot()[1]
 
-    def _run_grbl(self, run, path: Path, acked: list[int]) -> None:
+    def _run_serial(self, run, path: Path, acked: list[int], done) -> None:
+        """A GRBL or EBB send's thread: ``run()`` to its end; ``done(result)`` says how it went."""
         from doodlecam.link.session import Paused
 
+        alias = "job" + path.suffix  # the private copy's path means nothing to the user
         try:
             r = run()
-            end = dict(state="done", executed=self.s.total, time_left_s=0.0,
-                       message=f"{r['lines']} lines in {r['elapsed_s']:.2f} s"
-                       + (f", resumed at line {r['start_line']}" if r["resumed"] else ""))
+            end = dict(state="done", executed=self.s.total, time_left_s=0.0, message=done(r))
         except Paused as e:
-            end = dict(state="stopped", message=str(e).replace(str(path), "job.gcode"), executed=acked[0])
+            end = dict(state="stopped", message=str(e).replace(str(path), alias), executed=acked[0])
         except DoodleError as e:
-            end = dict(state="failed", message=str(e).replace(str(path), "job.gcode"))
+            end = dict(state="failed", message=str(e).replace(str(path), alias))
         except Exception as e:  # never let a send kill the server quietly
             end = dict(state="failed", message=f"send failed: {type(e).__name__}: {e}")
         self._thread = None
         self._update(**end)
         self._one.release()
 
+    # ------------------------------------------------------------ EiBotBoard
+
+    def start_ebb(self, ebb: bytes, machine, target: str, speed: float | None = None, restart: bool = False,
+                  plugin_dirs: tuple = ()) -> dict:
+        return self._exclusive(speed, self._start_ebb, ebb, machine, target, speed, restart, plugin_dirs)
+
+    def _start_ebb(self, ebb: bytes, machine, target: str, speed, restart: bool, plugin_dirs: tuple) -> dict:
+        """Stream the ``.ebb`` job to an EiBotBoard: ``target`` 'ebb-simulator' (the built-in emulator, ``speed``
+        x real time) or 'ebb:PORT' ('ebb:auto' finds the board on USB). As ``doodlecam send job.ebb --serial``:
+        a stopped job resumes after the stroke it stopped at when sent again, unless ``restart``."""
+        from doodlecam import registry
+        from doodlecam.link.ebb.jobfile import read_ebb
+        from doodlecam.link.ebb.sender import line_effects
+        from doodlecam.link.session import state_file_for
+
+        job = read_ebb(ebb, "job.ebb")
+        if not job.lines:
+            raise InputError("the job's EBB stream has no commands to send")
+        steps, dur = line_effects(job.lines)
+        where = work_positions(steps, float(job.header.get("steps_per_mm", 80)), machine.height)
+        left = list(itertools.accumulate(reversed(dur), initial=0.0))[::-1]  # time left after k commands
+        port, label = self._ebb.port(target, speed)
+        cls = registry.get("transport", "ebb", plugin_dirs)
+        options = cls.resolve_options(machine.plugin_options.get("transport.ebb", {}), {})
+        path = self.record_dir(target) / "studio.ebb"  # the resume record goes next to it (same CRC: resume)
+        path.write_bytes(ebb)
+        if restart:
+            state_file_for(path).unlink(missing_ok=True)
+        self._controls.clear()
+        last = [0.0]
+        acked = [0]
+
+        def progress(done: int, total: int, _status) -> None:
+            acked[0] = done
+            now = time.monotonic()
+            if now - last[0] < 0.05 and done < total:  # the page needs no more than 20 updates a second
+                return
+            last[0] = now
+            self._update(executed=done, time_left_s=left[done], position_mm=where[done - 1])
+
+        def log(msg: str) -> None:
+            if msg.startswith("paused, pen up"):  # the board has run every command sent: it stands at the last
+                k = acked[0]
+                self._update(state="paused", message=msg, executed=k, time_left_s=left[k],
+                             position_mm=where[k - 1] if k else self.s.position_mm)
+            elif msg == "resumed":
+                self._update(state="sending", message="")
+            else:
+                self._update(message=msg)
+
+        def controls() -> str | None:
+            return self._controls.popleft() if self._controls else None
+
+        def run():
+            return cls().send(path, port, options, restart=restart, progress=progress, log=log, controls=controls,
+                              pen_change=self._pen_change(machine))
+
+        with self.changed:
+            self.s = SendState(state="sending", transport="ebb", target=label, total=len(job.lines),
+                               time_left_s=left[0], version=self.s.version + 1)
+            self.changed.notify_all()
+
+        def done(r) -> str:
+            return (f"{r['commands']} commands in {r['elapsed_s']:.2f} s (firmware {r['firmware']})"
+                    + (f", resumed at command {r['start_at']}" if r["resumed"] else ""))
+
+        self._thread = threading.Thread(target=self._run_serial, args=(run, path, acked, done),
+                                        name="studio-send-ebb", daemon=True)
+        self._thread.start()
+        return self.snapshot()[1]
+
     def control(self, action: str) -> dict:
         """A control of the running GRBL send (``streamer.Streamer``'s): pause (GRBL finishes the lines it
         has, then the pen is lifted), hold (feed hold '!': stops at once, the pen stays as it is),
-        resume, stop (ends with the pen up), feed+ / feed- / feed= (feed override)."""
+        resume, stop (ends with the pen up), feed+ / feed- / feed= (feed override). An EiBotBoard send
+        has pause, resume and stop, both taking effect at the end of the stroke, pen up."""
         if not self.busy:
             raise InputError("no send is running")
         if self.s.state == "waiting" and action in ("continue", "stop"):
             return self._answer(action)  # a pen change: the operator has fitted the pen, or stops there
-        if self.s.transport != "grbl":
+        if self.s.transport == "plc":
             if action == "stop":
                 return self.stop()
-            raise InputError(f"'{action}' is for GRBL; the PLC stops at the end of a stroke with Stop, "
-                             "and Resume sends the job again")
-        allowed = GRBL_CONTROLS.get(self.s.state, ())
+            raise InputError(f"'{action}' is for GRBL and the EiBotBoard; the PLC stops at the end of a stroke "
+                             "with Stop, and Resume sends the job again")
+        allowed = CONTROLS[self.s.transport].get(self.s.state, ())
         if action not in allowed:
             raise InputError(f"cannot {action} while {self.s.state}"
                              + (f"; possible now: {', '.join(allowed)}" if allowed else ""))
@@ -366,6 +452,11 @@ class Sender:
             self._controls.append("resume")
         self._controls.append(action)
         new = {"pause": "pausing", "hold": "held", "resume": "sending", "stop": "stopping"}.get(action, self.s.state)
+        if self.s.transport == "ebb":
+            msg = {"pause": "pausing at the end of the stroke, pen up",
+                   "stop": "stopping at the end of the stroke, pen up"}.get(action, "")
+            self._update(state=new, message=msg)
+            return self.snapshot()[1]
         msg = {"pause": "pausing: GRBL finishes the lines it has, then the pen is lifted",
                "hold": "feed hold: stopped on the path, the pen as it was",
                "stop": "stopping: GRBL finishes the lines it has, then the pen is lifted"}.get(action, self.s.message)
@@ -383,6 +474,9 @@ class Sender:
             if target == "grbl-simulator" or target.startswith("serial:"):
                 state_file_for(self.record_dir(target) / "studio.gcode").unlink(missing_ok=True)
                 msg = "abandoned: the next send starts at the first line"
+            elif is_ebb(target):
+                state_file_for(self.record_dir(target) / "studio.ebb").unlink(missing_ok=True)
+                msg = "abandoned: the next send starts at the first command"
             else:
                 if target == "simulator":
                     if self._sim is None:
@@ -416,7 +510,7 @@ class Sender:
         if thread is not None and self.busy and self.s.state == "waiting":
             self._answer("stop")  # nobody will answer the pen change now: stop there, pen up
             thread.join(timeout)
-        elif thread is not None and self.busy and self.s.transport == "grbl":
+        elif thread is not None and self.busy and self.s.transport in ("grbl", "ebb"):
             try:
                 self.control("stop")
             except InputError:  # already stopping
@@ -424,6 +518,7 @@ class Sender:
             thread.join(timeout)
         self._close_plc_sim()
         self._grbl.close()
+        self._ebb.close()
 
 
 # the links speak to a terminal; the page has buttons for the same choices

@@ -237,26 +237,31 @@ class EbbSender:
                     if i > 0 and self.lines[i - 1].startswith(("SP,1", "@PAUSE")):
                         stop_after = i - 1
                     self.log(f"{want}: stopping at the end of the stroke (command {stop_after + 1}), pen up")
+                elif want == "stop":
+                    stop_kind = "stop"  # a pause under way becomes a stop at the same stroke end
                 if stop_after is not None and i > stop_after:
                     self.wait_idle(sum(self.durations[max(0, i - 3):i]) + self.timeout)
                     self._save(i)
                     if stop_kind == "pause" and self.controls:
                         self.log("paused, pen up: resume to go on")
-                        while (self.controls() or "") not in ("resume",):
-                            if ints.count:
+                        while (want := self.controls() or "") != "resume":
+                            if ints.count or want == "stop":
                                 raise Paused(f"stopped at command {i} of {total}, pen up; send the job again to resume")
                             time.sleep(0.05)
+                        self.log("resumed")
                         stop_after, stop_kind = None, ""
                         continue
                     raise Paused(f"stopped at command {i} of {total}, pen up; send the job again to resume")
                 if s.startswith("@PAUSE"):
                     pen = int(s.split(",")[1])
                     self.wait_idle(sum(self.durations[max(0, i - 3):i]) + self.timeout)
-                    self._save(i + 1)
                     if self.pen_change is None:
+                        self._save(i + 1)  # the operator fits the pen, then sends again: on after the change
                         raise Paused(f"pen change to pen {pen} at command {i + 1}; fit it and send the job again")
+                    self._save(i)  # an operator who stops here is asked again on resume
                     self.pen_changes += 1
                     self.pen_change(pen, f"pen {pen}")
+                    self._save(i + 1)
                     i += 1
                     continue
                 # the answer to a motion command waits for FIFO room: the one running and the one queued

@@ -539,16 +539,23 @@ $("export").onclick = async () => {
   $("export-result").textContent = "wrote " + r.written.join(", ");
 };
 const GRBL_TARGETS = ["grbl-simulator", "serial"];
+const REAL_TARGETS = ["host", "serial", "ebb-serial"]; // a real machine runs at its own speed
 function sendTarget() {
   const t = $("target").value;
-  return t === "host" ? $("target-host").value : t === "serial" ? "serial:" + $("target-serial").value : t;
+  return t === "host" ? $("target-host").value : t === "serial" ? "serial:" + $("target-serial").value
+    : t === "ebb-serial" ? "ebb:" + ($("target-ebb").value.trim() || "auto") : t;
 }
 $("target").onchange = () => {
   const t = $("target").value;
-  $("target-host").hidden = t !== "host"; $("target-serial").hidden = t !== "serial";
+  $("target-host").hidden = t !== "host"; $("target-serial").hidden = t !== "serial"; $("target-ebb").hidden = t !== "ebb-serial";
   $("machine-panel").hidden = !GRBL_TARGETS.includes(t);
-  $("send-speed-label").hidden = t === "host" || t === "serial"; // a real machine runs at its own speed
+  $("send-speed-label").hidden = REAL_TARGETS.includes(t);
 };
+function offerTargets(targets) { // the links that drive this machine (an AxiDraw: its EiBotBoard)
+  for (const o of $("target").options) o.hidden = o.disabled = !targets.includes(o.value);
+  if (!targets.includes($("target").value)) $("target").value = targets[0];
+  $("target").onchange();
+}
 
 const ACTIVE = ["sending", "pausing", "paused", "held", "stopping", "waiting"];
 let sendAgain = false; // the PLC refuses a finished job unless asked to draw it again
@@ -557,7 +564,8 @@ function showSend(s) {
   if (s.version !== undefined) { if (s.version < sendVersion) return; sendVersion = s.version; }
   $("send-progress").value = s.percent;
   const pos = s.position_mm ? ` at (${s.position_mm[0].toFixed(1)}, ${s.position_mm[1].toFixed(1)}) mm` : "";
-  const what = s.transport === "grbl" ? `line ${s.line} (${s.executed} of ${s.total} answered)` : `command ${s.executed} of ${s.total}`;
+  const what = s.transport === "grbl" ? `line ${s.line} (${s.executed} of ${s.total} answered)`
+    : s.transport === "ebb" ? `command ${s.executed} of ${s.total} answered` : `command ${s.executed} of ${s.total}`;
   const grbl = s.machine_state ? `, GRBL ${s.machine_state}` : "";
   $("send-status").textContent = ACTIVE.includes(s.state)
     ? `${s.state}: ${what}, ${s.percent.toFixed(1)} %, ${s.time_left_s.toFixed(1)} s left${pos}${grbl}` + (s.message ? ` — ${s.message}` : "")
@@ -586,7 +594,7 @@ function follow() {
   es.onerror = () => es.close();
 }
 $("send").onclick = async () => {
-  const real = ["host", "serial"].includes($("target").value); // a real machine: no simulated speed
+  const real = REAL_TARGETS.includes($("target").value); // a real machine: no simulated speed
   const speed = !real && $("send-speed").value ? Number($("send-speed").value) : null;
   showSend(await api("/api/send", { method: "POST", json: { target: sendTarget(), speed, again: sendAgain, layers: sendLayers() } }));
   follow();
@@ -641,6 +649,7 @@ $("show-order").addEventListener("change", () => { S.base = null; draw(); });
   await posts();
   const st = await api("/api/state");
   $("machine").textContent = `machine ${st.machine}`;
+  offerTargets(st.targets);
   showSend(st.send);
   if (ACTIVE.includes(st.send.state)) follow(); // a send outlives its page: pick it up
   if (st.loaded) { await refresh(); await tracerPanel(); window.studioPerf.firstView = performance.now(); }

@@ -1,0 +1,62 @@
+"""EiBotBoard (AxiDraw) for the studio: the target (a real serial port, the board found by its USB id,
+or the built-in EBB emulator on a pseudo-terminal) and where the pen stands after each command.
+
+Everything that talks to the board is ``doodlecam.link.ebb``'s (the ``ebb`` transport's sender); the
+send itself runs in ``studio.sending`` as the GRBL one does.
+"""
+
+from __future__ import annotations
+
+from doodlecam.errors import InputError
+from doodlecam.studio.grbl import FAST, check_serial_port
+
+EMULATOR = "ebb-simulator"
+PREFIX = "ebb:"  # ebb:/dev/ttyACM0, or ebb:auto (the first EiBotBoard on USB)
+
+
+def is_ebb(target: str) -> bool:
+    return target == EMULATOR or target.startswith(PREFIX)
+
+
+def wants_ebb(machine) -> bool:
+    """An AxiDraw-kinematics profile plots through the EBB post; the other links do not drive it."""
+    return getattr(machine, "kinematics", "") == "axidraw"
+
+
+class EbbTargets:
+    """The built-in EBB emulator (one, living as long as the studio: it keeps its step position) and
+    checked serial ports."""
+
+    def __init__(self):
+        self.emulator = None
+
+    def port(self, target: str, speed: float | None = None) -> tuple[str | None, str]:
+        """(port to open, None: find the board on USB; label for the page) of a target."""
+        if target == EMULATOR:
+            from doodlecam.link.ebb.emulator import EbbConfig, EbbEmulator
+
+            want = float(speed) if speed else FAST
+            if self.emulator is None:
+                self.emulator = EbbEmulator(EbbConfig(speed=want)).start()
+            else:
+                self.emulator.cfg.speed = want
+            return self.emulator.port, f"EBB emulator {self.emulator.port}"
+        if not target.startswith(PREFIX):
+            raise InputError(f"unknown EiBotBoard target '{target}'; use '{EMULATOR}' or 'ebb:PORT' "
+                             "(e.g. ebb:/dev/ttyACM0, or ebb:auto to find the board on USB)")
+        name = target[len(PREFIX):]
+        if name in ("", "auto"):
+            return None, "EiBotBoard on USB"
+        return check_serial_port(name), f"EiBotBoard on {name}"
+
+    def close(self) -> None:
+        if self.emulator is not None:
+            self.emulator.stop()
+            self.emulator = None
+
+
+def work_positions(steps: list[tuple[int, int]], steps_per_mm: float, height: float) -> list[tuple[float, float]]:
+    """Work-area (x, y up) mm of motor step counts: motor 1 = x + y_page, motor 2 = x - y_page (the axidraw
+    kinematics), y_page measured down from the home corner at (0, height)."""
+    k = 2.0 * steps_per_mm
+    return [(round((a + b) / k, 2), round(height - (a - b) / k, 2)) for a, b in steps]
