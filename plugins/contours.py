@@ -54,7 +54,7 @@ class ContoursTracer(Tracer):
         opt = self.resolve_options(options)
         if opt["blur"] < 0 or opt["min_area"] < 0 or opt["simplify"] < 0 or opt["fill_spacing"] < 0.5:
             raise PluginError("tracer 'contours': blur, min_area and simplify must be >= 0 and fill_spacing >= 0.5")
-        gray, shape = load_working(path, self, opt["pixel_mm"])
+        gray, shape = load_working(path, self, opt["pixel_mm"], upscale=True)
         # The size options are px of the pen-width grid the picture is traced on: a
         # picture drawn coarser than that (not resampled) gets them scaled to its own
         # px, so the specks dropped mean the same drawn size at any resolution. The

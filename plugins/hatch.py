@@ -91,7 +91,7 @@ class HatchTracer(Tracer):
         """Polylines in pixels: x = column, y = row (down), pixel centres at integers."""
         opt = self.resolve_options(options)
         self.check_options(opt, self.pen_mm)
-        gray, shape = load_working(path, self, opt["pixel_mm"])
+        gray, shape = load_working(path, self, opt["pixel_mm"], upscale=True)
         opt["spacing"] = spacing = _spacing_px(self, opt, gray.shape[1] / shape[1])
         dark = darkness(gray, opt["blur"], opt["gamma"], opt["equalize"])
         polylines: list[np.ndarray] = []

@@ -206,7 +206,9 @@ def working_picture(gray: np.ndarray, mm_per_px: float | None, pixel_mm: float,
     k = mm_per_px / pixel_mm
     h, w = gray.shape
     shape = (max(2, round(h * k)), max(2, round(w * k)))
-    return resize(gray.astype(np.float32), shape, order=1, anti_aliasing=True).astype(np.float64), k
+    order = 3 if k > 1 else 1
+    out = resize(gray.astype(np.float32), shape, order=order, anti_aliasing=k < 1)
+    return np.clip(out, 0.0, 1.0).astype(np.float64), k
 
 
 def load_working(path: str | os.PathLike, tracer, pixel_mm: float,
