@@ -68,6 +68,8 @@ class CenterlineTracer(Tracer):
 
         ink, level = ink_mask(gray, opt["threshold"])
         work, ink, k = thin_enough(gray, ink, level, grid)
+        if k != 1.0 and not opt["threshold"]:  # resampled: Otsu's level of the picture traced (of a
+            ink, level = ink_mask(work)          # black-and-white one it is just above black)
         polylines, info = centerlines(ink, opt, skel if k == 1.0 else None)
         if not polylines:
             raise InputError(f"{path}: no ink lines found (threshold {level:.2f}); "
