@@ -27,7 +27,7 @@ import numpy as np
 from doodlecam.api import Option, Tracer
 from doodlecam.errors import InputError, PluginError
 from doodlecam.model import Drawing
-from doodlecam.trace.raster import IMAGE_EXTENSIONS, load_gray
+from doodlecam.trace.raster import IMAGE_EXTENSIONS, grid_scale, load_gray
 
 
 class CenterlineTracer(Tracer):
@@ -41,6 +41,9 @@ class CenterlineTracer(Tracer):
         Option("simplify", float, 0.25, "line simplification tolerance in px (Ramer-Douglas-Peucker)"),
         Option("staircase", float, 1.5, "Gaussian smoothing along each stroke, in px (0 = off)"),
         Option("min_length", float, 0.0, "drop strokes shorter than this, in px; 0 = the line width"),
+        Option("pixel_mm", float, 0.0, "trace a picture drawn coarser than this many mm per pixel scaled up to it, "
+               "and one with lines wider than 12 px scaled down to it (0 = the pen width), so the same picture "
+               "at 1x and 4x gives the same job; thin lines on finer pictures keep their resolution"),
     )
 
     @classmethod
@@ -55,14 +58,18 @@ class CenterlineTracer(Tracer):
         for key in ("spur", "speck", "simplify", "staircase", "min_length"):
             if opt[key] < 0:
                 raise PluginError(f"tracer 'centerline': {key} must be >= 0, got {opt[key]:g}")
-        return self.trace_gray(load_gray(path), path, opt)
+        return self.trace_gray(load_gray(path), path, opt, grid=grid_scale(self, opt["pixel_mm"]))
 
-    def trace_gray(self, gray: np.ndarray, path: Path, opt: dict[str, Any], skel: np.ndarray | None = None) -> Drawing:
-        """``trace`` of a picture already loaded (``skel``: its skeleton, when already made)."""
+    def trace_gray(self, gray: np.ndarray, path: Path, opt: dict[str, Any], skel: np.ndarray | None = None,
+                   grid: float | None = None) -> Drawing:
+        """``trace`` of a picture already loaded (``skel``: its skeleton, when already made; ``grid``:
+        pen-width grid px per picture px, when the drawn size is known)."""
         from doodlecam.trace.raster import in_picture_px
 
         ink, level = ink_mask(gray, opt["threshold"])
-        work, ink, k = thin_enough(gray, ink, level)
+        work, ink, k = thin_enough(gray, ink, level, grid)
+        if k != 1.0 and not opt["threshold"]:  # resampled: Otsu's level of the picture traced (of a
+            ink, level = ink_mask(work)          # black-and-white one it is just above black)
         polylines, info = centerlines(ink, opt, skel if k == 1.0 else None)
         if not polylines:
             raise InputError(f"{path}: no ink lines found (threshold {level:.2f}); "
@@ -98,6 +105,7 @@ def skeleton_length(skel: np.ndarray) -> float:
 # Ink wider than _FULL_WIDTH px is traced on the picture scaled down to lines
 # _WORK_WIDTH px wide: a skeleton costs per ink pixel and per pixel of width.
 _FULL_WIDTH, _WORK_WIDTH = 12.0, 6.0
+_UP_BLUR = 0.3  # px of the picture: about the spread of a pixel's square (1/sqrt(12))
 
 
 def rough_width(ink: np.ndarray) -> float:
@@ -111,16 +119,28 @@ def rough_width(ink: np.ndarray) -> float:
     return 2.0 * np.count_nonzero(ink) / boundary if boundary else 0.0
 
 
-def thin_enough(gray: np.ndarray, ink: np.ndarray, level: float) -> tuple[np.ndarray, np.ndarray, float]:
+def thin_enough(gray: np.ndarray, ink: np.ndarray, level: float,
+                grid: float | None = None) -> tuple[np.ndarray, np.ndarray, float]:
     """(picture, ink, scale factor): scaled down when its ink lines are wider than
     _FULL_WIDTH px, so the skeleton of a high-resolution scan or of a photo's
-    dark areas costs a fraction; thin lines keep the full resolution."""
+    dark areas costs a fraction; thin lines keep the full resolution.
+
+    With ``grid`` (pen-width grid px per picture px) a coarser picture is scaled
+    up to that grid (bicubic: no line fades) and wide lines are scaled down to
+    it, never below _WORK_WIDTH px: the same picture at 1x and 4x is then traced
+    on the same grid, so spurs, specks and breaks are the same drawn size."""
+    from doodlecam.trace.raster import working_picture
+
+    if grid and grid > 1:
+        from scipy import ndimage as ndi
+
+        work, k = working_picture(gray, grid, 1.0, upscale=True)
+        work = ndi.gaussian_filter(work, _UP_BLUR * k, mode="nearest")
+        return work, work < level, k
     width = rough_width(ink)
     if width <= _FULL_WIDTH:
         return gray, ink, 1.0
-    from doodlecam.trace.raster import working_picture
-
-    work, k = working_picture(gray, _WORK_WIDTH / width, 1.0)
+    work, k = working_picture(gray, max(grid or 0.0, _WORK_WIDTH / width), 1.0)
     return work, work < level, k
 
 
@@ -340,7 +360,7 @@ class AutoTracer(Tracer):
         profile = getattr(self, "profile_options", {}).get(f"trace.{chosen.name}", {})
         opt = chosen.resolve_options(profile, given)
         if art:  # line art keeps its full resolution: thin lines would fade to grey
-            d = CenterlineTracer().trace_gray(gray, path, opt, skel)
+            d = CenterlineTracer().trace_gray(gray, path, opt, skel, grid_scale(self, opt["pixel_mm"]))
         else:
             from doodlecam.trace.raster import in_picture_px, working_picture
 

@@ -35,9 +35,8 @@ class ContoursTracer(Tracer):
         Option("fill_spacing", float, 3.0, "distance between fill lines in px"),
         Option("fill_angle", float, 45.0, "angle of the fill lines in degrees"),
         Option("fill_cross", bool, False, "cross-hatch the fill (a second layer at right angles)"),
-        Option("pixel_mm", float, 0.0, "trace finer pictures scaled down to this many mm per pixel as drawn "
-               "(0 = the pen width), so px options mean the same drawn size at any resolution; on coarser pictures "
-               "min_area, simplify and fill_spacing are scaled to match"),
+        Option("pixel_mm", float, 0.0, "trace the picture scaled (down, or up if coarser) to this many mm per pixel "
+               "as drawn (0 = the pen width), so px options mean the same drawn size at any resolution"),
     )
 
     @classmethod
@@ -54,11 +53,11 @@ class ContoursTracer(Tracer):
         opt = self.resolve_options(options)
         if opt["blur"] < 0 or opt["min_area"] < 0 or opt["simplify"] < 0 or opt["fill_spacing"] < 0.5:
             raise PluginError("tracer 'contours': blur, min_area and simplify must be >= 0 and fill_spacing >= 0.5")
-        gray, shape = load_working(path, self, opt["pixel_mm"])
-        # The size options are px of the pen-width grid the picture is traced on: a
-        # picture drawn coarser than that (not resampled) gets them scaled to its own
-        # px, so the specks dropped mean the same drawn size at any resolution. The
-        # blur stays in picture px: it smooths the picture's own pixel steps and noise.
+        gray, shape = load_working(path, self, opt["pixel_mm"], upscale=True)
+        # The size options are px of the pen-width grid the picture is traced on
+        # (scaled up or down to it): a picture drawn within 5 % of that grid (not
+        # resampled) gets them scaled to its own px, so the specks dropped mean the
+        # same drawn size at any resolution. The blur stays in working px.
         k = _grid_px(self, opt["pixel_mm"], shape, gray.shape)
         blur, min_area, simp = opt["blur"], opt["min_area"] / (k * k), opt["simplify"] / k
         gray = gray.astype(np.float32)
@@ -125,14 +124,12 @@ class ContoursTracer(Tracer):
 
 
 def _grid_px(tracer: Tracer, pixel_mm: float, shape: tuple[int, int], working: tuple[int, int]) -> float:
-    """Pen-width grid px per working px: the working px's drawn size over ``pixel_mm``
-    (0 = the pen width) when the picture was not resampled and its drawn size is
-    known; else 1 (a resampled picture is on the grid already)."""
-    pixel = pixel_mm if pixel_mm > 0 else (getattr(tracer, "pen_mm", None) or 0.0)
-    mm = getattr(tracer, "mm_per_px", None)
-    if not mm or pixel <= 0 or tuple(working) != tuple(shape):
-        return 1.0
-    return mm / pixel
+    """Pen-width grid px per working px when the picture was not resampled and its
+    drawn size is known; else 1 (a resampled picture is on the grid already)."""
+    from doodlecam.trace.raster import grid_scale
+
+    k = grid_scale(tracer, pixel_mm)
+    return k if k and tuple(working) == tuple(shape) else 1.0
 
 
 def _areas(rings: list[np.ndarray]) -> np.ndarray:

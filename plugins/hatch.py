@@ -63,8 +63,8 @@ class HatchTracer(Tracer):
         Option("layers", str, "one", "'tone': each tone level's lines on a layer of its own, 'tone 1' (darkest) to "
                "'tone N' (lightest), plotted one after another, to draw each with its own pen; 'one': a single layer"),
         Option("min_length", float, 2.0, "drop hatch strokes shorter than this, in px"),
-        Option("pixel_mm", float, 0.0, "trace finer pictures scaled down to this many mm per pixel as drawn "
-               "(0 = the pen width), so px options mean the same drawn size at any resolution"),
+        Option("pixel_mm", float, 0.0, "trace the picture scaled (down, or up if coarser) to this many mm per pixel "
+               "as drawn (0 = the pen width), so px options mean the same drawn size at any resolution"),
     )
 
     @classmethod
@@ -91,7 +91,7 @@ class HatchTracer(Tracer):
         """Polylines in pixels: x = column, y = row (down), pixel centres at integers."""
         opt = self.resolve_options(options)
         self.check_options(opt, self.pen_mm)
-        gray, shape = load_working(path, self, opt["pixel_mm"])
+        gray, shape = load_working(path, self, opt["pixel_mm"], upscale=True)
         opt["spacing"] = spacing = _spacing_px(self, opt, gray.shape[1] / shape[1])
         dark = darkness(gray, opt["blur"], opt["gamma"], opt["equalize"])
         polylines: list[np.ndarray] = []

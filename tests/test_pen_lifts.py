@@ -69,6 +69,18 @@ def plc_pen_downs(data: bytes) -> tuple[list[np.ndarray], list[np.ndarray | None
     return downs, ups
 
 
+def as_traced(picture: Path, drawing_meta: dict) -> tuple[np.ndarray, float]:
+    """(the picture as the tracer saw it, its px per picture px): image tracers work on the
+    pen-width grid (``meta["working_px"]``), resampled as ``working_picture`` does."""
+    from doodlecam.trace.raster import load_gray, working_picture
+
+    gray = load_gray(picture)
+    if "working_px" not in drawing_meta:
+        return gray, 1.0
+    k = drawing_meta["working_px"][0] / gray.shape[1]
+    return working_picture(gray, k, 1.0, upscale=True)[0], k
+
+
 def dark_regions_and_holes(drawing_meta: dict, picture: Path) -> tuple[int, int]:
     """(connected dark regions (8-neighbours), light holes in them (4-neighbours, not
     touching the frame)) of the blurred picture at the traced threshold: the
@@ -76,10 +88,7 @@ def dark_regions_and_holes(drawing_meta: dict, picture: Path) -> tuple[int, int]
     from scipy import ndimage as ndi
     from skimage import measure
 
-    from doodlecam.plugins.contours import ContoursTracer
-    from doodlecam.trace.raster import load_working
-
-    gray, _ = load_working(picture, ContoursTracer(), 0.0)
+    gray, _ = as_traced(picture, drawing_meta)
     gray = ndi.gaussian_filter(gray.astype(np.float32), drawing_meta["blur_px"], mode="nearest")
     dark = gray < drawing_meta["threshold"]
     light = measure.label(np.pad(~dark, 1, constant_values=True), connectivity=1)
@@ -218,7 +227,6 @@ def test_joined_hatching_stays_in_the_dark_region(tmp_path):
 
 def test_hatch_tone_layers_plot_one_after_another(tmp_path):
     from doodlecam.plugins.hatch import darkness
-    from doodlecam.trace.raster import load_gray
 
     machine = load_machine("doodlebot")
     res = convert(IMAGES / "camera.png", tmp_path, Settings(  # drawn 80 mm wide: fewer lines, a quicker test
@@ -231,20 +239,26 @@ def test_hatch_tone_layers_plot_one_after_another(tmp_path):
     assert all(job.lifts[i] for i in job.pen_changes)  # a pen change always lifts
     downs, _ = gcode_pen_downs((tmp_path / "camera.gcode").read_text())
     assert len(downs) == job.pen_lifts
-    # tone 1 is the darkest level: its lines lie on (or within a pixel of) the darkest pixels
+    # tone 1 is the darkest level: its lines lie on the darkest pixels of the picture hatched (the
+    # pen-width grid, 0.5 mm per px: camera's 0.55 mm px are resampled to it), its links between lines
+    # at most a pixel beside them (the join's rule), so every point within a pen width (1 mm) as drawn
     from doodlecam.pipeline import trace as trace_picture
     from scipy import ndimage as ndi
 
     d = trace_picture(IMAGES / "camera.png", Settings(machine=machine, tracer="hatch",
                                                       tracer_options={"layers": "tone", "levels": 4}))
-    dark = darkness(load_gray(IMAGES / "camera.png"), 1.0) > 4 / 5
-    out = ndi.distance_transform_edt(~dark)
+    gray, k = as_traced(IMAGES / "camera.png", d.meta)
+    assert k > 1.05  # resampled (else this checks nothing new)
+    out = ndi.distance_transform_edt(~(darkness(gray, 1.0) > 4 / 5))
     from doodlecam.geometry.fit import densify
 
     ones = [densify(p, 0.5) for p, n in zip(d.polylines, d.layers) if n == "tone 1"]
     assert ones and len(ones) < len(d.polylines)
-    q = np.vstack(ones)
-    assert out[np.clip(np.rint(q[:, 1]).astype(int), 0, 511), np.clip(np.rint(q[:, 0]).astype(int), 0, 511)].max() <= 1.5
+    q = (np.vstack(ones) + 0.5) * k - 0.5  # picture px -> grid px
+    h, w = gray.shape
+    far = out[np.clip(np.rint(q[:, 1]).astype(int), 0, h - 1), np.clip(np.rint(q[:, 0]).astype(int), 0, w - 1)]
+    assert far.max() <= 2.0  # grid px: 1 mm as drawn
+    assert np.mean(far <= 1.0) > 0.995  # all but a few link points on or next to the darkest pixels
 
 
 def test_hatch_layers_option_is_checked():

@@ -206,7 +206,17 @@ def working_picture(gray: np.ndarray, mm_per_px: float | None, pixel_mm: float,
     k = mm_per_px / pixel_mm
     h, w = gray.shape
     shape = (max(2, round(h * k)), max(2, round(w * k)))
-    return resize(gray.astype(np.float32), shape, order=1, anti_aliasing=True).astype(np.float64), k
+    order = 3 if k > 1 else 1
+    out = resize(gray.astype(np.float32), shape, order=order, anti_aliasing=k < 1)
+    return np.clip(out, 0.0, 1.0).astype(np.float64), k
+
+
+def grid_scale(tracer, pixel_mm: float) -> float | None:
+    """Pen-width grid px per picture px: the picture's drawn mm per px (``Tracer.mm_per_px``)
+    over ``pixel_mm`` (0 = the pen width); None when either is unknown."""
+    pixel = pixel_mm if pixel_mm > 0 else (getattr(tracer, "pen_mm", None) or 0.0)
+    mm = getattr(tracer, "mm_per_px", None)
+    return mm / pixel if mm and pixel > 0 else None
 
 
 def load_working(path: str | os.PathLike, tracer, pixel_mm: float,
