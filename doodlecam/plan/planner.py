@@ -60,9 +60,15 @@ class Limits:
         """theta'(u), theta''(u), each (len(u), n_act), and |q'(u)|."""
         d1, d2 = spline(u, 1), spline(u, 2)
         if self.M is not None:
-            return d1 @ self.M.T, d2 @ self.M.T, np.linalg.norm(d1, axis=1)
+            return linear_map(d1, self.M), linear_map(d2, self.M), np.hypot(d1[:, 0], d1[:, 1])
         _, t1, t2 = self.kinematics.derivatives(spline(u), d1, d2)
         return t1, t2, np.linalg.norm(d1, axis=1)
+
+
+def linear_map(xy: np.ndarray, M: np.ndarray) -> np.ndarray:
+    """xy (n, 2) @ M.T, written out: numpy hands a product this narrow to threaded BLAS,
+    whose threads cost more CPU spinning than the sum (the 20x check grid: 40 % of planning)."""
+    return xy[:, :1] * M[:, 0] + xy[:, 1:] * M[:, 1]
 
 
 _GAUSS = np.polynomial.legendre.leggauss(6)
