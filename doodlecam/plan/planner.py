@@ -136,10 +136,16 @@ def profile_times(u: np.ndarray, b: np.ndarray) -> np.ndarray:
 def interval_ratios(spline: Spline, u: np.ndarray, b: np.ndarray, limits: Limits, refine: int = CHECK_REFINE):
     """Per interval, the worst (acceleration, velocity, pen speed) / limit on
     ``refine`` points inside it, straight from the spline (no bounds)."""
-    from doodlecam.plan.kernels import interval_worst
+    from doodlecam.plan.kernels import interval_worst, spline_interval_worst
 
     h = np.diff(u)
     tau = np.linspace(0.0, 1.0, refine + 1)
+    if limits.M is not None and spline.degree >= 2:
+        c = spline.derivative_controls
+        return spline_interval_worst(c[1], c[2], spline.degree, len(spline.control) - spline.degree,
+                                     np.asarray(u, float), np.nextafter(u[1:], -np.inf), tau, np.asarray(b, float),
+                                     np.ascontiguousarray(limits.M, float), np.asarray(limits.amax, float),
+                                     np.asarray(limits.vmax, float), float(limits.pen_speed or 0.0))
     uu = u[:-1, None] + tau[None, :] * h[:, None]
     # the right end as the interval's own limit: at a knot q'' (degree 2) or q' (degree 1) jumps
     uu[:, -1] = np.nextafter(u[1:], -np.inf)
