@@ -365,8 +365,20 @@ def spline_interval_worst(c1, c2, k, nseg, u, ends, tau, b, M, amax, vmax, pen):
         for r in range(R):
             x = ends[i] if r == refine else u[i] + tau[r] * h
             x = min(max(x, 0.0), 1.0)
-            d1x, d1y = _point(c1, k - 1, nseg, x, N, left, right)
-            d2x, d2y = _point(c2, k - 2, nseg, x, N, left, right)
+            sp = min(max(int(x * nseg), 0), nseg - 1)
+            if k == 3 and 2 <= sp < nseg - 2:
+                # a cubic's inner span: q' and q'' in closed form (uniform quadratic and
+                # linear bases), 3x cheaper than Cox-de Boor; the edges and other degrees use it
+                t = x * nseg - sp
+                n0, n2 = 0.5 * (1.0 - t) * (1.0 - t), 0.5 * t * t
+                n1 = 1.0 - n0 - n2
+                d1x = n0 * c1[sp, 0] + n1 * c1[sp + 1, 0] + n2 * c1[sp + 2, 0]
+                d1y = n0 * c1[sp, 1] + n1 * c1[sp + 1, 1] + n2 * c1[sp + 2, 1]
+                d2x = (1.0 - t) * c2[sp, 0] + t * c2[sp + 1, 0]
+                d2y = (1.0 - t) * c2[sp, 1] + t * c2[sp + 1, 1]
+            else:
+                d1x, d1y = _point(c1, k - 1, nseg, x, N, left, right)
+                d2x, d2y = _point(c2, k - 2, nseg, x, N, left, right)
             tt = r / refine
             bb = b[i] * (1.0 - tt) + b[i + 1] * tt
             sb = np.sqrt(max(bb, 0.0))
