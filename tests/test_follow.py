@@ -59,9 +59,9 @@ def test_matches_brute_force_on_planned_strokes(limits):
 
 def test_follow_samples_converge_on_a_tsp_tour():
     # one long stroke through random points (a small TSP-art line: ~1400 control points, tight
-    # turns). Each re-linearised solve costs the total shift from the planned points, so the
-    # solves converge; costing the shift from the last solve drifted ~0.05 mm per solve, added
-    # periods after every 5 solves and here gave up (PlanError)
+    # turns). Re-linearised solves cost the shift from the first solve's instants, so they
+    # converge; costing it from the last solve drifted ~0.05 mm per solve, added periods after
+    # every 5 solves and here gave up (PlanError)
     from doodlecam.machine import load_machine
     from doodlecam.plan.planner import Limits
     from doodlecam.plugins.tsp import tsp_tour
