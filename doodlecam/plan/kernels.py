@@ -348,7 +348,8 @@ def spline_interval_worst(c1, c2, k, nseg, u, ends, tau, b, M, amax, vmax, pen):
     """interval_worst for linear kinematics (theta = M q) straight from the spline: q' and
     q'' (control points c1, c2 of degrees k - 1, k - 2 over nseg spans) evaluated at
     u_k + tau h_k (the last point: ends[k]) inside the loop, so the 20x check grid is never
-    stored (its arrays cost more than the arithmetic). Same points and sums as interval_ratios'."""
+    stored (its arrays cost more than the arithmetic). The same points as the numpy version
+    (tests/test_plan_kernels.py compares them)."""
     K = u.shape[0] - 1
     R = tau.shape[0]
     refine = R - 1
