@@ -10,7 +10,7 @@ from doodlecam.geometry.fit import fit_pieces
 from doodlecam.plan.follow import executed_points, path_deviation
 from doodlecam.model import Spline, StrokeSamples, Stroke
 from doodlecam.plan.planner import check_profile, plan_stroke
-from doodlecam.plan.sample import sample_stroke
+from doodlecam.plan.sample import TRACKING_STEPS, reference_positions, sample_stroke, whole_step_limits
 
 from conftest import plc_strokes, report_curve
 
@@ -55,6 +55,28 @@ def test_matches_brute_force_on_planned_strokes(limits):
         got, ref = path_deviation(spline, smp).max(), brute_force(spline, smp)
         assert ref > 0.005  # the ramps do leave the curve between instants
         assert abs(got - ref) <= 0.02 * ref
+
+
+def test_follow_samples_converge_on_a_tsp_tour():
+    # one long stroke through random points (a small TSP-art line: ~1400 control points, tight
+    # turns). Re-linearised solves cost the shift from the first solve's instants, so they
+    # converge; costing it from the last solve drifted ~0.05 mm per solve, added periods after
+    # every 5 solves and here gave up (PlanError)
+    from doodlecam.machine import load_machine
+    from doodlecam.plan.planner import Limits
+    from doodlecam.plugins.tsp import tsp_tour
+    from doodlecam.registry import kinematics_for
+
+    m = load_machine("doodlebot")
+    limits = Limits.from_machine(m, kinematics_for(m))
+    tour, _ = tsp_tour(np.random.default_rng(1).uniform(50.0, 80.0, (600, 2)))
+    spline = max((p[0] for p in fit_pieces(tour, 3, 0.1)), key=lambda s: len(s.control))
+    stroke = Stroke(spline, plan_stroke(spline, whole_step_limits(limits, (80, 80), 0.04)))
+    smp = sample_stroke(stroke, 0.04, limits, (80, 80), follow=True)
+    assert len(smp.velocity) <= 2 * stroke.profile.duration / 0.04
+    x = smp.integrate()
+    assert np.abs(x - reference_positions(stroke, smp)).max() <= TRACKING_STEPS / 80 + 1e-9
+    assert np.allclose(x[-1], np.round(spline.end * 80) / 80, atol=1e-9)
 
 
 def test_jerk_bound_holds_and_only_slows_the_pen(limits):

@@ -184,3 +184,27 @@ def test_a_span_where_the_pen_stands_still_is_planned_within_limits(control, deg
     assert np.isfinite(prof.duration) and prof.duration > 0
     assert np.isfinite(prof.b).all() and np.isfinite(prof.a).all()  # (b was inf there before: explore profile)
     assert acc <= 1 + 1e-9 and vel <= 1 + 1e-9
+
+
+@pytest.mark.parametrize("degree", [2, 3, 4])
+@pytest.mark.parametrize("extra", [0, 3, 40])
+def test_compiled_check_is_the_spline_evaluated_point_by_point(degree, extra):
+    # planner.interval_ratios evaluates q', q'' inside one compiled loop (closed forms on a
+    # cubic's inner spans); the reference: every point of the 20x grid through Spline.__call__
+    from doodlecam.plan.kernels import interval_worst
+    from doodlecam.plan.planner import interval_ratios
+
+    rng = np.random.default_rng(degree * 10 + extra)
+    s = Spline(degree, rng.normal(0.0, 30.0, (degree + 1 + extra, 2)))
+    M = np.array([[1.0, 1.0], [1.0, -1.0]])
+    lim = Limits(np.array([300.0, 250.0]), np.array([2000.0, 1500.0]), M, pen_speed=150.0)
+    u = np.unique(np.concatenate([make_grid(s, 0.7), rng.uniform(0, 1, 50)]))
+    b = rng.uniform(0.0, 1e-4, len(u))
+    got = interval_ratios(s, u, b, lim)
+    h, tau = np.diff(u), np.linspace(0.0, 1.0, 21)
+    uu = u[:-1, None] + tau[None, :] * h[:, None]
+    uu[:, -1] = np.nextafter(u[1:], -np.inf)
+    d1, d2 = s(uu.ravel(), 1), s(uu.ravel(), 2)
+    ref = interval_worst(b, h, d1 @ M.T, d2 @ M.T, np.linalg.norm(d1, axis=1), lim.amax, lim.vmax, 150.0, 20)
+    for g, r in zip(got, ref):
+        assert np.allclose(g, r, rtol=1e-9, atol=1e-12 * r.max())

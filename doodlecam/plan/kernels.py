@@ -9,6 +9,8 @@ planned (numba's import costs ~0.3 s).
 import numba
 import numpy as np
 
+from doodlecam.geometry.kernels import _point
+
 _EPS = 1e-12
 
 
@@ -339,3 +341,59 @@ def times(u, b, t):  # pragma: no cover - compiled
         den = s0 + s1
         t[k + 1] = t[k] + (2.0 * (u[k + 1] - u[k]) / den if den > 0.0 else np.inf)
         s0 = s1
+
+
+@numba.njit(cache=True, nogil=True)
+def spline_interval_worst(c1, c2, k, nseg, u, ends, tau, b, M, amax, vmax, pen):  # pragma: no cover - compiled
+    """interval_worst for linear kinematics (theta = M q) straight from the spline: q' and
+    q'' (control points c1, c2 of degrees k - 1, k - 2 over nseg spans) evaluated at
+    u_k + tau h_k (the last point: ends[k]) inside the loop, so the 20x check grid is never
+    stored (its arrays cost more than the arithmetic). The same points as the numpy version
+    (tests/test_plan_kernels.py compares them)."""
+    K = u.shape[0] - 1
+    R = tau.shape[0]
+    refine = R - 1
+    na = M.shape[0]
+    N = np.empty(k + 1)
+    left = np.empty(k + 1)
+    right = np.empty(k + 1)
+    wa = np.zeros(K)
+    wv = np.zeros(K)
+    wp = np.zeros(K)
+    for i in range(K):
+        h = u[i + 1] - u[i]
+        a = (b[i + 1] - b[i]) / (2.0 * h)
+        for r in range(R):
+            x = ends[i] if r == refine else u[i] + tau[r] * h
+            x = min(max(x, 0.0), 1.0)
+            sp = min(max(int(x * nseg), 0), nseg - 1)
+            if k == 3 and 2 <= sp < nseg - 2:
+                # a cubic's inner span: q' and q'' in closed form (uniform quadratic and
+                # linear bases), 3x cheaper than Cox-de Boor; the edges and other degrees use it
+                t = x * nseg - sp
+                n0, n2 = 0.5 * (1.0 - t) * (1.0 - t), 0.5 * t * t
+                n1 = 1.0 - n0 - n2
+                d1x = n0 * c1[sp, 0] + n1 * c1[sp + 1, 0] + n2 * c1[sp + 2, 0]
+                d1y = n0 * c1[sp, 1] + n1 * c1[sp + 1, 1] + n2 * c1[sp + 2, 1]
+                d2x = (1.0 - t) * c2[sp, 0] + t * c2[sp + 1, 0]
+                d2y = (1.0 - t) * c2[sp, 1] + t * c2[sp + 1, 1]
+            else:
+                d1x, d1y = _point(c1, k - 1, nseg, x, N, left, right)
+                d2x, d2y = _point(c2, k - 2, nseg, x, N, left, right)
+            tt = r / refine
+            bb = b[i] * (1.0 - tt) + b[i + 1] * tt
+            sb = np.sqrt(max(bb, 0.0))
+            for j in range(na):
+                t1 = d1x * M[j, 0] + d1y * M[j, 1]
+                t2 = d2x * M[j, 0] + d2y * M[j, 1]
+                acc = abs(t1 * a + t2 * bb) / amax[j]
+                vel = abs(t1) * sb / vmax[j]
+                if acc > wa[i]:
+                    wa[i] = acc
+                if vel > wv[i]:
+                    wv[i] = vel
+            if pen > 0.0:
+                p = np.hypot(d1x, d1y) * sb / pen
+                if p > wp[i]:
+                    wp[i] = p
+    return wa, wv, wp

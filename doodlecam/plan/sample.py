@@ -240,9 +240,12 @@ def _crank_rows(J: np.ndarray, dt: float, vcap: np.ndarray, acap: np.ndarray):
     return A.csc(), rhs
 
 
-def _qp(p, tang, v_plan, end, dt, tol, limits, L, nrm=None, trust=None, crank=None):
+def _qp(p, tang, v_plan, end, dt, tol, limits, L, nrm=None, trust=None, crank=None, shifted=None):
     """One linearised QP. p: (m, 3) curve points relative to the start and
     their u, tang: (m, 2) tangents per mm of shift, end: (2,). Returns (v, x, d) or None.
+
+    ``shifted`` (m,): how far (mm of arc) p already lies from the anchor points; the cost is
+    the total shift (shifted + d)^2, so re-linearised solves converge to one answer.
 
     ``nrm`` (m, 2): unit normals of the curve at the instants; the targets'
     components along them are penalised with NORMAL_WEIGHT.
@@ -271,7 +274,8 @@ def _qp(p, tang, v_plan, end, dt, tol, limits, L, nrm=None, trust=None, crank=No
         pdata[dx] += w * nx_ * nx_
         pdata[dy] += w * ny_ * ny_
         pdata[cross] = w * nx_ * ny_
-    q = np.concatenate([-lam * v_plan[:n, 0], -lam * v_plan[:n, 1], np.zeros(nx + m)])
+    q = np.concatenate([-lam * v_plan[:n, 0], -lam * v_plan[:n, 1], np.zeros(nx),
+                        np.zeros(m) if shifted is None else shifted])
     rhs = [np.zeros(2 * m), end]
     for sign in (1.0, -1.0):
         for a in range(2):
@@ -378,7 +382,8 @@ def sample_stroke(stroke: Stroke, dt: float, limits, steps_per_mm=(80.0, 80.0), 
         v_plan = spline(u, 1) * (c * ud)[:, None]
         v_plan[-1] = 0.0
         ok = False
-        for _ in range(5 if follow else 3):  # linearise, solve, re-linearise at the shifted points
+        anchor = u  # where the shifts are costed from: the planned points, then the first solve's
+        for it in range(5 if follow else 3):  # linearise, solve, re-linearise at the shifted points
             p = spline(u) - start
             d1 = spline(u, 1)
             tang = d1 / L  # d is in mm of arc (roughly): q(u + d/L) ~ q + q' d / L
@@ -395,7 +400,8 @@ def sample_stroke(stroke: Stroke, dt: float, limits, steps_per_mm=(80.0, 80.0), 
                 crank = _crank_rows(J, dt, limits.vmax * crank_share[0] * (1 - 1e-6) - absJ @ (1.0 / k),
                                     limits.amax * crank_share[1] * (1 - 1e-6) - absJ @ (2.0 / (k * dt)))
             # the box is 3/4 of the tolerance: the rest absorbs the linearisation error
-            res = _qp(np.column_stack([p, u]), tang, v_plan, end, dt, 0.75 * tol, limits, L, nrm, trust, crank)
+            res = _qp(np.column_stack([p, u]), tang, v_plan, end, dt, 0.75 * tol, limits, L, nrm, trust, crank,
+                      (u - anchor) * L)
             if res is None:
                 break
             v, x, d = res
@@ -407,6 +413,11 @@ def sample_stroke(stroke: Stroke, dt: float, limits, steps_per_mm=(80.0, 80.0), 
                 u = u_new
                 break
             u = np.maximum.accumulate(u_new)
+            if it == 0:
+                # the first solve sets the samples' timing (whole-period ramps cannot keep the
+                # plan's); costing later shifts from there, not from the last solve, lets the
+                # re-linearised solves converge instead of drifting (docs/sampling.md)
+                anchor = u
         if ok:
             vel = np.vstack([v, np.zeros((1, 2))])
             return StrokeSamples(start=start, velocity=vel, delta_time=dt, time_scale=c, sample_u=np.append(0.0, u))
