@@ -1,6 +1,13 @@
 """``python -m doodlecam`` is the ``doodlecam`` command (and ``entry`` its console script)."""
 
+import os
 import sys
+
+# The pipeline's matrix products are small ((n, 2) @ (2, 2)): BLAS threads would only spin,
+# costing CPU time (measured: 13 s of a 36 s plan). doodlecam's parallelism is its own worker
+# processes (convert --workers, batch --jobs). A user's setting is kept.
+for _var in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):
+    os.environ.setdefault(_var, "1")
 
 
 def entry() -> None:

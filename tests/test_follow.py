@@ -113,11 +113,20 @@ def test_path_tolerance_keeps_the_plc_on_the_curve_between_samples(tmp_path):
     assert machine.path_tolerance == 0.1  # the default profile keeps it
     res = convert(horse, tmp_path, Settings(machine=machine, posts=("plc",)))
     header, runs = plc_strokes(tmp_path / "horse.plc")
-    assert len(runs) == len(res.job.strokes)
-    for run, stroke, smp in zip(runs, res.job.strokes, res.job.samples):
-        executed = StrokeSamples(start=run["start"], velocity=np.array(run["v"]), delta_time=header.delta_time,
-                                 sample_u=smp.sample_u)
-        assert path_deviation(stroke.spline, executed).max() <= 0.1 + 1e-3  # whole steps/s: a hair
+    # a run of DRAWs holds the pieces the pen draws without lifting (a long stroke is fitted in
+    # pieces that meet exactly, Job.lifts): each piece goes on from where the last one ended
+    assert len(runs) == sum(res.job.lifts)
+    pieces = iter(zip(res.job.strokes, res.job.samples))
+    for run in runs:
+        v, at, start = np.array(run["v"]), 0, np.asarray(run["start"], float)
+        while at < len(v):
+            stroke, smp = next(pieces)
+            n = len(smp.velocity)
+            executed = StrokeSamples(start=start, velocity=v[at:at + n], delta_time=header.delta_time,
+                                     sample_u=smp.sample_u)
+            assert path_deviation(stroke.spline, executed).max() <= 0.1 + 1e-3  # whole steps/s: a hair
+            start, at = executed.integrate()[-1], at + n
+    assert next(pieces, None) is None
     assert res.job.meta["max_between_samples_mm"] <= 0.1
     off = convert(horse, tmp_path / "d", Settings(machine=replace(machine, path_tolerance=0.0), posts=("plc",)))
     assert off.job.meta["max_between_samples_mm"] > 0.1  # without it the ramps do stray
