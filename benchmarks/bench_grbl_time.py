@@ -16,6 +16,14 @@ environment, never in doodlecam's::
     python3 -m venv /tmp/vpype-env && /tmp/vpype-env/bin/pip install vpype vpype-gcode
     .venv/bin/python benchmarks/bench_grbl_time.py --vpype /tmp/vpype-env/bin/vpype
 
+With ``--firmware GRBL_LOCK`` (GRBL 1.1h's own code in the load-independent simulator of
+``../shared/grbl-fw``: ``build.sh OUTDIR`` makes ``OUTDIR/grbl_lock``) the ``cap`` and ``vpype``
+programs also run on the firmware with the doodlebot EEPROM (``--eeprom``), and the table gives
+its job times (``job_s``) and their ratio: the independent reference for the model::
+
+    /work/shared/grbl-fw/build.sh /tmp/fw
+    .venv/bin/python benchmarks/bench_grbl_time.py --vpype /tmp/vpype-env/bin/vpype --firmware /tmp/fw/grbl_lock
+
 Prints a markdown table; exits non-zero if ``cap`` is not at most 0.9x ``vpype`` everywhere.
 """
 
@@ -71,10 +79,27 @@ def svg(lines: list[np.ndarray], w: float, h: float) -> str:
             f"{paths}</svg>\n")
 
 
+def firmware_time(grbl_lock: Path, eeprom: Path, gcode: str, run: Path) -> float:
+    """GRBL 1.1h's own job time (s) for the program, from the simulator's summary line."""
+    import shutil
+
+    run.mkdir(parents=True, exist_ok=True)
+    shutil.copy(eeprom, run / "EEPROM.DAT")
+    p = subprocess.run([str(grbl_lock.resolve()), "-s", "trace.txt"], input=gcode.encode(), cwd=run,
+                       capture_output=True, check=True)
+    last = p.stderr.decode().strip().splitlines()[-1]
+    words = dict(w.split("=", 1) for w in last.split() if "=" in w)
+    if int(words.get("error", 0)) or int(words.get("alarm", 0)):
+        raise SystemExit(f"the firmware answered errors or alarms: {last}")
+    return float(words["job_s"])
+
+
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--vpype", required=True, help="the vpype executable of the benchmark environment")
     ap.add_argument("--samples", nargs="*", default=SAMPLES)
+    ap.add_argument("--firmware", type=Path, help="grbl_lock built from ../shared/grbl-fw (build.sh OUTDIR)")
+    ap.add_argument("--eeprom", type=Path, default=ROOT.parent / "shared" / "grbl-fw" / "eeprom-doodlebot" / "EEPROM.DAT")
     args = ap.parse_args()
 
     from doodlecam.link.grbl.timing import GrblSettings, estimate_gcode
@@ -111,12 +136,19 @@ def main() -> int:
             n = {k: sum(1 for x in v.splitlines() if x.startswith("G1")) for k, v in text.items()}
             ratio = t["cap"] / t["vpype"]
             worst = max(worst, ratio)
+            fw = ""
+            if args.firmware:
+                f = {k: firmware_time(args.firmware, args.eeprom, text[k], Path(tmp) / f"fw-{name}-{k}") for k in ("cap", "vpype")}
+                fw = f" {f['cap']:.2f} | {f['vpype']:.2f} | {f['cap'] / f['vpype']:.3f} | {t['cap'] / f['cap']:.3f} |"
             rows.append(f"| {name} | {len(job.strokes)} | {t['plan']:.1f} ({n['plan']}) | {t['vpype']:.1f} ({n['vpype']}) "
-                        f"| {t['cap']:.1f} ({n['cap']}) | {ratio:.3f} | {cpu['cap']:.2f} / {cpu['plan']:.2f} |")
+                        f"| {t['cap']:.1f} ({n['cap']}) | {ratio:.3f} | {cpu['cap']:.2f} / {cpu['plan']:.2f} |" + fw)
     print("GRBL 1.1 job time by doodlecam's planner model, s (G1 lines); doodlebot, $11=0.010, $1=25 ms, "
           "chord tolerance 0.05 mm\n")
-    print("| picture | strokes | feeds=plan | vpype-gcode F9000 | feeds=cap (default) | cap / vpype | post CPU s cap / plan |")
-    print("|---|---|---|---|---|---|---|")
+    head = "| picture | strokes | feeds=plan | vpype-gcode F9000 | feeds=cap (default) | cap / vpype | post CPU s cap / plan |"
+    if args.firmware:
+        head += " firmware: cap s | firmware: vpype s | firmware: cap / vpype | estimate / firmware (cap) |"
+    print(head)
+    print("|" + "---|" * (head.count("|") - 1))
     print("\n".join(rows))
     return 0 if worst <= 0.9 else 1
 
