@@ -1,5 +1,8 @@
 import os
+import shutil
+import subprocess
 import tempfile
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -20,6 +23,32 @@ settings.load_profile(os.environ.get("HYPOTHESIS_PROFILE", "default"))
 os.environ["XDG_CONFIG_HOME"] = tempfile.mkdtemp(prefix="doodlecam-test-config-")
 # ... and the simulators' non-volatile memory (the PLC simulator keeps one per port there by default)
 os.environ["XDG_STATE_HOME"] = tempfile.mkdtemp(prefix="doodlecam-test-state-")
+
+GRBL_FIRMWARE = Path(__file__).resolve().parents[2] / "shared" / "grbl-fw"
+
+
+@pytest.fixture(scope="session")
+def grbl_firmware(tmp_path_factory):
+    """GRBL 1.1h's own code in ../shared/grbl-fw's load-independent simulator, built once per run:
+    ``run(text, *args)`` feeds it ``text`` with the doodlebot EEPROM (its README) and returns GRBL's
+    answers and the fields of its summary line (ok, error, alarm, job_s, ...)."""
+    if not (GRBL_FIRMWARE / "build.sh").is_file() or shutil.which("gcc") is None:
+        pytest.skip("GRBL's firmware simulator (../shared/grbl-fw) or gcc is not here")
+    out = tmp_path_factory.mktemp("grblfw")
+    r = subprocess.run(["bash", str(GRBL_FIRMWARE / "build.sh"), str(out)], capture_output=True, text=True, timeout=300)
+    if not (out / "grbl_lock").is_file():
+        pytest.skip(f"the firmware simulator did not build: {r.stderr[-300:]}")
+
+    def run(text: str, *args: str) -> tuple[str, dict[str, str]]:
+        run_dir = Path(tmp_path_factory.mktemp("run"))
+        shutil.copy(GRBL_FIRMWARE / "eeprom-doodlebot" / "EEPROM.DAT", run_dir / "EEPROM.DAT")
+        p = subprocess.run([str(out / "grbl_lock"), *args], input=text, cwd=run_dir, capture_output=True, text=True,
+                           timeout=600)
+        end = p.stderr.strip().splitlines()[-1]
+        return p.stdout, dict(kv.split("=", 1) for kv in end.split() if "=" in kv)
+
+    return run
+
 
 PROFILE = {
     "machine": {"name": "testbot", "kinematics": "cartesian"},

@@ -8,35 +8,19 @@ segments it has prepared ahead)."""
 from __future__ import annotations
 
 import re
-import shutil
-import subprocess
-from pathlib import Path
 
 import numpy as np
 import pytest
 
 from doodlecam.link.grbl.emulator import GrblConfig, GrblEmulator
 
-FW = Path(__file__).resolve().parents[2] / "shared" / "grbl-fw"
 
 
 @pytest.fixture(scope="module")
-def firmware(tmp_path_factory):
-    if not (FW / "build.sh").is_file() or shutil.which("gcc") is None:
-        pytest.skip("GRBL's firmware simulator (../shared/grbl-fw) or gcc is not here")
-    out = tmp_path_factory.mktemp("grblfw")
-    r = subprocess.run(["bash", str(FW / "build.sh"), str(out)], capture_output=True, text=True, timeout=300)
-    if not (out / "grbl_lock").is_file():
-        pytest.skip(f"the firmware simulator did not build: {r.stderr[-300:]}")
-
+def firmware(grbl_firmware):  # tests/conftest.py builds the firmware once
     def run(text: str) -> tuple[list[str], float]:
-        run_dir = Path(tmp_path_factory.mktemp("run"))
-        shutil.copy(FW / "eeprom-doodlebot" / "EEPROM.DAT", run_dir / "EEPROM.DAT")
-        p = subprocess.run([str(out / "grbl_lock")], input=text, cwd=run_dir, capture_output=True, text=True,
-                           timeout=600)
-        end = p.stderr.strip().splitlines()[-1]
-        job = float(re.search(r"job_s=([0-9.]+)", end).group(1))
-        return [x for x in p.stdout.replace("\r", "").split("\n")[2:] if x], job  # after the banner
+        out, fields = grbl_firmware(text)
+        return [x for x in out.replace("\r", "").split("\n")[2:] if x], float(fields["job_s"])  # after the banner
 
     return run
 

@@ -6,37 +6,21 @@ step turns a junction by a degree or two and the firmware slows there; the model
 
 from __future__ import annotations
 
-import shutil
-import subprocess
-from pathlib import Path
 
 import numpy as np
 import pytest
 
 from doodlecam.link.grbl import timing
 
-FW = Path(__file__).resolve().parents[2] / "shared" / "grbl-fw"
 # the simulator's EEPROM (its README): $100..$102=80, $110..$112=9000 mm/min, $120..$122=2000 mm/s^2, $11=0.010, $1=25
 SETTINGS = timing.GrblSettings((150.0, 150.0, 150.0), (2000.0, 2000.0, 2000.0), 0.01, steps_per_mm=(80.0, 80.0, 80.0))
 
 
 @pytest.fixture(scope="module")
-def firmware(tmp_path_factory):
-    if not (FW / "build.sh").is_file() or shutil.which("gcc") is None:
-        pytest.skip("GRBL's firmware simulator (../shared/grbl-fw) or gcc is not here")
-    out = tmp_path_factory.mktemp("grblfw")
-    r = subprocess.run(["bash", str(FW / "build.sh"), str(out)], capture_output=True, text=True, timeout=300)
-    if not (out / "grbl_lock").is_file():
-        pytest.skip(f"the firmware simulator did not build: {r.stderr[-300:]}")
-
+def firmware(grbl_firmware):  # tests/conftest.py builds the firmware once
     def run(gcode: str) -> float:
-        run_dir = Path(tmp_path_factory.mktemp("run"))
-        shutil.copy(FW / "eeprom-doodlebot" / "EEPROM.DAT", run_dir / "EEPROM.DAT")
-        p = subprocess.run([str(out / "grbl_lock"), "-s", "trace.txt"], input=gcode, cwd=run_dir,
-                           capture_output=True, text=True, timeout=600)
-        end = p.stderr.strip().splitlines()[-1]
-        fields = dict(kv.split("=", 1) for kv in end.split()[1:] if "=" in kv)
-        assert fields["error"] == "0" and fields["alarm"] == "0", end
+        _, fields = grbl_firmware(gcode, "-s", "trace.txt")
+        assert fields["error"] == "0" and fields["alarm"] == "0", fields
         return float(fields["job_s"])
 
     return run
