@@ -393,23 +393,13 @@ class GcodePost(PostProcessor):
             raise OutputError("job is not planned (a stroke has no feed profile); plan it before writing G-code")
         spm = np.array([machine.x.steps_per_mm, machine.y.steps_per_mm])
         if mode == "cap":
-            from doodlecam.link.grbl.timing import _segment_time
-
             feed = max(cap, min_feed)
-            if stroke.spline.straight:  # one chord (what the search below finds, without the search)
-                p = np.round(stroke.spline(np.array([0.0, 1.0])), 3)
-                p = p[_one_step_apart(p, spm)]
-                return p, np.full(len(p) - 1, feed), {}
-            best, best_t = None, np.inf
-            for u in self._cap_candidates(stroke, tol):  # coarse to fine
-                p = np.round(stroke.spline(u), 3)
-                p = p[_one_step_apart(p, spm)]
+            (best, feeds, _), = self._cap_paths([stroke], [feed], tol, machine, grbl, baud)
+            if arcs and not stroke.spline.straight:
+                from doodlecam.link.grbl.timing import _segment_time
+
                 # a stroke runs from rest to rest (the pen commands empty GRBL's planner)
-                bt = _segment_time(np.c_[p, np.zeros(len(p))], np.full(len(p) - 1, feed / 60.0), grbl)
-                if best is not None and (bt.sum() >= best_t or not _serial_keeps_up(p, bt, baud)):
-                    break  # finer chords stopped paying (the gain is single-peaked in practice) or outrun the line
-                best, best_t = p, bt.sum()
-            if arcs:
+                best_t = _segment_time(np.c_[best, np.zeros(len(best))], np.full(len(best) - 1, feed / 60.0), grbl).sum()
                 cand = self._arc_candidate(stroke, tol, spm)
                 if cand is not None:
                     p, arc = cand
@@ -417,7 +407,7 @@ class GcodePost(PostProcessor):
                     bt = _segment_time(np.c_[pts, np.zeros(len(pts))], np.full(len(pts) - 1, feed / 60.0), grbl)
                     if bt.sum() < best_t and _serial_keeps_up(pts, bt, baud, nbytes=nbytes):
                         return p, np.full(len(p) - 1, feed), arc
-            return best, np.full(len(best) - 1, feed), {}
+            return best, feeds, {}
         u = self._plan_points(stroke, dt, tol, min_feed)
         p = np.round(stroke.spline(u), 3)
         keep = _one_step_apart(p, spm)  # also drops moves that round to zero length
