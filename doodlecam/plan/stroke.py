@@ -113,18 +113,22 @@ def plan_one(ctx: Context, n: int, total: int, stroke: Stroke, pen) -> Outcome:
             smp = sample(s)
         return s, ratios, smp, path_deviation(s.spline, written_samples(smp, ctx.steps))  # what the machine draws
 
-    def degenerate_on(jerk_max, grid=None):
-        """The plan within jerk_max, or None where the jerk rows pin it down: they take sqrt(b)
-        from a profile the plan stays below, and where the curve turns very tightly over a dense
-        grid that can hold b near 0 (seen: 6 mm planned to take 1.5e5 s, or stopped mid-stroke)."""
+    least = _least_time(stroke.spline, plan_limits)
+
+    def planned_within(jerk_max, grid=None):
+        """The plan within jerk_max (None: no jerk bound), or None where the jerk rows pin it down:
+        they take sqrt(b) from a profile the plan stays below, and where the curve turns very tightly
+        over a dense grid that can hold b near 0 (seen: 6 mm planned to take 1.5e5 s, or stopped mid-stroke)."""
+        if jerk_max is None:
+            return plan(None, grid)
         try:
             out = plan(jerk_max, grid)
         except PlanError:
             return None
-        return None if out[0].profile.duration > ABSURD * _least_time(stroke.spline, plan_limits) + 1.0 else out
+        return None if out[0].profile.duration > ABSURD * least + 1.0 else out
 
     bound = ctx.jerk
-    planned = degenerate_on(bound) if bound is not None else plan(None)
+    planned = planned_within(bound)
     if planned is None:
         # plan without the bound and let the slowing below keep the path tolerance (bounded:
         # 1 / SLOW_STEP^SLOW_REPLANS times the plan at most)
@@ -144,7 +148,7 @@ def plan_one(ctx: Context, n: int, total: int, stroke: Stroke, pen) -> Outcome:
                 bound = replace(bound, base=bound.base * GLOBAL_JERK_STEP)
         else:  # the bound alone did not end it: slow the whole stroke, which does
             slow *= SLOW_STEP
-        again = plan(bound, s.profile.u) if bound is None else degenerate_on(bound, s.profile.u)
+        again = planned_within(bound, s.profile.u)
         if again is None:
             bound = None  # the lower bound pinned the plan down: slow the stroke instead
             again = plan(None, s.profile.u)
