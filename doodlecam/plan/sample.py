@@ -437,8 +437,15 @@ def straight_samples(stroke: Stroke, dt: float, limits, k: np.ndarray, tol: floa
     D exactly, is the optimum (scaling down keeps every limit). Generated
     drawings are mostly such lines: this is ~50x cheaper than the QP. ``limits``
     are already lowered for whole steps; None (use the QP) for nonlinear
-    kinematics, a curve, a stroke under one step long, or instants more than
-    ``tol`` per axis off the line (the whole-step ends can tilt it that far).
+    kinematics, a curve, a stroke under one step long, or an instant too far
+    off its aim.
+
+    The whole-step ends tilt the drawn segment off the line by up to half a
+    step per axis at each end. Each instant aims at the point as far along the
+    line as it is along the segment, so its offset is the blend of the ends'
+    (at most half a step per axis); it must be within ``tol`` or within half a
+    step less what writing the targets in whole steps/s may move it (dT / 2
+    steps), else the QP bends the pen onto the line.
     """
     from doodlecam.plan.planner import is_straight
 
@@ -463,7 +470,7 @@ def straight_samples(stroke: Stroke, dt: float, limits, k: np.ndarray, tol: floa
     while True:
         j = np.arange(1, m)
         speed = np.minimum(np.minimum(dv * j, dv * (m - j)), vcap)
-        reach = dt * float(speed.sum())
+        reach = dt * float(np.cumsum(speed)[-1])  # summed in order, as plan.lines' compiled loop sums it
         if reach >= D:
             break
         m += 1
@@ -472,13 +479,17 @@ def straight_samples(stroke: Stroke, dt: float, limits, k: np.ndarray, tol: floa
     f = np.minimum(np.append(0.0, np.cumsum(0.5 * dt * (v[1:] + v[:-1]))) / D, 1.0)  # instants 0 .. m dT
     a0, d = spline.start, spline.end - spline.start
     pos = start + f[:, None] * end
-    u = np.clip((pos - a0) @ d / float(d @ d), 0.0, 1.0)  # the straight spline is a0 + u d
-    if np.abs(pos - (a0 + u[:, None] * d))[:-1].max() > tol:
+    u = f  # the straight spline is a0 + u d
+    if (np.abs(pos - (a0 + u[:, None] * d))[1:-1] > straight_bound(tol, k, dt)).any():
         return None
-    u[-1] = 1.0
     vel = np.vstack([speed[:, None] * e, np.zeros((1, 2))])
     return StrokeSamples(start=start, velocity=vel, delta_time=dt, time_scale=stroke.profile.duration / (m * dt),
                          sample_u=u)
+
+
+def straight_bound(tol: float, k: np.ndarray, dt: float) -> np.ndarray:
+    """Per axis (mm), how far a straight stroke's instant may be from its aim (straight_samples)."""
+    return np.maximum(tol, (0.5 - 0.5 * dt - 1e-9) / np.asarray(k, float))
 
 
 def _jacobians(kinematics, xy: np.ndarray) -> np.ndarray:
