@@ -318,12 +318,14 @@ def _unknown_key(err: dict, model, prefix: tuple, loc: tuple) -> str:
     known = list(owner.model_fields) if owner is not None else []
     is_table = isinstance(err.get("input"), dict)
     key = dotted(prefix + loc)
-    hint = did_you_mean(leaf, known, "[]" if is_table and not parent else "''")
-    if not hint and not parent and not is_table:
+    top = not parent and not prefix  # the file's own top level: tables
+    if top and not is_table:  # a key above every table: the tables it belongs in
         homes = _where_else(model, leaf)
         hint = f" (it belongs under {' or '.join(homes)})" if homes else ""
+    else:
+        hint = did_you_mean(leaf, known, "[]" if is_table and top else "''")
     if not hint:
-        listed = ", ".join(f"[{dotted(prefix + parent + (k,))}]" if not parent or _node(model, parent + (k,))[0] else k
+        listed = ", ".join(f"[{dotted(prefix + parent + (k,))}]" if top or _node(model, parent + (k,))[0] else k
                            for k in known)
         hint = f" (known here: {listed})"
     return f"unknown {f'table [{key}]' if is_table else f'key {key}'}{hint}; rename or remove it"
