@@ -298,7 +298,8 @@ def message(err: dict, model: type[BaseModel] = Profile, prefix: tuple = ()) -> 
         return f"{key}{shown} is unknown{did_you_mean(str(err['input']), known)}; use one of {', '.join(known)}"
     if kind in _BOUNDS:
         words, bound = _BOUNDS[kind]
-        return f"{key}{shown} must be {words} {_shown(ctx[bound])}; {fix}"
+        limit = {"gt": "positive", "ge": "0 or more"}.get(bound) if ctx[bound] == 0 else None
+        return f"{key}{shown} must be {limit or f'{words} {_shown(ctx[bound])}'}; {fix}"
     if kind == "too_short" and key == dotted(prefix + ("pen",)):
         return f"[[{key}]] is empty; give at least one pen, or use a single [pen] table"
     if kind in ("dict_type", "model_type") and fix == "fix the profile":

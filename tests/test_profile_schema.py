@@ -34,7 +34,7 @@ MISTAKES = {
                     "axes.y.steps_per_mm is missing; add it under [axes.y]: steps_per_mm = motor steps per mm of "
                     "travel, e.g. 80"),
     "pen entry": ("[pen]\nwidth = 0.5", '[[pen]]\nname = "black"\n[[pen]]\nname = "red"\nwidth = -0.3',
-                  "pen[2].width = -0.3 must be more than 0; give the line width in mm, e.g. 0.5 "
+                  "pen[2].width = -0.3 must be positive; give the line width in mm, e.g. 0.5 "
                   "(shorter strokes are dropped)"),
     "stray key": ("[machine]\n", "margin = 5\n[machine]\n",
                   "unknown key margin (it belongs under [work_area] or [layout]); rename or remove it"),
