@@ -28,7 +28,7 @@ Int = Annotated[int, Strict()]
 Text = Annotated[str, Strict()]
 
 
-def _unknown(value: str, known) -> PydanticCustomError:
+def _unknown(known) -> PydanticCustomError:
     """A name that is not one of ``known``: the formatter adds the did-you-mean and the list."""
     return PydanticCustomError("unknown_name", "unknown name", {"known": tuple(known)})
 
@@ -50,7 +50,7 @@ class MachineTable(Table):
     @classmethod
     def _solver(cls, v: str) -> str:
         if v not in SOLVERS:
-            raise _unknown(v, SOLVERS)
+            raise _unknown(SOLVERS)
         return v
 
 
@@ -122,7 +122,7 @@ class Travel(Table):
         try:
             return travel_law_name(v)
         except ValueError:
-            raise _unknown(v, list(TRAVEL_LAWS) + list(TRAVEL_ALIASES)) from None
+            raise _unknown(list(TRAVEL_LAWS) + list(TRAVEL_ALIASES)) from None
 
 
 class Sampling(Table):
