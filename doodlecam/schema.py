@@ -323,8 +323,11 @@ def _unknown_key(err: dict, model, prefix: tuple, loc: tuple) -> str:
     if top and not is_table:  # a key above every table: the tables it belongs in
         homes = _where_else(model, leaf)
         hint = f" (it belongs under {' or '.join(homes)})" if homes else ""
+    elif is_table:  # shown as the header to write: [axes.x]
+        near = difflib.get_close_matches(leaf.casefold(), [k.casefold() for k in known], n=1, cutoff=0.6)
+        hint = f" (did you mean [{dotted(prefix + parent + (near[0],))}]?)" if near else ""
     else:
-        hint = did_you_mean(leaf, known, "[]" if is_table and top else "''")
+        hint = did_you_mean(leaf, known)
     if not hint:
         listed = ", ".join(f"[{dotted(prefix + parent + (k,))}]" if top or _node(model, parent + (k,))[0] else k
                            for k in known)

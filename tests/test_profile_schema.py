@@ -78,6 +78,8 @@ def refused(edit) -> str:
 def test_messages_of_the_nested_tables():
     assert refused(lambda d: d.update(axis={})) == ("p.toml: unknown table [axis] (did you mean [axes]?); "
                                                     "rename or remove it")
+    assert refused(lambda d: d["axes"].update(xx=d["axes"].pop("x"))) == (
+        "p.toml: unknown table [axes.xx] (did you mean [axes.x]?); rename or remove it")  # not also "missing"
     assert refused(lambda d: d["axes"].update(z={})) == ("p.toml: unknown table [axes.z] (known here: [axes.x], "
                                                          "[axes.y]); rename or remove it")
     assert refused(lambda d: d.pop("work_area")) == ("p.toml: missing table [work_area]; add it with the keys "
