@@ -184,15 +184,15 @@ def test_4_undo_restores_the_plan(page, server):
     assert page.text_content("#stat-time") == f"{s['job_time_s']:.2f} s"
 
 
-def test_4b_right_click_inserts_a_control_point_and_ctrl_z_undoes(page, server):
+def test_4b_right_click_offers_insert_after_and_ctrl_z_undoes(page, server):
     k = page.evaluate("studio.selected")
     assert k >= 0
     n = len(page.evaluate(f"studio.view.strokes[{k}].control"))
     c = page.evaluate(f"studio.view.strokes[{k}].control[3]")
     x, y = page.evaluate(f"studioScreen({c[0]}, {c[1]})")
     box = page.locator("#paper").bounding_box()
-    page.once("dialog", lambda d: d.accept())  # "Insert a control point after point 4?"
-    page.mouse.click(box["x"] + x, box["y"] + y, button="right")
+    page.mouse.click(box["x"] + x, box["y"] + y, button="right")  # the point's menu: insert after / delete
+    page.click("#point-menu [data-point-op=insert]")
     page.wait_for_function(f"studio.view.strokes[{k}].control.length === {n + 1}")
     assert summary(server)["can_undo"]
     page.keyboard.press("Control+z")
@@ -224,7 +224,7 @@ def test_5_export_gcode_equals_convert(page, server, tmp_path):
 
 
 def test_6_simulate(page, server):
-    page.select_option("#sim-speed", "16")
+    page.select_option("#sim-speed", "10")
     page.click("#play")
     page.wait_for_function("studioPerf.frames.length > 30", timeout=30_000)
     page.click("#play")  # pause

@@ -135,6 +135,9 @@ class Session:
         job = plan_job(mm, self.machine, settings.solver or self.machine.solver, settings.plugin_dirs,
                        smoothing=settings.smoothing, order=settings.order)
         job.meta["tracer_made"] = drawing.meta.get("made")  # the tracer's line on what it drew, for the page
+        if drawing.meta.get("format") == "mesh":  # the STL panel: the mesh's extent and where it was cut
+            job.meta["mesh"] = {k: drawing.meta[k] for k in ("bounds_mm", "plane", "level_mm", "span_mm", "direction")
+                                if k in drawing.meta}
         return job
 
     def _require(self) -> Job:
@@ -261,9 +264,16 @@ class Session:
                     raise InputError("move needs 'control': a list of [x, y] control points in mm")
                 if len(control) < deg + 1:
                     raise InputError(f"a stroke needs at least {deg + 1} control points")
+                if len(control) != len(ctrl):  # a move never changes their number (that is insert / delete_point)
+                    raise InputError(f"move keeps the stroke's {len(ctrl)} control points (got {len(control)}); "
+                                     "use insert or delete_point to change their number")
                 strokes[i] = Stroke(Spline(deg, control), source_index=st.source_index)
             elif op == "insert":  # a new point halfway between control points k and k + 1
-                k = self._index(kw.get("point"), len(ctrl) - 1, "control point")
+                k = self._index(kw.get("point"), len(ctrl), "control point")
+                if k == len(ctrl) - 1:
+                    raise InputError(f"control point {k} is the stroke's last; insert after an earlier one")
+                if len(ctrl) >= MAX_STROKE_CONTROL:
+                    raise InputError(f"a stroke has at most {MAX_STROKE_CONTROL} control points; refit it first")
                 strokes[i] = Stroke(Spline(deg, np.insert(ctrl, k + 1, (ctrl[k] + ctrl[k + 1]) / 2, axis=0)),
                                     source_index=st.source_index)
             elif op == "delete_point":
@@ -297,6 +307,8 @@ class Session:
             else:
                 raise InputError(f"unknown edit '{op}'; use move, insert, delete_point, delete, reverse, split, refit "
                                  "or reorder")
+            for n in changed:  # the edited curves, checked as a saved job's are, before any planning
+                check_spline(strokes[n].spline, self.machine, f"stroke {n}")
             self._set(self._rebuild(strokes, samples, changed))
             self.last_changed = tuple(sorted(changed)) if len(strokes) == len(job.strokes) else ()
             return self.summary()
@@ -345,7 +357,7 @@ class Session:
                 "worst_acceleration_ratio": round(job.meta.get("worst_acceleration_ratio", 0.0), 6),
                 "worst_velocity_ratio": round(job.meta.get("worst_velocity_ratio", 0.0), 6),
                 "tracer": self.tracer, "tracer_options": self.tracer_options,
-                "tracer_made": job.meta.get("tracer_made"),
+                "tracer_made": job.meta.get("tracer_made"), "mesh": job.meta.get("mesh"),
                 "can_undo": bool(self.undo_stack), "can_redo": bool(self.redo_stack),
                 "job": self.job_id, "version": self.version}
 
@@ -442,13 +454,16 @@ class Session:
                               "amax": [m.x.max_acceleration, m.y.max_acceleration],
                               "deviation": dev.tolist(), "path_tolerance": m.path_tolerance}}
 
-    def timeline(self) -> dict:
+    def timeline(self, layers: Any = None) -> dict:
         """The executed motion for the simulation: times (s) and pen positions (mm), pen state.
-        Strokes as the PLC integrates their velocity samples; travels by their law; pen delays as waits."""
+        Strokes as the PLC integrates their velocity samples; travels by their law; pen delays as waits.
+        ``layers``: the motion of those layers only (what 'plot one layer' sends: the live view follows it)."""
         from doodlecam.plan.travel import travel_state
 
         with self.lock:
             job = self._require()
+            if layers is not None:
+                job = self.only_layers(job, layers)
             m = self.machine
             ts, xs, pen = [0.0], [np.asarray(m.home, float)], [0]
             now = 0.0
@@ -538,6 +553,25 @@ def _curves(strokes: list[Stroke]) -> Drawing:
 DEGREES = range(2, 6)  # as the profiles' [fit] degree
 MAX_STROKE_CONTROL = 200_000  # control points in one stroke (a long continuous line)
 MAX_JOB_CONTROL = 2_000_000  # control points in the whole job
+
+
+def check_spline(spline: Spline, profile, what: str) -> None:
+    """An edited or loaded curve is a clamped B-spline the planner can take: a supported degree, enough and
+    not too many finite control points, none farther than one work area from it (a clamped B-spline lies in
+    the hull of its control points; the planner then checks the curve itself against the work area)."""
+    c = np.asarray(spline.control, float)
+    if spline.degree not in DEGREES:
+        raise InputError(f"{what}: degree {spline.degree}; the studio plans degrees 2 to 5")
+    if c.ndim != 2 or c.shape[1] != 2 or not np.isfinite(c).all():
+        raise InputError(f"{what}: control points must be finite [x, y] pairs in mm")
+    if not spline.degree + 1 <= len(c) <= MAX_STROKE_CONTROL:
+        raise InputError(f"{what}: {len(c)} control points; a degree-{spline.degree} stroke takes "
+                         f"{spline.degree + 1} to {MAX_STROKE_CONTROL}")
+    w, h = profile.width, profile.height
+    if c[:, 0].min() < -w or c[:, 1].min() < -h or c[:, 0].max() > 2 * w or c[:, 1].max() > 2 * h:
+        x, y = c[np.argmax(np.maximum.reduce([-w - c[:, 0], -h - c[:, 1], c[:, 0] - 2 * w, c[:, 1] - 2 * h]))]
+        raise InputError(f"{what}: control point ({x:.1f}, {y:.1f}) mm is outside the {w:g} x {h:g} mm work area "
+                         f"of '{profile.name}'; keep it on the paper")
 
 
 def read_job(data: bytes, name: str, machine: str | None = None, profile=None) -> tuple[list[Stroke], str]:
