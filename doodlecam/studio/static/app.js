@@ -1,7 +1,7 @@
 // doodlecam studio: the page. Plain ES modules, no build step.
 import { evaluate } from "/static/bspline.js";
 import { linePlot } from "/static/plot.js";
-import { follow as followLive, drawLive } from "/static/live.js";
+import { follow as followLive, drawLive, clearLive } from "/static/live.js";
 import { vectorPanel, meshSummary } from "/static/meshpanel.js";
 
 const $ = (id) => document.getElementById(id);
@@ -210,6 +210,7 @@ async function refresh() {
   legend();
   layersPanel();
   if (S.selected >= S.view.strokes.length) S.selected = -1;
+  clearLive(); // a finished send's drawing belongs to the job it drew
   if (S.timeline) { // a new or changed job: the simulation starts over on it
     S.timeline = null; S.sim.playing = false; S.sim.t = 0; $("scrub").value = 0; $("sim-time").textContent = "";
   }
@@ -224,6 +225,7 @@ async function applyPatch(p) {
   S.view.summary = p.summary;
   summary(p.summary);
   S.timeline = null; S.base = null;
+  clearLive();
   draw();
   if (S.selected >= 0) await figures(S.selected === p.figures.i ? p.figures : null);
 }
@@ -652,6 +654,7 @@ function liveView(s) {
   if (s.state === "sending" && s.total && s.executed >= s.total) // the link waits for the machine to be idle
     $("send-status").textContent += " — the machine is finishing its last moves";
 }
+$("live-hide").onclick = () => { if (clearLive()) draw(); };
 function follow() {
   const es = new EventSource(withToken("/api/send/events"));
   es.onmessage = (e) => { const s = JSON.parse(e.data); showSend(s); if (!ACTIVE.includes(s.state)) es.close(); };

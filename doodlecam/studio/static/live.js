@@ -55,6 +55,13 @@ export async function follow(s, timeline) {
   return true;
 }
 
+// The job changed, or the user hid the view: a finished send's drawing goes (a running one's stays).
+export function clearLive() {
+  if (ACTIVE.includes(live.state) || !live.timeline) return false;
+  live.timeline = live.loading = null;
+  return true;
+}
+
 // The executed part in ink over the veiled job (on the page's canvas only, not the simulation's base).
 export function drawLive(g, sx, sy, W, H) {
   const tl = live.timeline;
