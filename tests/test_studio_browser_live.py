@@ -66,10 +66,17 @@ def test_1_select_a_point_then_insert_and_delete_it(page, server):
     open_file(page, ROOT / "samples" / "images" / "horse.png")
     session = server["app"].state.session
     k = _select_longest(page)
+    page.fill("#refit-tolerance", "0.3")  # a traced stroke's hundreds of points become a few handles first
+    version = page.evaluate("studio.view.summary.version")
+    page.click("#stroke-tools button[data-op=refit]")
+    page.wait_for_function(f"studio.view.summary.version !== {version}", timeout=30_000)
     n = controls(page, k)
     assert page.is_disabled("#insert-point") and page.is_disabled("#delete-point")
     j = n // 2
     c = page.evaluate(f"studio.view.strokes[{k}].control[{j}]")
+    page.mouse.move(*at(page, *c))
+    for _ in range(4):
+        page.mouse.wheel(0, -300)  # zoom in around it (the screenshot shows the handles)
     page.mouse.click(*at(page, *c))  # a click without a drag selects the point
     assert page.evaluate("studio.point") == j
     assert page.text_content("#point-hint").startswith(f"point {j + 1} of {n} selected: I inserts")
@@ -90,14 +97,16 @@ def test_1_select_a_point_then_insert_and_delete_it(page, server):
     page.keyboard.press("i")
     page.wait_for_function(f"studio.view.strokes[{k}].control.length === {n + 1}", timeout=30_000)
     # the right-click menu: select the point and offer both actions (no confirm dialog)
-    c = page.evaluate(f"studio.view.strokes[{k}].control[2]")
+    c = page.evaluate(f"studio.view.strokes[{k}].control[{j - 1}]")
     page.mouse.click(*at(page, *c), button="right")
     page.wait_for_selector("#point-menu:not([hidden])")
-    assert page.evaluate("studio.point") == 2
+    assert page.evaluate("studio.point") == j - 1
     page.click("#point-menu [data-point-op=delete_point]")
     page.wait_for_function(f"studio.view.strokes[{k}].control.length === {n}", timeout=30_000)
     assert page.is_hidden("#point-menu")
     # the last point has no point after it: insert is not offered
+    for _ in range(4):
+        page.mouse.wheel(0, 300)  # zoom out again
     last = page.evaluate(f"studio.view.strokes[{k}].control[{n - 1}]")
     page.mouse.click(*at(page, *last))
     assert page.evaluate("studio.point") == n - 1 and page.is_disabled("#insert-point")
@@ -140,7 +149,7 @@ def test_2_the_simulation_plays_at_1x_to_50x_and_pauses_with_an_honest_clock(pag
     page.click("#play")
     time.sleep(0.3)
     assert page.text_content("#sim-time").endswith("at 10×")
-    shot(page, "simulate")
+    shot(page, "sim-speeds")
     page.click("#play")
 
 
@@ -233,3 +242,17 @@ def test_5_an_stl_gets_its_section_panel_and_the_same_job_as_the_cli(page, serve
     page.wait_for_selector("#stl-panel", state="hidden")
     assert page.is_hidden("#stl-panel") and page.is_visible("#tracer-options input[name=layers]")
     assert page.is_hidden("#tracer-options input[name=plane]")
+
+
+def test_6_live_view_of_a_send_to_the_eibotboard_emulator(page, tmp_path):
+    with serve(tmp_path, "axidraw-v3") as srv:  # a second studio, in a second tab of the same browser
+        pg = page.context.browser.new_page(viewport={"width": 1400, "height": 850})
+        errors = []
+        pg.on("pageerror", lambda e: errors.append(str(e)))
+        pg.goto(srv["url"])
+        pg.wait_for_selector("body[data-ready='1']")
+        open_file(pg, ROOT / "samples" / "vectors" / "badge.svg")
+        live_check(pg, srv, "ebb-simulator", "10")
+        pg.close()
+        srv["app"].state.sender.close()
+    assert not errors, errors
