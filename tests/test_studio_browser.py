@@ -87,6 +87,19 @@ def page(server):
         assert not errors, errors
 
 
+@contextlib.contextmanager
+def second_tab(page, url: str):
+    """Another tab of ``page``'s browser on ``url``, ready; closed at the end, with no page errors."""
+    pg = page.context.browser.new_page(viewport={"width": 1400, "height": 850})
+    errors = []
+    pg.on("pageerror", lambda e: errors.append(str(e)))
+    pg.goto(url)
+    pg.wait_for_selector("body[data-ready='1']")
+    yield pg
+    pg.close()
+    assert not errors, errors
+
+
 def shot(page, name: str) -> None:
     if SHOTS is not None:
         page.screenshot(path=str(SHOTS / f"studio-{name}.png"))
@@ -497,12 +510,8 @@ def test_14_an_axidraw_sends_to_its_eibotboard_with_pause_and_resume(page, tmp_p
     and the board receives every command of the job once, in order."""
     from doodlecam.link.ebb.jobfile import read_ebb
 
-    with serve(tmp_path, "axidraw-v3") as srv:  # a second studio, in a second tab of the same browser
-        pg = page.context.browser.new_page(viewport={"width": 1400, "height": 850})
-        errors = []
-        pg.on("pageerror", lambda e: errors.append(str(e)))
-        pg.goto(srv["url"])
-        pg.wait_for_selector("body[data-ready='1']")
+    # a second studio, in a second tab of the same browser
+    with serve(tmp_path, "axidraw-v3") as srv, second_tab(page, srv["url"]) as pg:
         offered = pg.evaluate("Array.from(document.querySelectorAll('#target option')).filter((o) => !o.hidden)"
                               ".map((o) => o.value)")
         assert offered == ["ebb-simulator", "ebb-serial"] and pg.input_value("#target") == "ebb-simulator"
@@ -527,6 +536,4 @@ def test_14_an_axidraw_sends_to_its_eibotboard_with_pause_and_resume(page, tmp_p
         pg.wait_for_selector("#send-status[data-state=done]", timeout=120_000)
         assert pg.text_content("#send-status").startswith(f"done: {len(lines)} commands in ")
         assert [c for c in emu.received if c.split(",")[0] not in ("V", "QM", "QS")] == lines
-        pg.close()
         sender.close()
-    assert not errors, errors

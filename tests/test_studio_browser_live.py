@@ -18,11 +18,10 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from test_studio_browser import CHROMIUM, CHROMIUM_ARGS, ROOT, _select_longest, serve, shot  # tests/ is on sys.path
+from test_studio_browser import ROOT, _select_longest, page, second_tab, serve, shot  # noqa: F401 (page: a fixture)
 
 from doodlecam.cli import main as cli_main
 
-playwright_api = pytest.importorskip("playwright.sync_api")
 
 
 @pytest.fixture(scope="module")
@@ -30,20 +29,6 @@ def server(tmp_path_factory):
     with serve(tmp_path_factory.mktemp("studio-live")) as srv:
         yield srv
         srv["app"].state.sender.close()
-
-
-@pytest.fixture(scope="module")
-def page(server):
-    with playwright_api.sync_playwright() as p:
-        browser = p.chromium.launch(executable_path=CHROMIUM, args=CHROMIUM_ARGS)
-        pg = browser.new_page(viewport={"width": 1400, "height": 850})
-        errors = []
-        pg.on("pageerror", lambda e: errors.append(str(e)))
-        pg.goto(server["url"])
-        pg.wait_for_selector("body[data-ready='1']")
-        yield pg
-        browser.close()
-        assert not errors, errors
 
 
 def open_file(page, path: Path) -> None:
@@ -129,11 +114,11 @@ def test_2_the_simulation_plays_at_1x_to_50x_and_pauses_with_an_honest_clock(pag
         page.locator("#scrub").dispatch_event("input")
         start = page.evaluate("studioPerf.frames.length")
         page.click("#play")
-        time.sleep(min(1.5, 0.6 * timeline["duration"] / speed))
+        time.sleep(min(1.5, 0.35 * timeline["duration"] / speed))
         page.click("#play")  # pause
         frames = page.evaluate(f"studioPerf.frames.slice({start})")
         playing = [f for f, g in zip(frames[1:], frames) if f["t"] > g["t"]]  # frames that moved the clock on
-        assert len(playing) > 20, len(playing)
+        assert len(playing) > 10, len(playing)
         a, b = playing[0], playing[-1]
         rate = (b["t"] - a["t"]) / ((b["at"] - a["at"]) / 1000)
         assert rate == pytest.approx(speed, rel=0.02)  # machine seconds per second on the screen
@@ -146,6 +131,8 @@ def test_2_the_simulation_plays_at_1x_to_50x_and_pauses_with_an_honest_clock(pag
         text = page.text_content("#sim-time")
         assert text.startswith(f"{paused:.1f} / {timeline['duration']:.1f} s") and text.endswith("paused")
     page.select_option("#sim-speed", "10")
+    page.locator("#scrub").fill("0")
+    page.locator("#scrub").dispatch_event("input")
     page.click("#play")
     time.sleep(0.3)
     assert page.text_content("#sim-time").endswith("at 10×")
@@ -245,14 +232,8 @@ def test_5_an_stl_gets_its_section_panel_and_the_same_job_as_the_cli(page, serve
 
 
 def test_6_live_view_of_a_send_to_the_eibotboard_emulator(page, tmp_path):
-    with serve(tmp_path, "axidraw-v3") as srv:  # a second studio, in a second tab of the same browser
-        pg = page.context.browser.new_page(viewport={"width": 1400, "height": 850})
-        errors = []
-        pg.on("pageerror", lambda e: errors.append(str(e)))
-        pg.goto(srv["url"])
-        pg.wait_for_selector("body[data-ready='1']")
+    # a second studio, in a second tab of the same browser
+    with serve(tmp_path, "axidraw-v3") as srv, second_tab(page, srv["url"]) as pg:
         open_file(pg, ROOT / "samples" / "vectors" / "badge.svg")
         live_check(pg, srv, "ebb-simulator", "10")
-        pg.close()
         srv["app"].state.sender.close()
-    assert not errors, errors

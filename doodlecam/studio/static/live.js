@@ -33,7 +33,8 @@ export async function follow(s, timeline) {
   const was = live.state;
   live.state = s.state;
   if (s.state === "idle") { const had = !!live.timeline; live.timeline = live.loading = null; return had; } // nothing sent
-  const fresh = ACTIVE.includes(s.state) && !ACTIVE.includes(was); // a new send (or a resumed one)
+  const active = ACTIVE.includes(s.state), fresh = active && !ACTIVE.includes(was); // a new (or resumed) send
+  if (!active && !live.timeline && !live.loading) return false; // a finished send's late news: nothing to show
   if (fresh || !live.timeline || String(live.layers) !== String(s.layers)) {
     live.layers = s.layers; live.timeline = null; live.k = 0; live.t = 0;
     live.loading = timeline(s.layers); // events that arrive meanwhile wait for the same answer
@@ -42,7 +43,9 @@ export async function follow(s, timeline) {
     const tl = await live.loading;
     if (live.loading) { live.timeline = tl; live.loading = null; }
   }
-  const tl = live.timeline, D = tl.duration;
+  const tl = live.timeline;
+  if (!tl) return false; // cleared while its timeline was on its way
+  const D = tl.duration;
   if (s.state === "done") { live.k = tl.t.length - 1; live.t = D; } // the link reported the machine idle at the end
   else if (s.position_mm) {
     // the link's time model (GRBL's planner, the PLC's periods) need not add up to the timeline's: scale it
