@@ -194,7 +194,12 @@ def test_3_live_view_of_a_send_to_the_plc_simulator(page, server):
 def test_4_live_view_of_a_send_to_the_grbl_emulator(page, server):
     if not page.text_content("#machine").endswith("badge.svg"):  # (run on its own)
         open_file(page, ROOT / "samples" / "vectors" / "badge.svg")
+    page.evaluate("delete document.body.dataset.finishing")
     live_check(page, server, "grbl-simulator", "10")
+    # every line was answered while GRBL still ran the last ones: the page said so, and "done" came later
+    finishing = page.evaluate("Number(document.body.dataset.finishing)")
+    done = server["app"].state.sender.snapshot()[1]
+    assert done["state"] == "done" and 0 < finishing < done["version"]
 
 
 def test_5_an_stl_gets_its_section_panel_and_the_same_job_as_the_cli(page, server, tmp_path):

@@ -651,8 +651,10 @@ function liveView(s) {
     const timeline = (layers) => api("/api/timeline" + (layers ? "?layers=" + encodeURIComponent(JSON.stringify(layers)) : ""));
     followLive(s, timeline).then((changed) => changed && draw()).catch(() => {});
   }
-  if (s.state === "sending" && s.total && s.executed >= s.total) // the link waits for the machine to be idle
+  if (s.state === "sending" && s.total && s.executed >= s.total) { // the link waits for the machine to be idle
     $("send-status").textContent += " — the machine is finishing its last moves";
+    document.body.dataset.finishing = s.version; // (for tests: the page saw it before "done")
+  }
 }
 $("live-hide").onclick = () => { if (clearLive()) draw(); };
 function follow() {
