@@ -191,6 +191,31 @@ def test_3_live_view_of_a_send_to_the_plc_simulator(page, server):
     live_check(page, server, "simulator", "10")
 
 
+def test_3b_the_live_view_of_a_stopped_send_goes_on_from_where_it_stopped(page, server):
+    """Stop mid-job (the PLC holds it, pen up), then Resume: the ink stays where the machine stopped and goes
+    on from there, never back (the resumed send's first positions match the stop's place on the toolpath)."""
+    D = server["app"].state.session.timeline()["duration"]
+    page.evaluate("""() => { window.liveLog = [];
+        new MutationObserver(() => liveLog.push([studioLive.state, Number(document.body.dataset.liveT)]))
+            .observe(document.body, { attributes: true, attributeFilter: ['data-live-t'] }); }""")
+    page.select_option("#target", "simulator")
+    page.select_option("#send-speed", "10")
+    page.click("#send")  # "Send again": the PLC finished this job once
+    page.wait_for_function(f"studioLive.state === 'sending' && studioLive.t > {0.3 * D}", timeout=60_000)
+    page.click("#stop")
+    page.wait_for_selector("#send-status[data-state=stopped]", timeout=60_000)
+    stopped = page.evaluate("studioLive.t")
+    assert 0.3 * D < stopped < D and page.is_visible("#live-legend")  # what was drawn stays shown
+    page.evaluate("liveLog.length = 0")
+    page.click("#send")  # Resume
+    page.wait_for_selector("#send-status[data-state=done]", timeout=60_000)
+    assert "resumed at command" in page.text_content("#send-status")
+    log = [t for state, t in page.evaluate("liveLog") if t > 0]
+    assert log and log[-1] == pytest.approx(D, abs=1e-3)
+    assert log[0] >= stopped - 1.0, (stopped, log[:5])  # picked up where it stopped, not from the start
+    assert all(b >= a for a, b in zip(log, log[1:]))
+
+
 def test_4_live_view_of_a_send_to_the_grbl_emulator(page, server):
     if not page.text_content("#machine").endswith("badge.svg"):  # (run on its own)
         open_file(page, ROOT / "samples" / "vectors" / "badge.svg")
