@@ -91,7 +91,7 @@ def test_point_edits_are_checked_by_the_server_before_any_planning(coins):
              ({"op": "insert", "point": n}, "does not exist"),
              ({"op": "delete_point", "point": -1}, "does not exist"),
              ({"op": "move", "control": more.tolist()}, f"move keeps the stroke's {n} control points"),
-             ({"op": "move", "control": far.tolist()}, "control point (5000.0, 100.0) mm is outside the 400 x 300 mm"),
+             ({"op": "move", "control": far.tolist()}, "control point (5000.0, 100.0) mm is far outside the 400 x 300 mm"),
              ({"op": "move", "control": json.loads(json.dumps(nan.tolist()).replace("NaN", "null"))}, "mm")]
     for body, words in cases:
         t0 = time.process_time()

@@ -555,23 +555,35 @@ MAX_STROKE_CONTROL = 200_000  # control points in one stroke (a long continuous 
 MAX_JOB_CONTROL = 2_000_000  # control points in the whole job
 
 
+def spline_problem(degree: int, control: np.ndarray, profile=None) -> str | None:
+    """What makes a curve one the studio must not plan, or None: a supported degree, degree + 1 to
+    MAX_STROKE_CONTROL finite [x, y] points, none farther than one work area from it (a clamped B-spline lies
+    in the hull of its control points; the planner then checks the curve itself against the work area).
+    One rule for edits and saved jobs, checked before any work."""
+    c = np.asarray(control, float)
+    if degree not in DEGREES:
+        return f"degree {degree!r}; the studio plans degrees 2 to 5"
+    if c.ndim != 2 or c.shape[1] != 2:
+        return "control points must be [x, y] pairs in mm"
+    if not np.isfinite(c).all():
+        return "control points must be finite"
+    if not degree + 1 <= len(c) <= MAX_STROKE_CONTROL:
+        return f"{len(c)} control points; a degree-{degree} stroke takes {degree + 1} to {MAX_STROKE_CONTROL}"
+    if profile is not None:
+        w, h = profile.width, profile.height
+        out = np.maximum.reduce([-w - c[:, 0], -h - c[:, 1], c[:, 0] - 2 * w, c[:, 1] - 2 * h])
+        if out.max() > 0:
+            x, y = c[np.argmax(out)]
+            return (f"control point ({x:.1f}, {y:.1f}) mm is far outside the {w:g} x {h:g} mm work area "
+                    f"of '{profile.name}'; keep it on the paper")
+    return None
+
+
 def check_spline(spline: Spline, profile, what: str) -> None:
-    """An edited or loaded curve is a clamped B-spline the planner can take: a supported degree, enough and
-    not too many finite control points, none farther than one work area from it (a clamped B-spline lies in
-    the hull of its control points; the planner then checks the curve itself against the work area)."""
-    c = np.asarray(spline.control, float)
-    if spline.degree not in DEGREES:
-        raise InputError(f"{what}: degree {spline.degree}; the studio plans degrees 2 to 5")
-    if c.ndim != 2 or c.shape[1] != 2 or not np.isfinite(c).all():
-        raise InputError(f"{what}: control points must be finite [x, y] pairs in mm")
-    if not spline.degree + 1 <= len(c) <= MAX_STROKE_CONTROL:
-        raise InputError(f"{what}: {len(c)} control points; a degree-{spline.degree} stroke takes "
-                         f"{spline.degree + 1} to {MAX_STROKE_CONTROL}")
-    w, h = profile.width, profile.height
-    if c[:, 0].min() < -w or c[:, 1].min() < -h or c[:, 0].max() > 2 * w or c[:, 1].max() > 2 * h:
-        x, y = c[np.argmax(np.maximum.reduce([-w - c[:, 0], -h - c[:, 1], c[:, 0] - 2 * w, c[:, 1] - 2 * h]))]
-        raise InputError(f"{what}: control point ({x:.1f}, {y:.1f}) mm is outside the {w:g} x {h:g} mm work area "
-                         f"of '{profile.name}'; keep it on the paper")
+    """An edited curve, checked as saved jobs are (``spline_problem``): one-line InputError."""
+    why = spline_problem(spline.degree, spline.control, profile)
+    if why is not None:
+        raise InputError(f"{what}: {why}")
 
 
 def read_job(data: bytes, name: str, machine: str | None = None, profile=None) -> tuple[list[Stroke], str]:
@@ -590,15 +602,11 @@ def read_job(data: bytes, name: str, machine: str | None = None, profile=None) -
                          f"start it with --machine {doc.get('machine')}")
     if not isinstance(doc.get("strokes"), list):
         raise InputError(f"{name}: no list of strokes; give a job saved by the studio")
-    box = None
-    if profile is not None:  # a control point farther than one work area from it is no drawing of this machine
-        w, h = profile.width, profile.height
-        box = (-w, -h, 2 * w, 2 * h)
     strokes, total = [], 0
     try:
         for s in doc["strokes"]:
             degree = s["degree"]
-            if not isinstance(degree, int) or isinstance(degree, bool) or degree not in DEGREES:
+            if not isinstance(degree, int) or isinstance(degree, bool):  # (3.0 or True would pass the range)
                 raise ValueError(f"degree {degree!r}; the studio plans degrees 2 to 5")
             control = s["control"]
             if not isinstance(control, list) or len(control) > MAX_STROKE_CONTROL:
@@ -608,13 +616,9 @@ def read_job(data: bytes, name: str, machine: str | None = None, profile=None) -
             if total > MAX_JOB_CONTROL:
                 raise ValueError(f"the job has more than {MAX_JOB_CONTROL} control points")
             pts = np.asarray(control, float)
-            if pts.ndim != 2 or pts.shape[1] != 2:
-                raise ValueError("control points must be [x, y] pairs in mm")
-            if not np.isfinite(pts).all():
-                raise ValueError("control points must be finite")
-            if box is not None and (pts[:, 0].min() < box[0] or pts[:, 1].min() < box[1]
-                                    or pts[:, 0].max() > box[2] or pts[:, 1].max() > box[3]):
-                raise ValueError("control points far outside the machine's work area")
+            why = spline_problem(degree, pts, profile)  # (a point farther than one work area off: not this machine's)
+            if why is not None:
+                raise ValueError(why)
             strokes.append(Stroke(Spline(degree, pts), source_index=int(s.get("source_index", -1)),
                                   fit_error=float(s.get("fit_error", 0.0))))
     except (KeyError, TypeError, ValueError) as e:
