@@ -378,6 +378,7 @@ paper.addEventListener("contextmenu", (e) => { // right-click a point: select it
 window.addEventListener("mousedown", (e) => { if (!$("point-menu").contains(e.target)) $("point-menu").hidden = true; });
 window.addEventListener("keydown", (e) => {
   if (e.ctrlKey || e.metaKey || e.altKey || ["INPUT", "SELECT", "TEXTAREA"].includes(e.target.tagName)) return;
+  if ($("paper-tab").hidden) return; // the keys act on the paper only
   if (e.key === "Escape") { S.point = -1; $("point-menu").hidden = true; draw(); return; }
   const op = e.key === "Delete" || e.key === "Backspace" ? "delete_point" : e.key === "Insert" || e.key === "i" ? "insert" : null;
   if (op && S.point >= 0) { e.preventDefault(); pointEdit(op).catch(() => {}); }
