@@ -87,6 +87,19 @@ def page(server):
         assert not errors, errors
 
 
+@contextlib.contextmanager
+def second_tab(page, url: str):
+    """Another tab of ``page``'s browser on ``url``, ready; closed at the end, with no page errors."""
+    pg = page.context.browser.new_page(viewport={"width": 1400, "height": 850})
+    errors = []
+    pg.on("pageerror", lambda e: errors.append(str(e)))
+    pg.goto(url)
+    pg.wait_for_selector("body[data-ready='1']")
+    yield pg
+    pg.close()
+    assert not errors, errors
+
+
 def shot(page, name: str) -> None:
     if SHOTS is not None:
         page.screenshot(path=str(SHOTS / f"studio-{name}.png"))
@@ -184,15 +197,15 @@ def test_4_undo_restores_the_plan(page, server):
     assert page.text_content("#stat-time") == f"{s['job_time_s']:.2f} s"
 
 
-def test_4b_right_click_inserts_a_control_point_and_ctrl_z_undoes(page, server):
+def test_4b_right_click_offers_insert_after_and_ctrl_z_undoes(page, server):
     k = page.evaluate("studio.selected")
     assert k >= 0
     n = len(page.evaluate(f"studio.view.strokes[{k}].control"))
     c = page.evaluate(f"studio.view.strokes[{k}].control[3]")
     x, y = page.evaluate(f"studioScreen({c[0]}, {c[1]})")
     box = page.locator("#paper").bounding_box()
-    page.once("dialog", lambda d: d.accept())  # "Insert a control point after point 4?"
-    page.mouse.click(box["x"] + x, box["y"] + y, button="right")
+    page.mouse.click(box["x"] + x, box["y"] + y, button="right")  # the point's menu: insert after / delete
+    page.click("#point-menu [data-point-op=insert]")
     page.wait_for_function(f"studio.view.strokes[{k}].control.length === {n + 1}")
     assert summary(server)["can_undo"]
     page.keyboard.press("Control+z")
@@ -224,7 +237,7 @@ def test_5_export_gcode_equals_convert(page, server, tmp_path):
 
 
 def test_6_simulate(page, server):
-    page.select_option("#sim-speed", "16")
+    page.select_option("#sim-speed", "10")
     page.click("#play")
     page.wait_for_function("studioPerf.frames.length > 30", timeout=30_000)
     page.click("#play")  # pause
@@ -497,12 +510,8 @@ def test_14_an_axidraw_sends_to_its_eibotboard_with_pause_and_resume(page, tmp_p
     and the board receives every command of the job once, in order."""
     from doodlecam.link.ebb.jobfile import read_ebb
 
-    with serve(tmp_path, "axidraw-v3") as srv:  # a second studio, in a second tab of the same browser
-        pg = page.context.browser.new_page(viewport={"width": 1400, "height": 850})
-        errors = []
-        pg.on("pageerror", lambda e: errors.append(str(e)))
-        pg.goto(srv["url"])
-        pg.wait_for_selector("body[data-ready='1']")
+    # a second studio, in a second tab of the same browser
+    with serve(tmp_path, "axidraw-v3") as srv, second_tab(page, srv["url"]) as pg:
         offered = pg.evaluate("Array.from(document.querySelectorAll('#target option')).filter((o) => !o.hidden)"
                               ".map((o) => o.value)")
         assert offered == ["ebb-simulator", "ebb-serial"] and pg.input_value("#target") == "ebb-simulator"
@@ -527,6 +536,4 @@ def test_14_an_axidraw_sends_to_its_eibotboard_with_pause_and_resume(page, tmp_p
         pg.wait_for_selector("#send-status[data-state=done]", timeout=120_000)
         assert pg.text_content("#send-status").startswith(f"done: {len(lines)} commands in ")
         assert [c for c in emu.received if c.split(",")[0] not in ("V", "QM", "QS")] == lines
-        pg.close()
         sender.close()
-    assert not errors, errors

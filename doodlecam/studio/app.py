@@ -317,8 +317,15 @@ def create_app(session: Session, config: StudioConfig | None = None) -> FastAPI:
         return await step(request, "redo")
 
     @app.get("/api/timeline")
-    def timeline():
-        return _json(session.timeline())
+    def timeline(layers: str | None = None):
+        """The executed motion (of ``layers``, a JSON list of names, when given: what a one-layer send draws)."""
+        if layers is None:
+            return _json(session.timeline())
+        try:
+            names = json.loads(layers)
+        except json.JSONDecodeError:
+            raise InputError("layers must be a JSON list of layer names, e.g. [\"red\"]") from None
+        return _json(session.timeline(names))
 
     @app.get("/api/export/{post}")
     def export(post: str):
@@ -411,6 +418,10 @@ def create_app(session: Session, config: StudioConfig | None = None) -> FastAPI:
         grbl = target == studio_grbl.EMULATOR or target.startswith(studio_grbl.SERIAL_PREFIX)
 
         def start():
+            begin()  # raises when the send cannot start
+            return sender.note(layers=doc.get("layers"))
+
+        def begin():
             layers = doc.get("layers")  # plot one layer (or a few): only their strokes are sent
             if studio_ebb.is_ebb(target):  # an AxiDraw: the ebb post's command stream (it refuses other machines)
                 _, data = session.export("ebb", layers)

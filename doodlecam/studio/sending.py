@@ -59,8 +59,10 @@ class SendState:
     total: int = 0
     line: int | None = None  # GRBL: the G-code file's line number being sent next
     time_left_s: float = 0.0
+    time_total_s: float = 0.0  # the link's model of the whole job's time (time_left_s at its first command)
     position_mm: tuple[float, float] | None = None
     machine_state: str = ""  # GRBL's own state from its status reports (Run, Hold:0, Idle ...)
+    layers: list[str] | None = None  # the layers sent (None: every layer), for the page's live view
     message: str = ""
     version: int = 0  # bumped on every change, for the event stream
     started: float = field(default_factory=time.monotonic)
@@ -70,8 +72,10 @@ class SendState:
         controls = CONTROLS.get(self.transport, PLC_CONTROLS).get(self.state, ())
         return {"state": self.state, "transport": self.transport, "target": self.target, "executed": self.executed,
                 "total": self.total, "line": self.line, "percent": round(pct, 2),
-                "time_left_s": round(self.time_left_s, 2), "position_mm": self.position_mm,
+                "time_left_s": round(self.time_left_s, 2), "time_total_s": round(self.time_total_s, 2),
+                "position_mm": self.position_mm,
                 "machine_state": self.machine_state, "message": self.message, "controls": list(controls),
+                "layers": self.layers,
                 "elapsed_s": round(time.monotonic() - self.started, 2),
                 "version": self.version}  # grows with every change: the page keeps the newest it has seen
 
@@ -128,6 +132,11 @@ class Sender:
                 setattr(self.s, k, v)
             self.s.version += 1
             self.changed.notify_all()
+
+    def note(self, **kw) -> dict:
+        """Add what the page needs to the state of the send just started (the layers sent); its snapshot."""
+        self._update(**kw)
+        return self.snapshot()[1]
 
     def snapshot(self) -> tuple[int, dict]:
         with self.lock:
@@ -218,7 +227,8 @@ class Sender:
         with self.changed:
             self.s = SendState(state="sending", transport="plc",
                                target=target if sim is None else f"PLC simulator {host}:{port}",
-                               total=sender.n, time_left_s=float(left[0]), version=self.s.version + 1)
+                               total=sender.n, time_left_s=float(left[0]), time_total_s=float(left[0]),
+                               version=self.s.version + 1)
             self.changed.notify_all()
         self._thread = threading.Thread(target=self._run, name="studio-send", daemon=True)
         self._thread.start()
@@ -328,7 +338,8 @@ class Sender:
 
         with self.changed:
             self.s = SendState(state="sending", transport="grbl", target=label, total=len(lines),
-                               line=lines[0].lineno, time_left_s=float(left[0]), version=self.s.version + 1)
+                               line=lines[0].lineno, time_left_s=float(left[0]), time_total_s=float(left[0]),
+                               version=self.s.version + 1)
             self.changed.notify_all()
         def done(r) -> str:
             return f"{r['lines']} lines in {r['elapsed_s']:.2f} s" + (f", resumed at line {r['start_line']}"
@@ -416,7 +427,7 @@ class Sender:
 
         with self.changed:
             self.s = SendState(state="sending", transport="ebb", target=label, total=len(job.lines),
-                               time_left_s=left[0], version=self.s.version + 1)
+                               time_left_s=left[0], time_total_s=left[0], version=self.s.version + 1)
             self.changed.notify_all()
 
         def done(r) -> str:

@@ -135,6 +135,9 @@ class Session:
         job = plan_job(mm, self.machine, settings.solver or self.machine.solver, settings.plugin_dirs,
                        smoothing=settings.smoothing, order=settings.order)
         job.meta["tracer_made"] = drawing.meta.get("made")  # the tracer's line on what it drew, for the page
+        if drawing.meta.get("format") == "mesh":  # the STL panel: the mesh's extent and where it was cut
+            job.meta["mesh"] = {k: drawing.meta[k] for k in ("bounds_mm", "plane", "level_mm", "span_mm", "direction")
+                                if k in drawing.meta}
         return job
 
     def _require(self) -> Job:
@@ -261,9 +264,16 @@ class Session:
                     raise InputError("move needs 'control': a list of [x, y] control points in mm")
                 if len(control) < deg + 1:
                     raise InputError(f"a stroke needs at least {deg + 1} control points")
+                if len(control) != len(ctrl):  # a move never changes their number (that is insert / delete_point)
+                    raise InputError(f"move keeps the stroke's {len(ctrl)} control points (got {len(control)}); "
+                                     "use insert or delete_point to change their number")
                 strokes[i] = Stroke(Spline(deg, control), source_index=st.source_index)
             elif op == "insert":  # a new point halfway between control points k and k + 1
-                k = self._index(kw.get("point"), len(ctrl) - 1, "control point")
+                k = self._index(kw.get("point"), len(ctrl), "control point")
+                if k == len(ctrl) - 1:
+                    raise InputError(f"control point {k} is the stroke's last; insert after an earlier one")
+                if len(ctrl) >= MAX_STROKE_CONTROL:
+                    raise InputError(f"a stroke has at most {MAX_STROKE_CONTROL} control points; refit it first")
                 strokes[i] = Stroke(Spline(deg, np.insert(ctrl, k + 1, (ctrl[k] + ctrl[k + 1]) / 2, axis=0)),
                                     source_index=st.source_index)
             elif op == "delete_point":
@@ -297,6 +307,8 @@ class Session:
             else:
                 raise InputError(f"unknown edit '{op}'; use move, insert, delete_point, delete, reverse, split, refit "
                                  "or reorder")
+            for n in changed:  # the edited curves, checked as a saved job's are, before any planning
+                check_spline(strokes[n].spline, self.machine, f"stroke {n}")
             self._set(self._rebuild(strokes, samples, changed))
             self.last_changed = tuple(sorted(changed)) if len(strokes) == len(job.strokes) else ()
             return self.summary()
@@ -345,7 +357,7 @@ class Session:
                 "worst_acceleration_ratio": round(job.meta.get("worst_acceleration_ratio", 0.0), 6),
                 "worst_velocity_ratio": round(job.meta.get("worst_velocity_ratio", 0.0), 6),
                 "tracer": self.tracer, "tracer_options": self.tracer_options,
-                "tracer_made": job.meta.get("tracer_made"),
+                "tracer_made": job.meta.get("tracer_made"), "mesh": job.meta.get("mesh"),
                 "can_undo": bool(self.undo_stack), "can_redo": bool(self.redo_stack),
                 "job": self.job_id, "version": self.version}
 
@@ -442,13 +454,16 @@ class Session:
                               "amax": [m.x.max_acceleration, m.y.max_acceleration],
                               "deviation": dev.tolist(), "path_tolerance": m.path_tolerance}}
 
-    def timeline(self) -> dict:
+    def timeline(self, layers: Any = None) -> dict:
         """The executed motion for the simulation: times (s) and pen positions (mm), pen state.
-        Strokes as the PLC integrates their velocity samples; travels by their law; pen delays as waits."""
+        Strokes as the PLC integrates their velocity samples; travels by their law; pen delays as waits.
+        ``layers``: the motion of those layers only (what 'plot one layer' sends: the live view follows it)."""
         from doodlecam.plan.travel import travel_state
 
         with self.lock:
             job = self._require()
+            if layers is not None:
+                job = self.only_layers(job, layers)
             m = self.machine
             ts, xs, pen = [0.0], [np.asarray(m.home, float)], [0]
             now = 0.0
@@ -540,6 +555,37 @@ MAX_STROKE_CONTROL = 200_000  # control points in one stroke (a long continuous 
 MAX_JOB_CONTROL = 2_000_000  # control points in the whole job
 
 
+def spline_problem(degree: int, control: np.ndarray, profile=None) -> str | None:
+    """What makes a curve one the studio must not plan, or None: a supported degree, degree + 1 to
+    MAX_STROKE_CONTROL finite [x, y] points, none farther than one work area from it (a clamped B-spline lies
+    in the hull of its control points; the planner then checks the curve itself against the work area).
+    One rule for edits and saved jobs, checked before any work."""
+    c = np.asarray(control, float)
+    if degree not in DEGREES:
+        return f"degree {degree!r}; the studio plans degrees 2 to 5"
+    if c.ndim != 2 or c.shape[1] != 2:
+        return "control points must be [x, y] pairs in mm"
+    if not np.isfinite(c).all():
+        return "control points must be finite"
+    if not degree + 1 <= len(c) <= MAX_STROKE_CONTROL:
+        return f"{len(c)} control points; a degree-{degree} stroke takes {degree + 1} to {MAX_STROKE_CONTROL}"
+    if profile is not None:
+        w, h = profile.width, profile.height
+        out = np.maximum.reduce([-w - c[:, 0], -h - c[:, 1], c[:, 0] - 2 * w, c[:, 1] - 2 * h])
+        if out.max() > 0:
+            x, y = c[np.argmax(out)]
+            return (f"control point ({x:.1f}, {y:.1f}) mm is far outside the {w:g} x {h:g} mm work area "
+                    f"of '{profile.name}'; keep it on the paper")
+    return None
+
+
+def check_spline(spline: Spline, profile, what: str) -> None:
+    """An edited curve, checked as saved jobs are (``spline_problem``): one-line InputError."""
+    why = spline_problem(spline.degree, spline.control, profile)
+    if why is not None:
+        raise InputError(f"{what}: {why}")
+
+
 def read_job(data: bytes, name: str, machine: str | None = None, profile=None) -> tuple[list[Stroke], str]:
     """Strokes and source name of a saved studio job (format version 1); one-line InputErrors, all checked
     before any work: the degree one the fitter makes, finite points near the work area, sizes capped."""
@@ -556,15 +602,11 @@ def read_job(data: bytes, name: str, machine: str | None = None, profile=None) -
                          f"start it with --machine {doc.get('machine')}")
     if not isinstance(doc.get("strokes"), list):
         raise InputError(f"{name}: no list of strokes; give a job saved by the studio")
-    box = None
-    if profile is not None:  # a control point farther than one work area from it is no drawing of this machine
-        w, h = profile.width, profile.height
-        box = (-w, -h, 2 * w, 2 * h)
     strokes, total = [], 0
     try:
         for s in doc["strokes"]:
             degree = s["degree"]
-            if not isinstance(degree, int) or isinstance(degree, bool) or degree not in DEGREES:
+            if not isinstance(degree, int) or isinstance(degree, bool):  # (3.0 or True would pass the range)
                 raise ValueError(f"degree {degree!r}; the studio plans degrees 2 to 5")
             control = s["control"]
             if not isinstance(control, list) or len(control) > MAX_STROKE_CONTROL:
@@ -574,13 +616,9 @@ def read_job(data: bytes, name: str, machine: str | None = None, profile=None) -
             if total > MAX_JOB_CONTROL:
                 raise ValueError(f"the job has more than {MAX_JOB_CONTROL} control points")
             pts = np.asarray(control, float)
-            if pts.ndim != 2 or pts.shape[1] != 2:
-                raise ValueError("control points must be [x, y] pairs in mm")
-            if not np.isfinite(pts).all():
-                raise ValueError("control points must be finite")
-            if box is not None and (pts[:, 0].min() < box[0] or pts[:, 1].min() < box[1]
-                                    or pts[:, 0].max() > box[2] or pts[:, 1].max() > box[3]):
-                raise ValueError("control points far outside the machine's work area")
+            why = spline_problem(degree, pts, profile)  # (a point farther than one work area off: not this machine's)
+            if why is not None:
+                raise ValueError(why)
             strokes.append(Stroke(Spline(degree, pts), source_index=int(s.get("source_index", -1)),
                                   fit_error=float(s.get("fit_error", 0.0))))
     except (KeyError, TypeError, ValueError) as e:
