@@ -215,8 +215,9 @@ def create_app(session: Session, config: StudioConfig | None = None) -> FastAPI:
         # the page offers the targets that drive this machine: an AxiDraw's EiBotBoard, else a PLC or GRBL
         targets = ["ebb-simulator", "ebb-serial"] if studio_ebb.wants_ebb(m) else \
             ["simulator", "host", "grbl-simulator", "serial"]
-        return {"machine": m.name, "targets": targets, "loaded": session.job is not None,
-                "summary": session.summary() if session.job is not None else None,
+        loaded = session.job is not None or session.preview is not None  # a preview: planned in the background
+        return {"machine": m.name, "targets": targets, "loaded": loaded,
+                "summary": session.summary() if loaded else None,
                 "folders": [str(f) for f in config.folders], "send": sender.snapshot()[1]}
 
     @app.get("/api/tracers")
@@ -232,7 +233,14 @@ def create_app(session: Session, config: StudioConfig | None = None) -> FastAPI:
     @app.post("/api/load")
     async def load(request: Request, name: str = "", tracer: str | None = None, options: str | None = None):
         data = await body(request)
-        return await run_in_threadpool(session.load, name, data, tracer or None, options_param(options))
+
+        def run():
+            c0 = time.thread_time()
+            r = JSONResponse(session.load(name, data, tracer or None, options_param(options)))
+            r.headers["Server-Timing"] = f"cpu;dur={(time.thread_time() - c0) * 1e3:.1f}"  # for the benchmark
+            return r
+
+        return await run_in_threadpool(run)
 
     @app.post("/api/open")
     async def open_path(request: Request):
@@ -255,8 +263,11 @@ def create_app(session: Session, config: StudioConfig | None = None) -> FastAPI:
         return await run_in_threadpool(session.retrace, doc.get("tracer") or None, opts)
 
     @app.get("/api/view")
-    def view():
-        return _json(session.view())
+    def view(flat: bool = False):
+        c0 = time.thread_time()
+        r = _json(session.view(flat))
+        r.headers["Server-Timing"] = f"cpu;dur={(time.thread_time() - c0) * 1e3:.1f}"  # for the benchmark
+        return r
 
     @app.get("/api/stroke/{i}")
     def stroke(i: str):
@@ -477,6 +488,40 @@ def create_app(session: Session, config: StudioConfig | None = None) -> FastAPI:
                     return  # the send goes on: it belongs to the server, not to the page
                 version, snap = await asyncio.to_thread(sender.wait, version, 0.5)
                 yield f"data: {json.dumps(snap)}\n\n"
+
+        return StreamingResponse(stream(), media_type="text/event-stream", headers={"Cache-Control": "no-store"})
+
+    # every change an open page follows wakes the event streams (they wait on the send's condition)
+    def wake():
+        with sender.changed:
+            sender.changed.notify_all()
+
+    session.listeners.append(wake)
+
+    @app.get("/api/events")
+    async def events(request: Request):
+        """Server-sent events for as long as the page is open: ``job`` (the job's id and version and the
+        background planning's progress) whenever one changes — another tab loaded or edited the job —
+        and ``send`` (the send's state) on every change of it."""
+
+        def changed(job, send_version):
+            with sender.changed:  # woken by the sender's changes and the session's (wake)
+                sender.changed.wait_for(lambda: session.event() != job or sender.s.version != send_version, 1.0)
+            return session.event(), sender.snapshot()
+
+        async def stream():
+            job, (send_version, snap) = session.event(), sender.snapshot()
+            yield f"retry: 1000\nevent: job\ndata: {json.dumps(job)}\n\nevent: send\ndata: {json.dumps(snap)}\n\n"
+            while not await request.is_disconnected():
+                new_job, (new_version, snap) = await asyncio.to_thread(changed, job, send_version)
+                out = ""
+                if new_job != job:
+                    job = new_job
+                    out += f"event: job\ndata: {json.dumps(job)}\n\n"
+                if new_version != send_version:
+                    send_version = new_version
+                    out += f"event: send\ndata: {json.dumps(snap)}\n\n"
+                yield out or ": still here\n\n"  # a comment: a closed page is noticed within a second
 
         return StreamingResponse(stream(), media_type="text/event-stream", headers={"Cache-Control": "no-store"})
 
