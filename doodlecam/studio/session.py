@@ -75,6 +75,7 @@ class Session:
         self._generation = 0  # bumped by every load: a superseded background plan stops
         self._totals: tuple | None = None  # (job, the job-wide part of its summary), computed once per job
         self.listeners: list = []  # called (no arguments) on every change an open page follows
+        self._previewed = threading.Event()  # the preview was sent: the background plan may take the CPU
 
     # ------------------------------------------------------------ tracers
 
@@ -119,6 +120,7 @@ class Session:
             self._generation += 1
             self._checks.clear()
             self._views.clear()
+            self._previewed.clear()
             self.preview, self.planning = (drawing, {"stage": "ordering", "done": 0, "total": len(drawing.polylines)}) \
                 if later else (None, None)
             self._set(job, keep_history=False)
@@ -143,6 +145,9 @@ class Session:
                 self.planning = {"stage": stage, "done": done, "total": total}
                 self._notify()
 
+        # the page's first view (its request, then the preview's JSON) comes before the plan, which would
+        # share the interpreter with it; a page that never asks waits at most a second
+        self._previewed.wait(1.0)
         try:
             job = self._plan(drawing, progress)
             for st, sa in zip(job.strokes, job.samples):  # the page's view of it, before it is asked for
@@ -481,6 +486,7 @@ class Session:
                                "pen_down_delay": m.pen.down_delay}}
             if self.job is None and self.preview is not None and flat:
                 offsets, xy = thin_paths(self.preview.polylines)
+                self._previewed.set()
                 return {**out, "strokes": [], "travels": [], "layers": [], "summary": self.summary(),
                         "preview": {"offsets": offsets, "xy": np.round(xy, 2).ravel().tolist()}}
             job = self._require()
