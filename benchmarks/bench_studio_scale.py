@@ -107,9 +107,11 @@ def in_browser(svg: Path) -> dict:
         out["browser: file chosen until its paths are drawn, wall s"] = time.perf_counter() - t0
         load, view = page.evaluate(timing, "/api/load"), page.evaluate(timing, "/api/view")
         out["browser: load + first view, server thread CPU s"] = (load[0]["cpu"] + view[0]["cpu"]) / 1e3
+        out["browser: load + first view, server wall s"] = (load[0]["load"] + view[0]["view"]) / 1e3
+        out["browser: load + first view, server waiting for a core s"] = (load[0]["runqueue"] + view[0]["runqueue"]) / 1e3
         out["browser: first view, bytes"] = view[1]
         perf = page.evaluate("studioPerf.view")
-        out["browser: first view, page decode ms"] = perf["decode"]
+        out["browser: first view, page request (upload excluded) ms"] = perf["request"]
         out["browser: first view, page draw ms"] = page.evaluate("studioRedraw()")
         page.wait_for_function("document.body.dataset.preview === '' && studio.view.strokes.length > 0",
                                timeout=900_000, polling=500)

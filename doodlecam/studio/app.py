@@ -121,6 +121,14 @@ def _run_queue_wait() -> float | None:
         return None
 
 
+def _spent(name: str, w0: float, c0: float, q0: float | None) -> str:
+    """A Server-Timing header's parts since (wall, thread CPU, run-queue wait) ``w0, c0, q0``: where a
+    request's time went, for the page's and the benchmarks' measurements."""
+    out = f"{name};dur={(time.perf_counter() - w0) * 1e3:.1f}, cpu;dur={(time.thread_time() - c0) * 1e3:.1f}"
+    q1 = _run_queue_wait()
+    return out + (f", runqueue;dur={(q1 - q0) * 1e3:.1f}" if q0 is not None and q1 is not None else "")
+
+
 def _error(status: int, message: str) -> JSONResponse:
     return JSONResponse({"error": message}, status_code=status)
 
@@ -235,9 +243,9 @@ def create_app(session: Session, config: StudioConfig | None = None) -> FastAPI:
         data = await body(request)
 
         def run():
-            c0 = time.thread_time()
+            w0, c0, q0 = time.perf_counter(), time.thread_time(), _run_queue_wait()
             r = JSONResponse(session.load(name, data, tracer or None, options_param(options)))
-            r.headers["Server-Timing"] = f"cpu;dur={(time.thread_time() - c0) * 1e3:.1f}"  # for the benchmark
+            r.headers["Server-Timing"] = _spent("load", w0, c0, q0)
             return r
 
         return await run_in_threadpool(run)
@@ -264,9 +272,9 @@ def create_app(session: Session, config: StudioConfig | None = None) -> FastAPI:
 
     @app.get("/api/view")
     def view(flat: bool = False):
-        c0 = time.thread_time()
+        w0, c0, q0 = time.perf_counter(), time.thread_time(), _run_queue_wait()
         r = _json(session.view(flat))
-        r.headers["Server-Timing"] = f"cpu;dur={(time.thread_time() - c0) * 1e3:.1f}"  # for the benchmark
+        r.headers["Server-Timing"] = _spent("view", w0, c0, q0)
         return r
 
     @app.get("/api/stroke/{i}")
@@ -296,14 +304,9 @@ def create_app(session: Session, config: StudioConfig | None = None) -> FastAPI:
                 summary = session.edit(str(op), i, **doc)
                 # reply=patch: what changed, in the same answer (the page's re-plan after a drag)
                 r = _json(session.patch() if patch and session.last_changed else summary)
-            # where the time went, for the page's (and the benchmark's) measurements: waiting for the
-            # session, wall and CPU time of this thread, and its time runnable but waiting for a core
-            timing = (f"lock;dur={(w1 - w0) * 1e3:.1f}, edit;dur={(time.perf_counter() - w1) * 1e3:.1f}, "
-                      f"cpu;dur={(time.thread_time() - c0) * 1e3:.1f}")
-            q1 = _run_queue_wait()
-            if q0 is not None and q1 is not None:
-                timing += f", runqueue;dur={(q1 - q0) * 1e3:.1f}"
-            r.headers["Server-Timing"] = timing
+            # where the time went: waiting for the session, then the edit (wall, this thread's CPU and its
+            # time runnable but waiting for a core)
+            r.headers["Server-Timing"] = f"lock;dur={(w1 - w0) * 1e3:.1f}, " + _spent("edit", w1, c0, q0)
             return r
 
         return await run_in_threadpool(run)

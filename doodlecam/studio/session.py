@@ -450,10 +450,12 @@ class Session:
         """The job's figures, with its id and version (and, while it is planned, the traced drawing's)."""
         if self.job is None and self.preview is not None:
             d = self.preview
-            job_part = {"strokes": len(d.polylines), "control_points": 0,
-                        "pen_down_mm": round(sum(float(np.hypot(*np.diff(p, axis=0).T).sum()) for p in d.polylines), 3),
-                        "travel_mm": 0.0, "job_time_s": 0.0, "draw_time_s": 0.0, "worst_acceleration_ratio": 0.0,
-                        "worst_velocity_ratio": 0.0, "tracer_made": d.meta.get("tracer_made")}
+            if self._totals is None or self._totals[0] is not d:
+                ink = float(sum(np.hypot(*np.diff(p, axis=0).T).sum() for p in d.polylines))
+                self._totals = (d, {"strokes": len(d.polylines), "control_points": 0, "pen_down_mm": round(ink, 3),
+                                    "travel_mm": 0.0, "job_time_s": 0.0, "draw_time_s": 0.0,
+                                    "worst_acceleration_ratio": 0.0, "worst_velocity_ratio": 0.0,
+                                    "tracer_made": d.meta.get("tracer_made")})
         else:
             job = self._require()
             if self._totals is None or self._totals[0] is not job:  # once per job: a summary is asked for often
@@ -465,7 +467,7 @@ class Session:
                     "worst_acceleration_ratio": round(job.meta.get("worst_acceleration_ratio", 0.0), 6),
                     "worst_velocity_ratio": round(job.meta.get("worst_velocity_ratio", 0.0), 6),
                     "tracer_made": job.meta.get("tracer_made")})
-            job_part = self._totals[1]
+        job_part = self._totals[1]
         return {"file": self.name, "machine": self.machine.name, **job_part,
                 "tracer": self.tracer, "tracer_options": self.tracer_options,
                 "can_undo": bool(self.undo_stack), "can_redo": bool(self.redo_stack),
