@@ -558,6 +558,9 @@ def test_15_other_tabs_follow_a_large_load_and_an_edit_through_the_event_stream(
             pg.wait_for_selector("body[data-preview='1']", timeout=60_000)
             assert pg.evaluate("studio.view.preview.offsets.length") == 1201
             assert pg.evaluate("studio.view.strokes.length") == 0
+        # B's tracer panel follows too: the vector tracer's options, not the edges' it showed with no file
+        b.wait_for_function("!document.querySelector('#tracer-options [name=sigma]')")
+        shot(b, "planning")
         assert session.job is None or session.planning is None  # planned in the background (or just done)
         for pg in (a, b):  # then the planned job
             pg.wait_for_function("document.body.dataset.preview === '' && studio.view.strokes.length > 0",
@@ -571,8 +574,11 @@ def test_15_other_tabs_follow_a_large_load_and_an_edit_through_the_event_stream(
         b.wait_for_function(f"studio.view.summary.version === {summary(srv)['version']}", timeout=60_000)
         assert b.evaluate(f"studio.view.strokes[{k}].control") == before[::-1]
         assert b.text_content("#stat-time") == f"{summary(srv)['job_time_s']:.2f} s"
-        # tab B asked only for the views the events told it of: no polling of /api/state
-        assert "api/state" not in asked and asked.count("api/view") >= 3 and "api/events" not in asked, asked
+        # tab B asked only for what the events told it of (a view per change, its tracer panel per new job id:
+        # the preview's and the planned job's), and nothing while nothing changes: no polling
+        assert asked.count("api/view") == 3 and asked.count("api/state") == 2 and set(asked) == {"api/view", "api/state"}, asked
+        time.sleep(3)
+        assert len(asked) == 5, asked
         a.close()
         b.close()
     assert not errors, errors

@@ -689,9 +689,11 @@ function followJob() {
   const j = S.serverJob, v = S.view && S.view.summary;
   if (!j || !j.job || (v && j.job === v.job && j.version === v.version)) return;
   if (S.drag || pending > 0) { setTimeout(followJob, 200); return; } // this page's own request answers first
-  if (v && j.job !== v.job) S.selected = -1; // another job: no stroke of the old one stays selected
+  const other = !v || j.job !== v.job; // another job (another file): its tracer's panel too
+  if (other) S.selected = -1; // no stroke of the old job stays selected
   const t0 = performance.now();
-  refresh().then(() => { window.studioPerf.followed = (window.studioPerf.followed || 0) + 1; window.studioPerf.followMs = performance.now() - t0; })
+  refresh().then(() => (other ? tracerPanel() : null))
+    .then(() => { window.studioPerf.followed = (window.studioPerf.followed || 0) + 1; window.studioPerf.followMs = performance.now() - t0; })
     .catch(() => {});
 }
 document.addEventListener("visibilitychange", () => {
