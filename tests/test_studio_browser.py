@@ -570,7 +570,9 @@ def test_15_other_tabs_follow_a_large_load_and_an_edit_through_the_event_stream(
             assert pg.evaluate("[studio.view.summary.job, studio.view.summary.version]") == [s["job"], s["version"]]
         k = _select_longest(a)
         before = b.evaluate(f"studio.view.strokes[{k}].control")
+        version = summary(srv)["version"]
         a.click("#stroke-tools [data-op=reverse]")
+        a.wait_for_function(f"studio.view.summary.version > {version}", timeout=60_000)  # A's edit is done
         b.wait_for_function(f"studio.view.summary.version === {summary(srv)['version']}", timeout=60_000)
         assert b.evaluate(f"studio.view.strokes[{k}].control") == before[::-1]
         assert b.text_content("#stat-time") == f"{summary(srv)['job_time_s']:.2f} s"
