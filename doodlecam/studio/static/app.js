@@ -678,7 +678,7 @@ for (const b of document.querySelectorAll("[data-jog]")) {
 // One event stream while the page is visible (GET /api/events): "job" when the job or its version changes
 // (another tab loaded or edited it, or its background planning moved on or ended), "send" on every change
 // of the send. A hidden tab closes it (browsers allow few open connections to a host) and catches up when shown.
-let events = null;
+let events = null, followTimer = null;
 function openEvents() {
   if (events || document.hidden) return;
   events = new EventSource(withToken("/api/events"));
@@ -688,7 +688,10 @@ function openEvents() {
 function followJob() {
   const j = S.serverJob, v = S.view && S.view.summary;
   if (!j || !j.job || (v && j.job === v.job && j.version === v.version)) return;
-  if (S.drag || pending > 0) { setTimeout(followJob, 200); return; } // this page's own request answers first
+  if (S.drag || pending > 0) { // this page's own request answers first; then one look again
+    followTimer = followTimer || setTimeout(() => { followTimer = null; followJob(); }, 200);
+    return;
+  }
   const other = !v || j.job !== v.job; // another job (another file): its tracer's panel too
   if (other) S.selected = -1; // no stroke of the old job stays selected
   const t0 = performance.now();
