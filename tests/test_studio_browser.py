@@ -537,3 +537,57 @@ def test_14_an_axidraw_sends_to_its_eibotboard_with_pause_and_resume(page, tmp_p
         assert pg.text_content("#send-status").startswith(f"done: {len(lines)} commands in ")
         assert [c for c in emu.received if c.split(",")[0] not in ("V", "QM", "QS")] == lines
         sender.close()
+
+
+def test_15_other_tabs_follow_a_large_load_and_an_edit_through_the_event_stream(page, tmp_path):
+    """Two tabs of one studio: tab A uploads a drawing of 1 200 paths, which the studio shows as traced at once
+    and plans in the background; tab B, which sends no request of its own (no polling), follows through
+    /api/events: it shows the traced paths, then the planned job, then A's edit of a stroke."""
+    import sys
+
+    sys.path.insert(0, str(ROOT / "tests"))
+    from generated_art import generated_svg
+
+    svg = tmp_path / "lines.svg"
+    svg.write_text(generated_svg(1200, "lines"))
+    with serve(tmp_path) as srv:
+        session = srv["app"].state.session
+        browser = page.context.browser
+        a, b = (browser.new_page(viewport={"width": 1400, "height": 850}) for _ in range(2))
+        errors, asked = [], []
+        for pg in (a, b):
+            pg.on("pageerror", lambda e: errors.append(str(e)))
+            pg.goto(srv["url"])
+            pg.wait_for_selector("body[data-ready='1']")
+        b.on("request", lambda r: asked.append(r.url.split("?")[0].split("/", 3)[-1]))
+        a.set_input_files("#file", str(svg))
+        for pg in (a, b):  # the traced paths, while the job is planned
+            pg.wait_for_selector("body[data-preview='1']", timeout=60_000)
+            assert pg.evaluate("studio.view.preview.offsets.length") == 1201
+            assert pg.evaluate("studio.view.strokes.length") == 0
+        # B's tracer panel follows too: the vector tracer's options, not the edges' it showed with no file
+        b.wait_for_function("!document.querySelector('#tracer-options [name=sigma]')")
+        shot(b, "planning")
+        assert session.job is None or session.planning is None  # planned in the background (or just done)
+        for pg in (a, b):  # then the planned job
+            pg.wait_for_function("document.body.dataset.preview === '' && studio.view.strokes.length > 0",
+                                 timeout=300_000)
+            s = summary(srv)
+            assert pg.text_content("#stat-strokes") == str(s["strokes"]) and pg.is_hidden("#planning")
+            assert pg.evaluate("[studio.view.summary.job, studio.view.summary.version]") == [s["job"], s["version"]]
+        k = _select_longest(a)
+        before = b.evaluate(f"studio.view.strokes[{k}].control")
+        version = summary(srv)["version"]
+        a.click("#stroke-tools [data-op=reverse]")
+        a.wait_for_function(f"studio.view.summary.version > {version}", timeout=60_000)  # A's edit is done
+        b.wait_for_function(f"studio.view.summary.version === {summary(srv)['version']}", timeout=60_000)
+        assert b.evaluate(f"studio.view.strokes[{k}].control") == before[::-1]
+        assert b.text_content("#stat-time") == f"{summary(srv)['job_time_s']:.2f} s"
+        # tab B asked only for what the events told it of (a view per change, its tracer panel per new job id:
+        # the preview's and the planned job's), and nothing while nothing changes: no polling
+        assert asked.count("api/view") == 3 and asked.count("api/state") == 2 and set(asked) == {"api/view", "api/state"}, asked
+        time.sleep(3)
+        assert len(asked) == 5, asked
+        a.close()
+        b.close()
+    assert not errors, errors

@@ -90,6 +90,7 @@ function draw(target = ctx, withSelection = true) {
   g.strokeStyle = "#999"; g.lineWidth = 0.8; g.setLineDash([4, 4]); g.beginPath();
   for (const t of S.view.travels) { g.moveTo(sx(t[0]), sy(t[1])); g.lineTo(sx(t[2]), sy(t[3])); }
   g.stroke(); g.setLineDash([]);
+  if (S.view.preview) drawPreview(g);
   // pen-down strokes as executed, coloured by planned speed (one path per colour)
   const vmax = m.vmax, paths = Array.from({ length: COLORS }, () => new Path2D());
   const byPen = $("colour-by-pen").checked, penPaths = new Map(); // colour -> one path per pen
@@ -146,6 +147,56 @@ function drawSelection(g) {
   g.fillStyle = "#000"; g.font = "12px sans-serif"; g.fillText(String(s.i + 1), sx(control[0][0]) + 5, sy(control[0][1]) - 5);
 }
 
+// ------------------------------------------------------------------ the view: flat arrays, a preview while planning
+
+// The server sends the geometry as a few flat arrays (GET /api/view?flat=1, docs/studio.md): a 10 000-stroke
+// job is then one JSON parse of numbers, not 10^5 small objects. The page keeps one object per stroke
+// (points as [x, y] pairs), as the rest of the page and the edits' patches use it.
+async function fetchView() {
+  const t0 = performance.now();
+  const v = await api("/api/view?flat=1");
+  const t1 = performance.now();
+  const pairs = (flat, a, b) => { const out = new Array(b - a); for (let k = a; k < b; k++) out[k - a] = [flat[2 * k], flat[2 * k + 1]]; return out; };
+  const g = v.geometry;
+  v.strokes = [];
+  if (g) {
+    for (let i = 0; i < g.degree.length; i++) {
+      v.strokes.push({ i, degree: g.degree[i], length: g.length[i], time: g.time[i], layer: g.layer_names[g.layer[i]],
+        points: pairs(g.xy, g.offsets[i], g.offsets[i + 1]), speed: g.speed.slice(g.offsets[i], g.offsets[i + 1]),
+        control: pairs(g.control, g.control_offsets[i], g.control_offsets[i + 1]) });
+    }
+    delete v.geometry;
+    const t = v.travels; v.travels = [];
+    for (let k = 0; k < t.length; k += 5) v.travels.push(t.slice(k, k + 5));
+  }
+  window.studioPerf.view = { request: t1 - t0, decode: performance.now() - t1 };
+  document.body.dataset.preview = v.preview ? "1" : "";
+  showPlanning(v.summary.planning);
+  return v;
+}
+
+// A large drawing is shown as traced while the server plans it: one grey path, no selection or edits.
+function drawPreview(g) {
+  const { offsets, xy } = S.view.preview, path = new Path2D();
+  for (let i = 0; i + 1 < offsets.length; i++) {
+    for (let k = offsets[i]; k < offsets[i + 1]; k++) {
+      if (k === offsets[i]) path.moveTo(sx(xy[2 * k]), sy(xy[2 * k + 1])); else path.lineTo(sx(xy[2 * k]), sy(xy[2 * k + 1]));
+    }
+  }
+  g.strokeStyle = "#777"; g.lineWidth = 1; g.stroke(path);
+}
+
+window.studioRedraw = () => { const t = performance.now(); draw(); return performance.now() - t; }; // for the benchmark
+
+function showPlanning(p) {
+  const el = $("planning");
+  el.hidden = !p;
+  if (!p) return;
+  el.textContent = p.error ? `planning failed: ${p.error}`
+    : `planning the job: ${p.stage} ${p.done} of ${p.total} — shown as traced until it is planned; edits, export and send then`;
+  el.dataset.done = p.done;
+}
+
 // ------------------------------------------------------------------ layers
 
 const PEN_COLOURS = ["#1f4fd8", "#d81f3c", "#1b9e3a", "#8a2be2", "#e07000", "#008b8b"];
@@ -192,7 +243,7 @@ function summary(s) {
   $("stat-control").textContent = s.control_points;
   $("stat-ink").textContent = `${(s.pen_down_mm / 1000).toFixed(3)} m`;
   $("stat-travel").textContent = `${(s.travel_mm / 1000).toFixed(3)} m`;
-  $("stat-time").textContent = `${s.job_time_s.toFixed(2)} s`;
+  $("stat-time").textContent = s.planning ? "planning…" : `${s.job_time_s.toFixed(2)} s`;
   $("stat-ratio").textContent = `a ${s.worst_acceleration_ratio.toFixed(4)}, v ${s.worst_velocity_ratio.toFixed(4)}`;
   $("stat-made").textContent = s.tracer_made || "–";
   $("undo").disabled = !s.can_undo; $("redo").disabled = !s.can_redo;
@@ -203,7 +254,7 @@ function summary(s) {
 async function refresh() {
   // the view and the selected stroke's figures are fetched at once
   const figs = S.selected >= 0 ? api(`/api/stroke/${S.selected}`).catch(() => null) : null;
-  S.view = await api("/api/view");
+  S.view = await fetchView();
   if (!S.fitted) fitView();
   $("machine").textContent = `machine ${S.view.machine.name} · ${S.view.summary.file}`;
   summary(S.view.summary);
@@ -412,13 +463,6 @@ $("stroke-tools").addEventListener("click", async (e) => {
 
 async function undoRedo(which) { await api(`/api/${which}`, { method: "POST", json: onJob() }); await refresh(); }
 
-// open tabs follow the job: another tab's load or edit shows here within a few seconds
-setInterval(async () => {
-  if (!S.view || S.drag || pending > 0 || document.hidden) return;
-  const st = await fetch("/api/state", { headers: { "x-doodlecam-token": token } }).then((r) => r.json()).catch(() => null);
-  const s = st && st.summary;
-  if (s && (s.job !== S.view.summary.job || s.version !== S.view.summary.version)) await refresh();
-}, 2000);
 $("undo").onclick = () => undoRedo("undo");
 $("redo").onclick = () => undoRedo("redo");
 window.addEventListener("keydown", (e) => {
@@ -699,6 +743,37 @@ for (const b of document.querySelectorAll("[data-jog]")) {
   };
 }
 
+// ------------------------------------------------------------------ events: other tabs, planning, sends
+
+// One event stream while the page is visible (GET /api/events): "job" when the job or its version changes
+// (another tab loaded or edited it, or its background planning moved on or ended), "send" on every change
+// of the send. A hidden tab closes it (browsers allow few open connections to a host) and catches up when shown.
+let events = null, followTimer = null;
+function openEvents() {
+  if (events || document.hidden) return;
+  events = new EventSource(withToken("/api/events"));
+  events.addEventListener("job", (e) => { S.serverJob = JSON.parse(e.data); showPlanning(S.serverJob.planning); followJob(); });
+  events.addEventListener("send", (e) => showSend(JSON.parse(e.data)));
+}
+function followJob() {
+  const j = S.serverJob, v = S.view && S.view.summary;
+  if (!j || !j.job || (v && j.job === v.job && j.version === v.version)) return;
+  if (S.drag || pending > 0) { // this page's own request answers first; then one look again
+    followTimer = followTimer || setTimeout(() => { followTimer = null; followJob(); }, 200);
+    return;
+  }
+  const other = !v || j.job !== v.job; // another job (another file): its tracer's panel too
+  if (other) S.selected = -1; // no stroke of the old job stays selected
+  const t0 = performance.now();
+  refresh().then(() => (other ? tracerPanel() : null))
+    .then(() => { window.studioPerf.followed = (window.studioPerf.followed || 0) + 1; window.studioPerf.followMs = performance.now() - t0; })
+    .catch(() => {});
+}
+document.addEventListener("visibilitychange", () => {
+  if (!document.hidden) openEvents();
+  else if (events) { events.close(); events = null; }
+});
+
 // ------------------------------------------------------------------ tabs
 
 document.querySelector(".tabs").addEventListener("click", (e) => {
@@ -724,5 +799,6 @@ $("show-order").addEventListener("change", () => { S.base = null; draw(); });
   if (ACTIVE.includes(st.send.state)) follow(); // a send outlives its page: pick it up
   if (st.loaded) { await refresh(); await tracerPanel(); window.studioPerf.firstView = performance.now(); }
   else await tracerPanel();
+  openEvents();
   document.body.dataset.ready = "1";
 })();
