@@ -54,6 +54,9 @@ class Session:
         self.machine = _settings_machine(settings)
         self.max_upload = max_upload
         self.lock = threading.RLock()  # requests run in a thread pool
+        # the job's id, version and planning change together: event() reads them under this (never
+        # under self.lock, which a change holds while it wakes the event streams)
+        self._state_lock = threading.Lock()
         self.name = ""
         self.data = b""
         self.tracer: str | None = settings.tracer
@@ -121,9 +124,9 @@ class Session:
             self._checks.clear()
             self._views.clear()
             self._previewed.clear()
-            self.preview, self.planning = (drawing, {"stage": "ordering", "done": 0, "total": len(drawing.polylines)}) \
+            preview, planning = (drawing, {"stage": "ordering", "done": 0, "total": len(drawing.polylines)}) \
                 if later else (None, None)
-            self._set(job, keep_history=False)
+            self._set(job, keep_history=False, preview=preview, planning=planning)
             if later:
                 threading.Thread(target=self._plan_later, args=(drawing, self._generation), name="studio-plan",
                                  daemon=True).start()
@@ -158,15 +161,15 @@ class Session:
             with self.lock:
                 if self._generation == generation:
                     msg = str(e) if isinstance(e, DoodleError) else f"internal error: {type(e).__name__}: {e}"
-                    self.planning = {"error": msg}
-                    self.version += 1
+                    with self._state_lock:
+                        self.planning = {"error": msg}
+                        self.version += 1
                     self._notify()
             return
         with self.lock:
             if self._generation != generation:
                 return
-            self.preview, self.planning = None, None
-            self._set(job, keep_history=False)
+            self._set(job, keep_history=False, preview=None, planning=None)
             self._check_later(job)
 
     def _notify(self) -> None:
@@ -175,7 +178,8 @@ class Session:
 
     def event(self) -> dict:
         """What an open page follows: the job and its version, and the planning's progress."""
-        return {"job": self.job_id, "version": self.version, "planning": self.planning}
+        with self._state_lock:
+            return {"job": self.job_id, "version": self.version, "planning": self.planning}
 
     def _check_later(self, job: Job) -> None:
         """Each stroke's checks, in the background: the first edit then only checks its own."""
@@ -430,10 +434,15 @@ class Session:
         if job_id != self.job_id or version != self.version:
             raise StaleEdit("the job changed in another tab; reload")
 
-    def _set(self, job: Job, keep_history: bool = True) -> None:
-        self.version += 1
-        if not keep_history:
-            self.job_id = secrets.token_hex(6)
+    def _set(self, job: Job, keep_history: bool = True, **state) -> None:
+        """Make ``job`` the current one (a new job id unless ``keep_history``), with the other ``state``
+        attributes given (preview, planning) changed at the same moment for event()."""
+        with self._state_lock:
+            for name, value in state.items():
+                setattr(self, name, value)
+            self.version += 1
+            if not keep_history:
+                self.job_id = secrets.token_hex(6)
         if keep_history and self.job is not None:
             self.undo_stack = (self.undo_stack + [self.job])[-HISTORY:]
         elif not keep_history:
@@ -688,8 +697,7 @@ class Session:
             self._generation += 1  # a drawing still being planned in the background is dropped
             self._checks.clear()
             self._views.clear()
-            self.preview = self.planning = None
-            self._set(job, keep_history=False)
+            self._set(job, keep_history=False, preview=None, planning=None)
             self._check_later(job)
             return self.summary()
 
