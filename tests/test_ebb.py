@@ -176,5 +176,34 @@ def test_axidraw_kinematics_map_and_profiles():
         assert kin.inverse(np.array([[0.0, -1.0]]))[:, :2].tolist() == [[1.0, -1.0]]
         v, a = kin.actuator_limits()
         assert (v[:2] < 312.5).all() and (a > 0).all()
-        # the pen's rows: acceleration along 0, 45, 90, 135 degrees within 762 cos 22.5
-        assert kin.linear_map.shape == (6, 2) and np.allclose(a[2:], 762 * np.cos(np.pi / 8))
+        # the pen's rows: acceleration along every 22.5 degrees within 762 cos 11.25 (a 16-gon in the
+        # circle: every pen acceleration they admit is <= 762, and every one <= 762 cos 11.25 passes)
+        rows = kin.linear_map[2:]
+        assert rows.shape == (8, 2) and np.allclose(a[2:], 762 * np.cos(np.pi / 16))
+        ang = np.linspace(0, 2 * np.pi, 3601)
+        dirs = np.column_stack([np.cos(ang), np.sin(ang)])
+        reach = 1 / np.abs(dirs @ rows.T).max(axis=1) * a[2]  # the largest admitted acceleration per direction
+        assert reach.max() <= 762 * (1 + 1e-9) and reach.min() >= 762 * np.cos(np.pi / 16) * (1 - 1e-9)
+
+
+def test_lift_clear_overlaps_the_lift_with_travel(tmp_path):
+    """post ebb lift_clear: after each lift SP,1 waits only that long (the travel starts while the servo
+    finishes rising); the plan saves the difference per lift and the motion is the same."""
+    from doodlecam import pipeline
+    from doodlecam.machine import load_machine
+
+    m = load_machine("axidraw-v3")
+    src = ROOT / "samples/vectors/layers.svg"
+    texts = []
+    for opts in ({}, {"lift_clear": 0.05}):
+        r = pipeline.convert(src, tmp_path / str(len(texts)), pipeline.Settings(machine=m, posts=("ebb",),
+                                                                               post_options={"ebb": opts}))
+        texts.append(r.outputs[0].read_text().splitlines())
+    head = [dict(l[2:].split(": ", 1) for l in t if l.startswith("; ") and ": " in l) for t in texts]
+    ups = [[l for l in t if l.startswith("SP,1")] for t in texts]
+    assert set(ups[0]) == {"SP,1,130"} and ups[1][0] == "SP,1,130" and set(ups[1][1:]) == {"SP,1,50"}
+    saved = float(head[0]["planned_time"]) - float(head[1]["planned_time"])
+    assert saved == pytest.approx(0.08 * (len(ups[1]) - 1), abs=1e-6)
+    assert [l for l in texts[0] if not l.startswith(("SP", ";"))] == [l for l in texts[1] if not l.startswith(("SP", ";"))]
+    pen_down_after = [r.pen_down for r in execute(texts[1]) if r.line.startswith("LM")]
+    assert pen_down_after.count(True) == [r.pen_down for r in execute(texts[0]) if r.line.startswith("LM")].count(True)
