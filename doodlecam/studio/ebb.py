@@ -7,12 +7,14 @@ send itself runs in ``studio.sending`` as the GRBL one does.
 
 from __future__ import annotations
 
+import threading
 from typing import Any
 
 from doodlecam.errors import InputError
 from doodlecam.studio.grbl import FAST, check_serial_port
 
 EMULATOR = "ebb-simulator"
+_PANEL = threading.Lock()  # one panel session on the board at a time (two tabs, two quick clicks)
 PREFIX = "ebb:"  # ebb:/dev/ttyACM0, or ebb:auto (the first EiBotBoard on USB)
 
 
@@ -69,6 +71,11 @@ def machine_action(port: str | None, label: str, action: str, args: dict[str, An
     jog (``x``, ``y``: mm on the paper, y up as the studio shows it; refused if it would leave the work
     area), home (the start corner, where the motors were switched on), status. Returns what was sent,
     the pen's position and a line for the page."""
+    with _PANEL:
+        return _machine_action(port, label, action, args, machine)
+
+
+def _machine_action(port: str | None, label: str, action: str, args: dict[str, Any], machine) -> dict:
     from doodlecam.link.ebb import manual
 
     k = float(machine.kinematics_params.get("steps_per_mm", 80.0))

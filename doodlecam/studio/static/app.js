@@ -549,6 +549,7 @@ $("target").onchange = () => {
   const t = $("target").value;
   $("target-host").hidden = t !== "host"; $("target-serial").hidden = t !== "serial"; $("target-ebb").hidden = t !== "ebb-serial";
   $("machine-panel").hidden = !GRBL_TARGETS.includes(t);
+  $("ebb-panel").hidden = !t.startsWith("ebb-");
   $("send-speed-label").hidden = REAL_TARGETS.includes(t);
 };
 function offerTargets(targets) { // the links that drive this machine (an AxiDraw: its EiBotBoard)
@@ -628,6 +629,8 @@ for (const b of document.querySelectorAll("[data-jog]")) {
     machine("jog", { x: dx * step, y: dy * step });
   };
 }
+
+import("/static/ebbpanel.js").then((m) => m.init(api, sendTarget)); // the EiBotBoard's manual controls
 
 // ------------------------------------------------------------------ tabs
 
