@@ -207,3 +207,29 @@ def test_lift_clear_overlaps_the_lift_with_travel(tmp_path):
     assert [l for l in texts[0] if not l.startswith(("SP", ";"))] == [l for l in texts[1] if not l.startswith(("SP", ";"))]
     pen_down_after = [r.pen_down for r in execute(texts[1]) if r.line.startswith("LM")]
     assert pen_down_after.count(True) == [r.pen_down for r in execute(texts[0]) if r.line.startswith("LM")].count(True)
+
+
+def test_the_sampler_adds_the_fewest_periods_it_needs(tmp_path, monkeypatch):
+    """Where whole-period ramps cannot follow a stroke's plan in ceil(T / dT) periods the sampler adds
+    periods; it bisects back from its 5 % steps, so on a stroke of fewer than 100 periods the one-fewer
+    count has been tried (and failed): the stroke is not slower than the sampler can make it."""
+    import doodlecam.plan.sample as sample
+    from doodlecam import pipeline
+    from doodlecam.machine import load_machine
+
+    tried = set()
+    qp = sample._qp
+
+    def spy(p, *args, **kw):
+        tried.add(len(p))  # one row per period
+        return qp(p, *args, **kw)
+
+    monkeypatch.setattr(sample, "_qp", spy)
+    m = load_machine("axidraw-v3")
+    job = pipeline.convert(ROOT / "samples/images/text.png", tmp_path, pipeline.Settings(machine=m, posts=("ebb",))).job
+    dt = m.delta_time
+    added = [(int(np.ceil(s.profile.duration / dt - 1e-9)), len(smp.velocity)) for s, smp in zip(job.strokes, job.samples)]
+    added = [(m0, n) for m0, n in added if n > max(m0, 2) and m0 < 100]
+    assert any(n - m0 >= 2 for m0, n in added), added  # strokes that needed more than one extra period
+    for m0, n in added:
+        assert n - 1 in tried, (m0, n)
