@@ -205,6 +205,12 @@ def test_lift_clear_overlaps_the_lift_with_travel(tmp_path):
     saved = float(head[0]["planned_time"]) - float(head[1]["planned_time"])
     assert saved == pytest.approx(0.08 * (len(ups[1]) - 1), abs=1e-6)
     assert [l for l in texts[0] if not l.startswith(("SP", ";"))] == [l for l in texts[1] if not l.startswith(("SP", ";"))]
+    from doodlecam.errors import OutputError
+
+    with pytest.raises(OutputError, match="lift_clear must be 0..60 s"):
+        pipeline.convert(src, tmp_path / "bad", pipeline.Settings(machine=m, posts=("ebb",),
+                                                                  post_options={"ebb": {"lift_clear": -0.1}}))
+    assert not (tmp_path / "bad").exists() or not any((tmp_path / "bad").iterdir())
     pen_down_after = [r.pen_down for r in execute(texts[1]) if r.line.startswith("LM")]
     assert pen_down_after.count(True) == [r.pen_down for r in execute(texts[0]) if r.line.startswith("LM")].count(True)
 
