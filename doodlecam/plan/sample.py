@@ -401,6 +401,12 @@ def sample_stroke(stroke: Stroke, dt: float, limits, steps_per_mm=(80.0, 80.0), 
             # the box is 3/4 of the tolerance: the rest absorbs the linearisation error
             res = _qp(np.column_stack([p, u]), tang, v_plan, end, dt, 0.75 * tol, limits, L, nrm, trust, crank,
                       (u - anchor) * L)
+            if res is None and it == 0 and trust is not None:
+                # the ramps may need to run further behind (or ahead of) the plan than the trust region
+                # lets one solve shift: the first solve then sets the timing without it, and the
+                # re-linearised solves that follow keep it (docs/sampling.md)
+                res = _qp(np.column_stack([p, u]), tang, v_plan, end, dt, 0.75 * tol, limits, L, nrm, None, crank,
+                          (u - anchor) * L)
             if res is None:
                 break
             v, x, d = res
