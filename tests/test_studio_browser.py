@@ -269,7 +269,7 @@ def test_7b_send_to_the_grbl_emulator_pause_resume_stop(page, server):
     sender = server["app"].state.sender
     lines = prepare(server["app"].state.session.export("gcode")[1].decode())  # the edited job
     page.select_option("#target", "grbl-simulator")
-    assert page.is_visible("#machine-panel")
+    assert page.is_visible("#machine-panel") and not page.is_visible("#ebb-panel")
     page.click("[data-machine=status]")
     page.wait_for_selector("#machine-status[data-state=Idle]")
     emu = sender._grbl.emulator
@@ -536,6 +536,30 @@ def test_14_an_axidraw_sends_to_its_eibotboard_with_pause_and_resume(page, tmp_p
         pg.wait_for_selector("#send-status[data-state=done]", timeout=120_000)
         assert pg.text_content("#send-status").startswith(f"done: {len(lines)} commands in ")
         assert [c for c in emu.received if c.split(",")[0] not in ("V", "QM", "QS")] == lines
+        # the EiBotBoard panel: `doodlecam machine ebb`'s controls on the same board, back at home after the job
+        assert pg.is_visible("#ebb-panel") and not pg.is_visible("#machine-panel")
+        n0 = len(emu.received)
+        pg.click("[data-ebb=pen_down]")
+        pg.wait_for_selector("#ebb-status[data-action=pen_down]", timeout=30_000)
+        assert emu.pen_up == 0 and pg.text_content("#ebb-status").startswith("sent SP,0,200: ")
+        pg.fill("#ebb-jog-step", "10")
+        pg.click("[data-ebb-jog='1,0']")  # 10 mm right: both motors forward, the pen raised first
+        pg.wait_for_selector("#ebb-status[data-action=jog]", timeout=30_000)
+        assert tuple(emu.pos) == (800, 800) and emu.pen_up == 1
+        pg.click("[data-ebb-jog='0,-1']")  # 10 mm down the paper (away from home): motor 1 on, motor 2 back
+        pg.wait_for_selector("#ebb-status[data-position='10,208']", timeout=30_000)
+        assert tuple(emu.pos) == (1600, 0)
+        pg.click("[data-ebb-jog='-1,0']")
+        pg.wait_for_selector("#ebb-status[data-position='0,208']", timeout=30_000)
+        pg.click("[data-ebb-jog='-1,0']")  # past the left edge of the work area: refused, nothing moves
+        pg.wait_for_function("() => /would leave/.test(document.getElementById('error').textContent)", timeout=30_000)
+        assert tuple(emu.pos) == (800, -800)
+        pg.click("[data-ebb=home]")
+        pg.wait_for_selector("#ebb-status[data-action=home]", timeout=30_000)
+        assert tuple(emu.pos) == (0, 0) and emu.pen_up == 1
+        assert [c.split(",")[0] for c in emu.received[n0:] if c.split(",")[0] not in ("V", "QM", "QS")] == \
+            ["SP", "SP", "XM", "SP", "XM", "SP", "XM", "SP", "HM"]
+        shot(pg, "ebb-panel")
         sender.close()
 
 

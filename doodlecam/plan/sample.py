@@ -372,9 +372,8 @@ def sample_stroke(stroke: Stroke, dt: float, limits, steps_per_mm=(80.0, 80.0), 
         if fast is not None:
             return fast
     L = max(spline.length, 1e-9)
-    m0 = max(int(np.ceil(prof.duration / dt - 1e-9)), 2)  # up, then down to rest
-    m = m0
-    while m <= m0 * (1 + max_extra) + 4:
+
+    def attempt(m: int) -> StrokeSamples | None:
         c = prof.duration / (m * dt)  # time scale <= 1: a uniformly slower plan is within limits
         t = dt * np.arange(1, m + 1)
         u, ud, _ = prof.state_at(c * t)
@@ -402,6 +401,12 @@ def sample_stroke(stroke: Stroke, dt: float, limits, steps_per_mm=(80.0, 80.0), 
             # the box is 3/4 of the tolerance: the rest absorbs the linearisation error
             res = _qp(np.column_stack([p, u]), tang, v_plan, end, dt, 0.75 * tol, limits, L, nrm, trust, crank,
                       (u - anchor) * L)
+            if res is None and it == 0 and trust is not None:
+                # the ramps may need to run further behind (or ahead of) the plan than the trust region
+                # lets one solve shift: the first solve then sets the timing without it, and the
+                # re-linearised solves that follow keep it (docs/sampling.md)
+                res = _qp(np.column_stack([p, u]), tang, v_plan, end, dt, 0.75 * tol, limits, L, nrm, None, crank,
+                          (u - anchor) * L)
             if res is None:
                 break
             v, x, d = res
@@ -418,10 +423,28 @@ def sample_stroke(stroke: Stroke, dt: float, limits, steps_per_mm=(80.0, 80.0), 
                 # plan's); costing later shifts from there, not from the last solve, lets the
                 # re-linearised solves converge instead of drifting (docs/sampling.md)
                 anchor = u
-        if ok:
-            vel = np.vstack([v, np.zeros((1, 2))])
-            return StrokeSamples(start=start, velocity=vel, delta_time=dt, time_scale=c, sample_u=np.append(0.0, u))
-        m += max(1, m0 // 20)
+        if not ok:
+            return None
+        vel = np.vstack([v, np.zeros((1, 2))])
+        return StrokeSamples(start=start, velocity=vel, delta_time=dt, time_scale=c, sample_u=np.append(0.0, u))
+
+    m0 = max(int(np.ceil(prof.duration / dt - 1e-9)), 2)  # up, then down to rest
+    m, bad = m0, m0 - 1
+    while m <= m0 * (1 + max_extra) + 4:
+        got = attempt(m)
+        if got is not None:
+            # periods were added in steps of 5 %: bisect back towards the last failure, to 1 % (more
+            # periods = a uniformly slower plan, so feasibility is monotone in practice; a failed
+            # probe only keeps the longer samples)
+            while m - bad > max(1, m0 // 100):
+                mid = (m + bad) // 2
+                probe = attempt(mid)
+                if probe is None:
+                    bad = mid
+                else:
+                    m, got = mid, probe
+            return got
+        bad, m = m, m + max(1, m0 // 20)
     raise PlanError("cannot follow the stroke within the limits with velocity samples every "
                     f"{dt * 1000:g} ms; use a shorter [sampling] delta_time")
 

@@ -475,12 +475,16 @@ def create_app(session: Session, config: StudioConfig | None = None) -> FastAPI:
 
     @app.post("/api/machine")
     async def machine_control(request: Request):
-        """One of ``doodlecam machine``'s commands on a GRBL target (token-protected like sends)."""
+        """One of ``doodlecam machine``'s commands on a GRBL or EiBotBoard target (token-protected like sends)."""
         from doodlecam.link.grbl.timing import grbl_settings_for
 
         doc = await payload(request)
         action = doc.pop("action", None)
-        port = sender.grbl_port(doc.pop("target", studio_grbl.EMULATOR))
+        target = doc.pop("target", studio_grbl.EMULATOR)
+        if isinstance(target, str) and studio_ebb.is_ebb(target):  # an AxiDraw: the EiBotBoard's manual controls
+            port, label = sender.ebb_port(target)
+            return await run_in_threadpool(studio_ebb.machine_action, port, label, str(action), doc, session.machine)
+        port = sender.grbl_port(target)
 
         def run():
             pens = None

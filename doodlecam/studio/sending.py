@@ -158,6 +158,12 @@ class Sender:
             raise InputError("a send to GRBL is running; the panel can talk to GRBL when it has ended")
         return self._grbl.port(target, keep_speed=True)[0]
 
+    def ebb_port(self, target: str) -> tuple[str | None, str]:
+        """(port, label) of an EiBotBoard target for the machine panel; refused while a send uses the board."""
+        if self.busy and self.s.transport == "ebb":
+            raise InputError("a send to the EiBotBoard is running; the panel can talk to it when it has ended")
+        return self._ebb.port(target)
+
     def _pen_change(self, machine):
         """The links' ``pen_change``: the send waits in state 'waiting' (the pen up, the machine holding
         the job) until the page's Continue; Stop ends the send there, resumable (it asks again)."""

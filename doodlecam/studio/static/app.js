@@ -650,6 +650,7 @@ $("target").onchange = () => {
   const t = $("target").value;
   $("target-host").hidden = t !== "host"; $("target-serial").hidden = t !== "serial"; $("target-ebb").hidden = t !== "ebb-serial";
   $("machine-panel").hidden = !GRBL_TARGETS.includes(t);
+  $("ebb-panel").hidden = !t.startsWith("ebb-");
   $("send-speed-label").hidden = REAL_TARGETS.includes(t);
 };
 function offerTargets(targets) { // the links that drive this machine (an AxiDraw: its EiBotBoard)
@@ -773,6 +774,8 @@ document.addEventListener("visibilitychange", () => {
   if (!document.hidden) openEvents();
   else if (events) { events.close(); events = null; }
 });
+
+import("/static/ebbpanel.js").then((m) => m.init(api, sendTarget)); // the EiBotBoard's manual controls
 
 // ------------------------------------------------------------------ tabs
 
