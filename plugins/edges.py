@@ -179,14 +179,16 @@ def thin(edges: np.ndarray) -> np.ndarray:
     return skel[1:-1, 1:-1]
 
 
-def link_edges(edges: np.ndarray, min_length: float = 0.0) -> tuple[list[np.ndarray], int, int]:
+def link_edges(edges: np.ndarray, min_length: float = 0.0, prune: bool = False) -> tuple[list[np.ndarray], int, int]:
     """Chains of (row, col) points covering a thin edge map, each edge pixel once.
 
     Returns (chains, number of edge objects, number of junction clusters).
     Edge objects are the non-branching runs between junctions; a chain
     shorter than ``min_length`` with a free end (a spur or a speck) is
     dropped, and the rest are joined straight through junctions, so fewer
-    pen lifts are needed. Closed chains repeat their first point.
+    pen lifts are needed. With ``prune`` the dropping repeats until nothing
+    changes: a short chain left with a free end once its branches are gone (a
+    forked spur) goes too. Closed chains repeat their first point.
     """
     from scipy.sparse import csgraph
 
@@ -271,6 +273,14 @@ def link_edges(edges: np.ndarray, min_length: float = 0.0) -> tuple[list[np.ndar
 
     # Drop spurs and specks before joining, so they cannot hijack a junction.
     alive = (length >= min_length) | ((ca >= 0) & (cb >= 0) & (ca != cb))
+    while prune:  # a spur's own branches gone, the spur has a free end: drop it too, to a fixed point
+        ends = np.r_[ca[alive], cb[alive]]
+        count = np.bincount(ends[ends >= 0], minlength=n)
+        tied = (ca >= 0) & (cb >= 0) & (ca != cb) & (count[np.maximum(ca, 0)] > 1) & (count[np.maximum(cb, 0)] > 1)
+        now = alive & ((length >= min_length) | tied)
+        if np.array_equal(now, alive):
+            break
+        alive = now
     chains = _join(pts, start[alive], stop[alive], ca[alive], cb[alive])
     return chains, len(first), len(np.unique(jl))
 
