@@ -27,6 +27,7 @@ import numpy as np
 from doodlecam.api import Option, Tracer
 from doodlecam.errors import InputError, PluginError
 from doodlecam.model import Drawing
+from doodlecam.plugins.edges import CORNER, CORNER_HELP, check_corner
 from doodlecam.trace.raster import IMAGE_EXTENSIONS, grid_scale, load_gray
 
 
@@ -45,6 +46,7 @@ class CenterlineTracer(Tracer):
         Option("pixel_mm", float, 0.0, "trace a picture drawn coarser than this many mm per pixel scaled up to it, "
                "and one with lines wider than 12 px scaled down to it (0 = the pen width), so the same picture "
                "at 1x and 4x gives the same job; thin lines on finer pictures keep their resolution"),
+        Option("corner", float, CORNER, CORNER_HELP),
     )
 
     @classmethod
@@ -59,6 +61,7 @@ class CenterlineTracer(Tracer):
         for key in ("spur", "speck", "simplify", "staircase", "min_length"):
             if opt[key] < 0:
                 raise PluginError(f"tracer 'centerline': {key} must be >= 0, got {opt[key]:g}")
+        check_corner(self.name, opt["corner"])
         return self.trace_gray(load_gray(path), path, opt, grid=grid_scale(self, opt["pixel_mm"]))
 
     def trace_gray(self, gray: np.ndarray, path: Path, opt: dict[str, Any], skel: np.ndarray | None = None,
@@ -80,6 +83,7 @@ class CenterlineTracer(Tracer):
             polylines=tuple(p[:, ::-1] for p in polylines),  # (row, col) -> (x, y)
             units="px", y_down=True, source=str(path), extent=(float(w), float(h)),
             meta={"tracer": self.name, "options": opt, "threshold": level, **info,
+                  "traced_corners_deg": float(opt.get("corner", CORNER)),
                   "line_width_px": info["line_width_px"] / k},
         )
         return in_picture_px(d, gray.shape)

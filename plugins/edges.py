@@ -32,6 +32,14 @@ from doodlecam.trace.raster import IMAGE_EXTENSIONS, denoise_amount, in_picture_
 _MIN_STEP = 0.02
 _TANGENT_PX = 5  # how far along a chain its direction at a junction is measured
 _BIG = 4_000_000  # pixels; larger pictures are filtered in float32
+CORNER = 30.0  # degrees: traced corners kept exact (doodlecam.geometry.corners), here and in contours, centerline
+CORNER_HELP = ("keep corners exact where a traced line turns by more than this many degrees over a few pen "
+               "widths: the stroke is split there and the pen stops on the corner without lifting (0 = off)")
+
+
+def check_corner(tracer: str, corner: float) -> None:
+    if not 0 <= corner < 180:
+        raise PluginError(f"tracer '{tracer}': corner must be 0 (off) to below 180 degrees, got {corner:g}")
 
 
 class EdgesTracer(Tracer):
@@ -53,6 +61,7 @@ class EdgesTracer(Tracer):
                "(up to smooth=3 sigma=3 for heavy noise; clean pictures are untouched); false = off"),
         Option("pixel_mm", float, 0.0, "trace the picture scaled (down, or up if coarser) to this many mm per pixel "
                "as drawn (0 = the pen width), so px options mean the same drawn size at any resolution"),
+        Option("corner", float, CORNER, CORNER_HELP),
     )
 
     @classmethod
@@ -62,6 +71,7 @@ class EdgesTracer(Tracer):
     def trace(self, path: Path, options: dict[str, Any]) -> Drawing:
         """Polylines in pixels: x = column, y = row (down), a pixel's centre at its index."""
         opt = self.resolve_options(options)
+        check_corner(self.name, opt["corner"])
         # on the pen-width grid whatever the input: sigma, join, min_length ... are the same drawn size
         gray, shape = load_working(path, self, opt["pixel_mm"], upscale=True)
         return in_picture_px(self.trace_gray(gray, path, opt), shape)
@@ -88,7 +98,8 @@ class EdgesTracer(Tracer):
                   "edge_objects": n_objects, "junctions": n_junctions, "polylines": len(polylines),
                   "vertices": int(sum(len(p) for p in polylines)),
                   "length_px": float(_lengths(polylines).sum()),
-                  "low_threshold": low, "high_threshold": high, "noise": noise},
+                  "low_threshold": low, "high_threshold": high, "noise": noise,
+                  "traced_corners_deg": float(opt.get("corner", CORNER)), "corner_blur_px": float(opt["sigma"])},
         )
 
     @staticmethod
