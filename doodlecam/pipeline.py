@@ -155,10 +155,10 @@ def plan_job(drawing: Drawing, machine: Machine, solver: str = "reach", plugin_d
     corner = float(drawing.meta.get("split_corners_deg", 0.0))
     # A line traced from pixels turns at every step of its staircase: its corners are found over
     # a support of a few pixels of the grid traced, at least a few pen widths (geometry.corners).
-    traced, support, smooth = traced_corner_rule(drawing, machine)
+    traced, support, smooth, arms = traced_corner_rule(drawing, machine)
     for k, (i, p, layer) in enumerate(ordered if fitted is None else ()):
         progress("fitting", k, len(ordered))
-        for piece in split_traced(p, support, traced, smooth) if traced > 0 else (p,):
+        for piece in split_traced(p, support, traced, smooth, arms) if traced > 0 else (p,):
             for spline, err in fit_pieces(piece, machine.degree, machine.tolerance, corner=corner):
                 strokes.append(Stroke(spline=spline, source_index=i, fit_error=err, layer=layer))
     timings["fit"] = time.perf_counter() - t0
@@ -228,20 +228,22 @@ def plan_job(drawing: Drawing, machine: Machine, solver: str = "reach", plugin_d
 TRACED_SUPPORT = 3.0  # scales (below) on either side of a traced corner
 
 
-def traced_corner_rule(drawing: Drawing, machine: Machine) -> tuple[float, float, float]:
-    """(angle in degrees, 0 = off; support and smoothing in mm) of the corners kept on a traced
-    picture's lines: the tracer's ``traced_corners_deg``, over TRACED_SUPPORT x the largest of the
-    scales that round or blur a corner as drawn: the pen width, the picture's pixel
-    (``scale_mm_per_unit``), the pixel of the grid traced (x ``grid_px``, picture px per traced px)
-    and the tracer's own blur (``corner_blur_px``, traced px: Canny's sigma, contours' blur). The
-    line is smoothed by the largest of the first three (a pixel's staircase) before its turns are
-    measured; the tracer's blur has smoothed it already."""
+def traced_corner_rule(drawing: Drawing, machine: Machine) -> tuple[float, float, float, float]:
+    """(angle in degrees, 0 = off; support, smoothing and arms in mm) of the corners kept on a
+    traced picture's lines: the tracer's ``traced_corners_deg``, found over TRACED_SUPPORT x the
+    largest of the scales that round or blur a corner on the grid traced: the pen width, the
+    grid's pixel as drawn (``scale_mm_per_unit`` x ``grid_px``, picture px per traced px) and the
+    tracer's own blur (``corner_blur_px``, traced px: Canny's sigma, contours' blur), the same at
+    any resolution of the picture. The line is smoothed by the pixel (pen width or grid) before its
+    turns are measured; the arms are fitted beyond TRACED_SUPPORT picture pixels too, where a
+    picture coarser than the grid rounds its corners over its own pixels."""
     meta = drawing.meta
     angle = float(meta.get("traced_corners_deg", 0.0))
     px = float(meta.get("scale_mm_per_unit", 0.0))
     grid = px * float(meta.get("grid_px", 1.0))
-    pixel = max(machine.pen.width, px, grid)
-    return angle, TRACED_SUPPORT * max(pixel, grid * float(meta.get("corner_blur_px", 0.0))), pixel
+    pixel = max(machine.pen.width, grid)
+    support = TRACED_SUPPORT * max(pixel, grid * float(meta.get("corner_blur_px", 0.0)))
+    return angle, support, pixel, max(support, TRACED_SUPPORT * px)
 
 
 def corners_kept(strokes) -> int:

@@ -33,7 +33,11 @@ from __future__ import annotations
 
 import numpy as np
 
-_SPREAD = 1.4  # most the turn may grow or shrink from support L to 2L at a corner (a circle: x2, noise: /2)
+# Most the turn may grow or shrink from support L to 2L at a corner (a circle's doubles, the
+# staircase's wobble halves). A picture coarser than the grid rounds its corners over its own
+# pixels, so their turn still grows: at 1.4 a third of the corners of tests/test_traced_corners.py
+# at 1 mm per pixel were missed, at 1.6 none.
+_SPREAD = 1.6
 # A corner's arms are fitted from one to two supports away from it: within one support the
 # tracer's rounding bends them (a thresholded blur pulls a sharp tip back by several times
 # the blur; with arms from a third of the support the star tips of tests/test_traced_corners.py
@@ -144,11 +148,14 @@ def _meet(q: np.ndarray, sq: np.ndarray, at: float, here: np.ndarray, support: f
     return x if np.hypot(*(x - here)) <= support else None
 
 
-def split_traced(p: np.ndarray, support: float, angle: float, smooth: float | None = None) -> list[np.ndarray]:
+def split_traced(p: np.ndarray, support: float, angle: float, smooth: float | None = None,
+                 arms: float | None = None) -> list[np.ndarray]:
     """The traced polyline ``p`` (mm) cut at its corners (``find_corners``), each corner put where
     its arms meet (the rounded stretch within _INNER x ``support`` of it replaced by that point);
     the pieces share the corner points, in order. A closed polyline starts and ends on its
-    first corner, so the pen stops nowhere else. ``smooth`` as for ``find_corners``."""
+    first corner, so the pen stops nowhere else. ``smooth`` as for ``find_corners``; ``arms``: the
+    support the arms are fitted over and the rounding replaced within (None = ``support``; more
+    where the picture's own pixels, coarser than the grid traced, round a corner further)."""
     p = np.asarray(p, dtype=float)
     corners = find_corners(p, support, angle, smooth)
     if len(corners) == 0:
@@ -160,10 +167,11 @@ def split_traced(p: np.ndarray, support: float, angle: float, smooth: float | No
         p = np.vstack([ring, ring[:1]])
     s = _arc(p)
     q, sq = _laps(p, s, closed)
-    r = _INNER * support
+    arms = support if arms is None else max(arms, support)
+    r = _INNER * arms
     ends = []  # (arc length, point, stretch cut on either side)
     for i in corners:
-        x = _meet(q, sq, s[i], p[i], support)
+        x = _meet(q, sq, s[i], p[i], arms)
         ends.append((s[i], p[i], 0.0) if x is None else (s[i], x, r))
     if closed:  # round to the first corner again
         bounds = ends + [(s[-1], ends[0][1], ends[0][2])]
@@ -172,5 +180,7 @@ def split_traced(p: np.ndarray, support: float, angle: float, smooth: float | No
     out = []
     for (a, xa, ra), (b, xb, rb) in zip(bounds[:-1], bounds[1:]):
         inner = p[(s > a + ra) & (s < b - rb)]
-        out.append(np.vstack([xa[None], inner, xb[None]]))
-    return out
+        piece = np.vstack([xa[None], inner, xb[None]])
+        if np.any(piece != piece[0]):  # a piece of no length (two corners put on one point) goes
+            out.append(piece)
+    return out or [p]
