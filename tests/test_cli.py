@@ -16,7 +16,7 @@ from doodlecam.plan.follow import path_deviation
 from doodlecam.model import StrokeSamples
 from doodlecam.plan.sample import reference_positions
 
-from conftest import plc_strokes
+from conftest import plc_pieces, plc_strokes
 
 ROOT = Path(__file__).resolve().parent.parent
 CAMERA = ROOT / "samples" / "images" / "camera.png"
@@ -66,17 +66,8 @@ def test_plc_samples_reproduce_every_fitted_stroke(tmp_path):
     res = convert(CAMERA, tmp_path, Settings(machine=machine, posts=("plc",)))
     header, runs = plc_strokes(tmp_path / "camera.plc")
     kx, ky = header.steps_per_mm_x, header.steps_per_mm_y
-    # a MOVE's run of DRAWs holds the strokes drawn without lifting: split it at each one's samples
-    assert len(runs) == res.job.pen_lifts
-    strokes, it = [], iter(res.job.samples)
-    for run_ in runs:
-        start, at = run_["start"], 0
-        while at < len(run_["v"]):
-            part = run_["v"][at:at + len(next(it).velocity)]
-            strokes.append({"start": start, "v": part})
-            v = np.vstack([[0, 0], part])
-            start = start + np.sum(0.5 * header.delta_time * (v[1:] + v[:-1]), axis=0)
-            at += len(part)
+    assert len(runs) == res.job.pen_lifts  # the pieces of a traced line between corners: one run
+    strokes = plc_pieces(header, runs, res.job.samples)
     assert len(strokes) == len(res.job.strokes)
     worst = between = 0.0
     for st, stroke, smp in zip(strokes, res.job.strokes, res.job.samples):
