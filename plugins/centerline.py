@@ -61,13 +61,13 @@ class CenterlineTracer(Tracer):
         for key in ("spur", "speck", "simplify", "staircase", "min_length"):
             if opt[key] < 0:
                 raise PluginError(f"tracer 'centerline': {key} must be >= 0, got {opt[key]:g}")
-        check_corner(self.name, opt["corner"])
         return self.trace_gray(load_gray(path), path, opt, grid=grid_scale(self, opt["pixel_mm"]))
 
     def trace_gray(self, gray: np.ndarray, path: Path, opt: dict[str, Any], skel: np.ndarray | None = None,
                    grid: float | None = None) -> Drawing:
         """``trace`` of a picture already loaded (``skel``: its skeleton, when already made; ``grid``:
         pen-width grid px per picture px, when the drawn size is known)."""
+        check_corner(self.name, opt.get("corner", CORNER))  # here: 'auto' calls this directly
         from doodlecam.trace.raster import in_picture_px
 
         ink, level = ink_mask(gray, opt["threshold"])

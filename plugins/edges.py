@@ -71,13 +71,13 @@ class EdgesTracer(Tracer):
     def trace(self, path: Path, options: dict[str, Any]) -> Drawing:
         """Polylines in pixels: x = column, y = row (down), a pixel's centre at its index."""
         opt = self.resolve_options(options)
-        check_corner(self.name, opt["corner"])
         # on the pen-width grid whatever the input: sigma, join, min_length ... are the same drawn size
         gray, shape = load_working(path, self, opt["pixel_mm"], upscale=True)
         return in_picture_px(self.trace_gray(gray, path, opt), shape)
 
     def trace_gray(self, gray: np.ndarray, path: Path, opt: dict[str, Any]) -> Drawing:
         """``trace`` of a picture already loaded, with resolved options."""
+        check_corner(self.name, opt.get("corner", CORNER))  # here: 'auto' calls this directly
         noise = noise_level(gray)
         if opt["denoise"] and (a := denoise_amount(noise)) > 0:
             # the settings that rescued a noisy photo by hand, reached at heavy noise

@@ -173,10 +173,12 @@ def test_corners_are_found_over_a_support_not_at_every_step():
     assert len(find_corners(line[: len(line) // 2], 3 * px, 30)) == 0
 
 
-@pytest.mark.parametrize("tracer", ["edges", "contours", "centerline"])
-def test_a_bad_corner_angle_is_a_one_line_error(tmp_path, machine, tracer):
+@pytest.mark.parametrize("tracer", ["edges", "contours", "centerline", "auto"])
+@pytest.mark.parametrize("corner", ["180", "-5"])
+def test_a_bad_corner_angle_is_a_one_line_error(tmp_path, machine, tracer, corner):
     path = tmp_path / "shapes.png"
     render(path, 100, 0.0)
-    with pytest.raises(PluginError, match="corner must be 0"):
-        convert(path, tmp_path / "out", Settings(machine=machine, tracer=tracer, tracer_options={"corner": "180"}))
+    with pytest.raises(PluginError, match="corner must be 0") as e:
+        convert(path, tmp_path / "out", Settings(machine=machine, tracer=tracer, tracer_options={"corner": corner}))
+    assert "\n" not in str(e.value)
     assert not (tmp_path / "out").exists()
