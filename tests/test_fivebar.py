@@ -228,7 +228,7 @@ def test_the_cranks_follow_the_sampled_ramps_within_their_limits(tmp_path):
     from doodlecam.model import StrokeSamples
     from doodlecam.plan.follow import executed_points, path_deviation
     from doodlecam.pipeline import Settings, convert
-    from conftest import plc_strokes
+    from conftest import plc_pieces, plc_strokes
 
     machine = load_machine("fivebar")
     horse = Path(__file__).resolve().parent.parent / "samples" / "images" / "horse.png"
@@ -238,7 +238,9 @@ def test_the_cranks_follow_the_sampled_ramps_within_their_limits(tmp_path):
     vmax, amax = kin.actuator_limits()
     header, runs = plc_strokes(tmp_path / "horse.plc")
     sub = 32
-    for run, stroke, smp in zip(runs, res.job.strokes, res.job.samples):
+    pieces = plc_pieces(header, runs, res.job.samples)  # strokes drawn without lifting share a run
+    assert len(pieces) == len(res.job.strokes)
+    for run, stroke, smp in zip(pieces, res.job.strokes, res.job.samples):
         executed = StrokeSamples(start=run["start"], velocity=np.array(run["v"]), delta_time=header.delta_time,
                                  sample_u=smp.sample_u)
         pts = executed_points(executed, sub)
