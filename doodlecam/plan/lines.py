@@ -32,11 +32,12 @@ def eligible(ctx, stroke) -> bool:
 
 
 def plan_lines(ctx, strokes: list, pens: list) -> list:
-    """plan_one's Outcome for every stroke (all ``eligible``), or None where the general pass is needed."""
+    """For every stroke (all ``eligible``), what plan_one finds for it: (the planned stroke, its
+    (acceleration, velocity) ratios, samples, per-period deviation), or None where the general pass is
+    needed."""
     from dataclasses import replace
 
     from doodlecam.plan.kernels import times
-    from doodlecam.plan.stroke import Outcome
 
     n = len(strokes)
     if n == 0:
@@ -98,8 +99,8 @@ def plan_lines(ctx, strokes: list, pens: list) -> list:
         start = np.round(a0[i] * k) / k
         smp = StrokeSamples(start=start, velocity=vel[o:o + m], delta_time=dt, time_scale=float(scale[i]),
                             sample_u=su[o + i:o + i + m + 1])
-        out[i] = Outcome(replace(strokes[i], profile=prof), (float(ratios[i, 0]), float(ratios[i, 1])), smp,
-                         dev[o:o + m].copy(), 0, False, 0.0, 1.0)
+        out[i] = (replace(strokes[i], profile=prof), (float(ratios[i, 0]), float(ratios[i, 1])), smp,
+                  dev[o:o + m].copy())
     return out
 
 

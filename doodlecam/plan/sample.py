@@ -481,7 +481,9 @@ def straight_samples(stroke: Stroke, dt: float, limits, k: np.ndarray, tol: floa
     if D * k.max() < 1.0:
         return None
     e = end / D
-    along = np.abs(np.asarray(limits.M, float) @ e)
+    from doodlecam.plan.planner import linear_map
+
+    along = np.abs(linear_map(e[None, :], np.asarray(limits.M, float))[0])  # written out, as plan.lines
     use = along > 0
     vcap = float(np.min(limits.vmax[use] / along[use])) * (1 - 1e-6)
     if limits.pen_speed is not None:

@@ -204,7 +204,8 @@ def plan_strokes(ctx: Context, strokes: list[Stroke], pens: list, workers: int =
     # straight strokes in closed form, all at once; the rest (and any of those the closed forms
     # do not cover) one by one
     lines = [i for i, s in enumerate(strokes) if eligible(ctx, s)]
-    done = {i: o for i, o in zip(lines, plan_lines(ctx, [strokes[i] for i in lines], [pens[i] for i in lines]))
+    done = {i: Outcome(*o, replans=0, slowed_for_ramps=False, ramp=0.0, slowed=1.0)
+            for i, o in zip(lines, plan_lines(ctx, [strokes[i] for i in lines], [pens[i] for i in lines]))
             if o is not None}
     if progress and done:
         progress(len(done))
