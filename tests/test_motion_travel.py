@@ -77,7 +77,7 @@ def test_profile_key_selects_the_law_and_unknown_laws_are_errors():
     m = parse_machine({**PROFILE, "travel": {"law": "smooth"}}, "p.toml")
     assert m.travel_law == "modified-sine"
     assert make_travel([0, 0], [200, 0], m).duration > make_travel([0, 0], [200, 0], m, "trapezoid").duration
-    with pytest.raises(MachineError, match=r"p.toml: \[travel\] law 'modified-sin' is unknown \(did you mean 'modified-sine'\?\)"):
+    with pytest.raises(MachineError, match=r"p.toml: travel.law = 'modified-sin' is unknown \(did you mean 'modified-sine'\?\); use one of "):
         parse_machine({**PROFILE, "travel": {"law": "modified-sin"}}, "p.toml")
 
 
