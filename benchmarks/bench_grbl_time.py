@@ -4,7 +4,8 @@ For each sample picture (doodlebot profile: 80 steps/mm, 150 mm/s, 2000 mm/s²,
 GRBL $11 = 0.010, $1 = 25 ms) three programs with the same pen commands,
 dwells, stroke order and chord tolerance (0.05 mm):
 
-* ``cap``  — doodlecam's default G-code (``feeds = cap``: longest chords, F = pen cap);
+* ``cap``  — doodlecam's default G-code (``feeds = cap``: chords chosen for GRBL's planner, their
+  vertices on its step positions, F = pen cap);
 * ``plan`` — doodlecam's ``feeds = plan`` (the PLC plan's feeds, the old default);
 * ``vpype`` — the ``plan`` polylines (the spline within the chord tolerance) written by
   vpype-gcode at F9000, the machine's maximum feed.
@@ -24,6 +25,10 @@ its job times (``job_s``) and their ratio: the independent reference for the mod
     /work/shared/grbl-fw/build.sh /tmp/fw
     .venv/bin/python benchmarks/bench_grbl_time.py --vpype /tmp/vpype-env/bin/vpype --firmware /tmp/fw/grbl_lock
 
+The ``bound`` column is the model's time for ``cap`` if GRBL never slowed at a junction, over
+``vpype``'s: no choice of chords does better with these pen commands, dwells, travels and stroke
+ends, which take the same time in both programs.
+
 Prints a markdown table; exits non-zero if ``cap`` is not at most 0.9x ``vpype`` everywhere.
 """
 
@@ -34,6 +39,7 @@ import subprocess
 import sys
 import tempfile
 import time
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -133,6 +139,9 @@ def main() -> int:
             back = polylines(text["vpype"])  # vpype must have kept the strokes as given
             assert len(back) == len(lines) and all(np.allclose(a, b, atol=2e-3) for a, b in zip(back, lines))
             t = {k: estimate_gcode(v, grbl, start=tuple(machine.home)).total for k, v in text.items()}
+            # the best any chords could do with these pen commands, travels and stroke ends: GRBL never
+            # slowing at a junction (the rest of the job, dwells, $1 delays and travels, is the same in both)
+            free = estimate_gcode(text["cap"], replace(grbl, junction_deviation=1e9), start=tuple(machine.home)).total
             n = {k: sum(1 for x in v.splitlines() if x.startswith("G1")) for k, v in text.items()}
             ratio = t["cap"] / t["vpype"]
             worst = max(worst, ratio)
@@ -141,10 +150,12 @@ def main() -> int:
                 f = {k: firmware_time(args.firmware, args.eeprom, text[k], Path(tmp) / f"fw-{name}-{k}") for k in ("cap", "vpype")}
                 fw = f" {f['cap']:.2f} | {f['vpype']:.2f} | {f['cap'] / f['vpype']:.3f} | {t['cap'] / f['cap']:.3f} |"
             rows.append(f"| {name} | {len(job.strokes)} | {t['plan']:.1f} ({n['plan']}) | {t['vpype']:.1f} ({n['vpype']}) "
-                        f"| {t['cap']:.1f} ({n['cap']}) | {ratio:.3f} | {cpu['cap']:.2f} / {cpu['plan']:.2f} |" + fw)
+                        f"| {t['cap']:.1f} ({n['cap']}) | {ratio:.3f} | {free / t['vpype']:.3f} "
+                        f"| {cpu['cap']:.2f} / {cpu['plan']:.2f} |" + fw)
     print("GRBL 1.1 job time by doodlecam's planner model, s (G1 lines); doodlebot, $11=0.010, $1=25 ms, "
           "chord tolerance 0.05 mm\n")
-    head = "| picture | strokes | feeds=plan | vpype-gcode F9000 | feeds=cap (default) | cap / vpype | post CPU s cap / plan |"
+    head = ("| picture | strokes | feeds=plan | vpype-gcode F9000 | feeds=cap (default) | cap / vpype "
+            "| bound: no junction slow-down / vpype | post CPU s cap / plan |")
     if args.firmware:
         head += " firmware: cap s | firmware: vpype s | firmware: cap / vpype | estimate / firmware (cap) |"
     print(head)
