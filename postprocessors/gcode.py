@@ -3,11 +3,12 @@
 Each stroke becomes G1 segments along its spline, every chord within
 ``chord_tolerance`` of it, in one of two modes (``feeds``):
 
-* ``cap`` (default): the longest chords within the tolerance (or a half,
-  quarter ... of it), all at the pen-speed cap; the firmware's planner sets
-  the speeds. Per stroke the polyline that ``doodlecam.link.grbl.timing``
-  (GRBL 1.1's planner) runs fastest is written, among those a serial line at
-  ``baud`` can feed.
+* ``cap`` (default): the longest chords within the tolerance (or within
+  2^(-k/4) of it), their vertices on the motor-step positions that make
+  GRBL's step-rounded chords turn smoothly, all at the pen-speed cap; the
+  firmware's planner sets the speeds. Per stroke the polyline that
+  ``doodlecam.link.grbl.timing`` (GRBL 1.1's planner) runs fastest is
+  written, among those a serial line at ``baud`` can feed.
 * ``plan``: segment ends at the planned sample instants, split further until
   every chord is within the tolerance; each feed is the chord over the
   planned time between its ends, so a controller that follows F reproduces
@@ -382,7 +383,7 @@ class GcodePost(PostProcessor):
         as the turn grows, while shorter ones starve its 15-block look-ahead and
         suffer more from its rounding to whole steps: which is faster depends on
         the curve, so the caller times each with GRBL's model. Level k takes the
-        longest chords within (tol - fine) / sqrt(2)^k of the curve, then places
+        longest chords within (tol - fine) / 2^(k/4) of the curve, then places
         each vertex on one of the step positions around it, within the whole
         tolerance (the vertices leave the curve, the chords stay within the
         tolerance of it), so that GRBL's rounded chords turn smoothly
