@@ -43,7 +43,7 @@ from doodlecam.api import Option, PostProcessor
 from doodlecam.errors import OutputError, PluginError
 from doodlecam.geometry.chords import chord_ok, greedy_chords, one_step_apart, snap_chords
 
-CAP_LEVELS = 24  # chord tolerances for feeds = cap: tol, tol/sqrt(2), ... (down to MIN_LEVEL_STEPS)
+CAP_LEVELS = 24  # chord tolerances for feeds = cap: tol, tol/2^(1/4), ... (down to MIN_LEVEL_STEPS)
 CHORD_LEVEL = 2 ** -0.25
 MIN_LEVEL_STEPS = 0.15  # the finest level's tolerance, in motor steps
 START_LEVEL_STEPS = 0.3  # the level the search starts from, in motor steps
@@ -391,7 +391,7 @@ class GcodePost(PostProcessor):
         third of a step (where traced curves run fastest) and walks to finer or
         coarser levels while they pay.
         """
-        u, q, fine = GcodePost._dense(stroke, tol)
+        _, q, fine = GcodePost._dense(stroke, tol)
         q = np.ascontiguousarray(q)
         r0 = tol - fine - 7.1e-4  # unsnapped vertices are rounded to 3 decimals
         rooms = r0 * CHORD_LEVEL ** np.arange(CAP_LEVELS)
