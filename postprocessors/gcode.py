@@ -571,6 +571,13 @@ class GcodePost(PostProcessor):
                 body.append(f"G0 X{_num(p[0, 0])} Y{_num(p[0, 1])}")
                 program.append(("G0", p[0, 0], p[0, 1], None, None))
                 pen(options["pen_down"], tool.down_delay)
+            elif n and len(p) and len(paths[n - 1][0]) and (_num(p[0, 0]), _num(p[0, 1])) != \
+                    (_num(paths[n - 1][0][-1, 0]), _num(paths[n - 1][0][-1, 1])):
+                # pen down from the last stroke's end, which the two strokes' vertices may place on different
+                # steps (each within the tolerance of the point they share)
+                fs = _num(max(feed[0] if len(feed) else caps[pen_no[n]], 0.1), 1)
+                body.append(f"G1 X{_num(p[0, 0])} Y{_num(p[0, 1])} F{fs}")
+                program.append(("G1", p[0, 0], p[0, 1], None, float(fs)))
             last_f = ""
             for k, ((x, y), f) in enumerate(zip(p[1:].tolist(), feed.tolist())):
                 fs = _num(max(f, 0.1), 1)  # never print F0

@@ -122,3 +122,27 @@ def test_arcs_option_writes_arcs_within_tolerance_that_grbl_accepts(emu_factory,
     r = bounded(lambda: send_gcode(emu.port, job_file, state_file=None))
     assert r["lines"] == len([x for x in text.splitlines() if not x.startswith(";")])
     assert emu.pos[:2] == [0.0, 0.0] and any(x.startswith("G3") for x in emu.received)
+
+
+def test_strokes_that_meet_are_drawn_through_their_shared_point_within_the_tolerance():
+    """Pen down across two strokes that meet (a split outline): the chords run from one into the other with no
+    point skipped, every chord within the tolerance of the two curves, though the vertices sit on GRBL's steps."""
+    t = np.linspace(0.0, 30.0, 61)
+    a = Spline(3, np.c_[100.0 + t, 80.0 + 5.0 * np.sin(t / 4.0) + 0.05 * np.sin(3.1 * t)])
+    b = Spline(3, np.c_[a.end[0] + 0.4 * t, a.end[1] + t + 0.05 * np.sin(2.3 * t)])  # from where a ends
+    pa, pb = trapezoid_profile(a), trapezoid_profile(b)
+    travels = (Travel(start=np.zeros(2), end=a.start, duration=1.0), Travel(start=a.end, end=b.start, duration=0.0),
+               Travel(start=b.end, end=np.zeros(2), duration=1.0))
+    job = Job(machine=M, strokes=(Stroke(spline=a, profile=pa), Stroke(spline=b, profile=pb)), travels=travels,
+              samples=(samples_for(a, pa, M.delta_time), samples_for(b, pb, M.delta_time)), source="two")
+    assert job.lifts == (True, False)
+    text = write(job)
+    assert text.count("M3 S1000") == 1
+    moves = [x.split() for x in text.splitlines() if x.startswith(("G0 X", "G1 X"))][:-1]  # the last: home
+    poly = np.array([[float(w[1][1:]), float(w[2][1:])] for w in moves])
+    dense = np.vstack([a(np.linspace(0.0, 1.0, 4001)), b(np.linspace(0.0, 1.0, 4001))])
+    assert _dist_to_polyline(dense, poly).max() <= 0.05 + 1e-6  # both curves near the chords, the joint too
+    along = poly[:-1, None] + np.linspace(0.0, 1.0, 20)[:, None] * np.diff(poly, axis=0)[:, None]
+    assert _dist_to_polyline(along.reshape(-1, 2), dense).max() <= 0.05 + 1e-6
+    # the shared point: a vertex on its nearest step, where one stroke ends and the other starts
+    assert np.abs(poly - np.round(a.end * 80.0) / 80.0).max(1).min() <= 1e-3

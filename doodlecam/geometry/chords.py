@@ -145,7 +145,8 @@ def snap_chords(q, idx, room, sx, sy, v, acc_x, acc_y, dev):  # pragma: no cover
     """Vertices for the chords q[idx[k]] -> q[idx[k+1]] among GRBL's step positions: (points (m, 2) as
     printed to 3 decimals, found).
 
-    Each vertex is one of the 3 x 3 step positions around its point (as GRBL rounds the printed value:
+    Each vertex is one of the 3 x 3 step positions around its point (the first and last: the nearest one;
+    as GRBL rounds the printed value:
     steps/mm ``sx``, ``sy``), within ``room`` of it; each chord, as GRBL rounds its ends, passes within
     ``room`` of every q between its ends, and moves at least one step. Among those, a dynamic programme
     over consecutive vertex pairs picks the one whose junctions cost least for GRBL's planner (feed ``v``
@@ -167,6 +168,8 @@ def snap_chords(q, idx, room, sx, sy, v, acc_x, acc_y, dev):  # pragma: no cover
                 ex, ey = _lround(px * sx) / sx, _lround(py * sy) / sy
                 P[k, c, 0], P[k, c, 1], X[k, c, 0], X[k, c, 1] = px, py, ex, ey
                 ok[k, c] = (ex - qx) ** 2 + (ey - qy) ** 2 <= room2
+                if (k == 0 or k == m - 1) and c != 4:
+                    ok[k, c] = False  # the ends on the nearest step: a stroke that goes on from them meets them
                 c += 1
     out = np.empty((m, 2))
     if m < 2:
