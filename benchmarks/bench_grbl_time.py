@@ -20,7 +20,8 @@ environment, never in doodlecam's::
 With ``--firmware GRBL_LOCK`` (GRBL 1.1h's own code in the load-independent simulator of
 ``../shared/grbl-fw``: ``build.sh OUTDIR`` makes ``OUTDIR/grbl_lock``) the ``cap`` and ``vpype``
 programs also run on the firmware with the doodlebot EEPROM (``--eeprom``), and the table gives
-its job times (``job_s``) and their ratio: the independent reference for the model::
+its job times (``job_s``) and their ratio: the independent reference for the model; a second table
+splits the firmware's time into drawing, travel and standing still (its step trace)::
 
     /work/shared/grbl-fw/build.sh /tmp/fw
     .venv/bin/python benchmarks/bench_grbl_time.py --vpype /tmp/vpype-env/bin/vpype --firmware /tmp/fw/grbl_lock
@@ -85,8 +86,10 @@ def svg(lines: list[np.ndarray], w: float, h: float) -> str:
             f"{paths}</svg>\n")
 
 
-def firmware_time(grbl_lock: Path, eeprom: Path, gcode: str, run: Path) -> float:
-    """GRBL 1.1h's own job time (s) for the program, from the simulator's summary line."""
+def firmware_time(grbl_lock: Path, eeprom: Path, gcode: str, run: Path) -> tuple[float, dict[str, float]]:
+    """GRBL 1.1h's own job time (s) for the program, from the simulator's summary line, and where it goes
+    (from its step trace, 16 MHz ticks): ``draw`` from the first to the last step of each pen-down stretch,
+    ``travel`` the same pen up, ``still`` the rest (dwells, $1 delays, synchronisations)."""
     import shutil
 
     run.mkdir(parents=True, exist_ok=True)
@@ -97,7 +100,21 @@ def firmware_time(grbl_lock: Path, eeprom: Path, gcode: str, run: Path) -> float
     words = dict(w.split("=", 1) for w in last.split() if "=" in w)
     if int(words.get("error", 0)) or int(words.get("alarm", 0)):
         raise SystemExit(f"the firmware answered errors or alarms: {last}")
-    return float(words["job_s"])
+    parts = {"draw": 0.0, "travel": 0.0}
+    pen, first, last_step = 0, None, None
+    for line in (run / "trace.txt").read_text().splitlines():
+        kind, tick, *rest = line.split()
+        if kind == "P" or kind == "E":  # a pen command (spindle PWM, enable) or the end: close the stretch
+            if first is not None:
+                parts["draw" if pen else "travel"] += (last_step - first) / 16e6
+            first = None
+            pen = int(rest[1]) if kind == "P" else pen
+        elif kind == "S":
+            first = int(tick) if first is None else first
+            last_step = int(tick)
+    job = float(words["job_s"])
+    parts["still"] = job - parts["draw"] - parts["travel"]
+    return job, parts
 
 
 def main() -> int:
@@ -116,7 +133,7 @@ def main() -> int:
 
     machine = load_machine("doodlebot")
     grbl = GrblSettings.from_machine(machine)
-    rows, worst = [], 0.0
+    rows, parts, worst = [], [], 0.0
     with tempfile.TemporaryDirectory() as tmp:
         cfg = Path(tmp) / "vpype.toml"
         cfg.write_text(PROFILE)
@@ -147,7 +164,11 @@ def main() -> int:
             worst = max(worst, ratio)
             fw = ""
             if args.firmware:
-                f = {k: firmware_time(args.firmware, args.eeprom, text[k], Path(tmp) / f"fw-{name}-{k}") for k in ("cap", "vpype")}
+                runs = {k: firmware_time(args.firmware, args.eeprom, text[k], Path(tmp) / f"fw-{name}-{k}")
+                        for k in ("cap", "vpype")}
+                f = {k: v[0] for k, v in runs.items()}
+                parts += [f"| {name} | {k} | " + " | ".join(f"{v[1][c]:.2f}" for c in ("draw", "travel", "still")) + " |"
+                          for k, v in runs.items()]
                 fw = f" {f['cap']:.2f} | {f['vpype']:.2f} | {f['cap'] / f['vpype']:.3f} | {t['cap'] / f['cap']:.3f} |"
             rows.append(f"| {name} | {len(job.strokes)} | {t['plan']:.1f} ({n['plan']}) | {t['vpype']:.1f} ({n['vpype']}) "
                         f"| {t['cap']:.1f} ({n['cap']}) | {ratio:.3f} | {free / t['vpype']:.3f} "
@@ -161,6 +182,10 @@ def main() -> int:
     print(head)
     print("|" + "---|" * (head.count("|") - 1))
     print("\n".join(rows))
+    if parts:
+        print("\nWhere the firmware's time goes, s (its step trace)\n")
+        print("| picture | program | drawing | travel | standing: dwells, $1 delays, syncs |\n|---|---|---|---|---|")
+        print("\n".join(parts))
     return 0 if worst <= 0.9 else 1
 
 
