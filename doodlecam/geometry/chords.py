@@ -113,14 +113,10 @@ def _covers(q, i, j, ax, ay, bx, by, room2):  # pragma: no cover - compiled
 
 
 @numba.njit(cache=True, nogil=True)
-def _junction_cost(ax, ay, bx, by, cx, cy, v, acc_x, acc_y, dev):  # pragma: no cover - compiled
-    """(1/v_j - 1/v)^2 for GRBL's junction speed v_j at b (planner.c), 0 when v_j >= v: squared, so a few
-    slow junctions cost more than many slightly slow ones (close junctions share one slow-down)."""
-    ux, uy = bx - ax, by - ay
-    wx, wy = cx - bx, cy - by
-    l1 = np.sqrt(ux * ux + uy * uy)
-    l2 = np.sqrt(wx * wx + wy * wy)
-    ux, uy, wx, wy = ux / l1, uy / l1, wx / l2, wy / l2
+def _junction_cost(ux, uy, wx, wy, v, acc_x, acc_y, dev):  # pragma: no cover - compiled
+    """(1/v_j - 1/v)^4 for GRBL's junction speed v_j (planner.c) between unit directions u and w, 0 when
+    v_j >= v: a high power, so one slow junction costs more than several slightly slow ones (close
+    junctions share one slow-down)."""
     cos = -(ux * wx + uy * wy)
     if cos < -0.999999:  # straight on
         return 0.0
@@ -178,6 +174,8 @@ def snap_chords(q, idx, room, sx, sy, v, acc_x, acc_y, dev):  # pragma: no cover
     cost = np.full((C, C), INF)  # cost[i, j]: vertex k-1 at candidate i, vertex k at j
     back = np.zeros((m, C, C), np.int8)
     new = np.empty((C, C))
+    U = np.zeros((C, C, 2))  # unit direction of chord k-1 from candidate i to j
+    W = np.zeros((C, C, 2))  # of chord k from j to n
     for k in range(0, m - 1):
         new[:, :] = INF
         for j in range(C):
@@ -189,19 +187,23 @@ def snap_chords(q, idx, room, sx, sy, v, acc_x, acc_y, dev):  # pragma: no cover
                 if not _covers(q, idx[k], idx[k + 1], X[k, j, 0], X[k, j, 1], X[k + 1, n, 0], X[k + 1, n, 1],
                                room2):
                     continue
+                dx, dy = X[k + 1, n, 0] - X[k, j, 0], X[k + 1, n, 1] - X[k, j, 1]
+                d = np.sqrt(dx * dx + dy * dy)
+                W[j, n, 0], W[j, n, 1] = dx / d, dy / d
                 if k == 0:  # the first chord: no junction yet
                     new[j, n] = 0.0
                     continue
                 best, bi = INF, 0
                 for i in range(C):
                     if cost[i, j] < INF:
-                        c = cost[i, j] + _junction_cost(X[k - 1, i, 0], X[k - 1, i, 1], X[k, j, 0], X[k, j, 1],
-                                                        X[k + 1, n, 0], X[k + 1, n, 1], v, acc_x, acc_y, dev)
+                        c = cost[i, j] + _junction_cost(U[i, j, 0], U[i, j, 1], W[j, n, 0], W[j, n, 1], v, acc_x,
+                                                        acc_y, dev)
                         if c < best:
                             best, bi = c, i
                 new[j, n] = best
                 back[k + 1, j, n] = bi
         cost[:, :] = new
+        U[:, :, :] = W
     best, bj, bn = INF, 0, 0
     for j in range(C):
         for n in range(C):
