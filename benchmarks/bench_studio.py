@@ -160,7 +160,11 @@ def replan_api_cpu(session, n: int = 10) -> float:
     c0 = time.process_time()
     for _ in range(n):
         control[len(control) // 2] += 0.3
-        c.post("/api/edit", json={"op": "move", "stroke": k, "control": control.tolist(), "reply": "patch"})
+        s = view["summary"]  # an edit names the job and version it was made on (stale ones are refused)
+        r = c.post("/api/edit", json={"op": "move", "stroke": k, "control": control.tolist(), "reply": "patch",
+                                      "job": s["job"], "version": s["version"]})
+        r.raise_for_status()
+        view["summary"] = r.json()["summary"]
     return (time.process_time() - c0) / n
 
 

@@ -21,7 +21,7 @@ process.stdin.on("end", () => {
   const t0 = process.cpuUsage();
   const plan = planning.plan(paths, profile);
   const cpu = process.cpuUsage(t0);
-  let drawS = 0, drawBlocks = 0, worst = 0;
+  let drawS = 0, drawBlocks = 0, worst = 0, travelS = 0, penS = 0;
   const dt = job.period;
   const velocity = (m, t) => {  // the pen's velocity vector at time t of a motion
     const idx = Math.max(0, m.ts.findIndex((t0, k) => k === m.ts.length - 1 || m.ts[k + 1] > t));
@@ -31,6 +31,8 @@ process.stdin.on("end", () => {
     return [v * (b.p2.x - b.p1.x) / d, v * (b.p2.y - b.p1.y) / d];
   };
   plan.motions.forEach((m, i) => {
+    if (!m.blocks) penS += m.duration();
+    else if (i % 4 !== 2) travelS += m.duration();
     // plan(): per path a pen-up move, pen down, the pen-down motion, pen up
     if (m.blocks && i % 4 === 2) {
       drawS += m.duration();
@@ -44,6 +46,6 @@ process.stdin.on("end", () => {
       }
     }
   });
-  console.log(JSON.stringify({ duration: plan.duration(), draw_s: drawS, draw_blocks: drawBlocks,
+  console.log(JSON.stringify({ duration: plan.duration(), draw_s: drawS, travel_s: travelS, pen_s: penS, draw_blocks: drawBlocks,
                                accel_per_period: worst, cpu_s: (cpu.user + cpu.system) / 1e6 }));
 });

@@ -137,8 +137,18 @@ class Kinematics(Plugin):
     actuator_names: ClassVar[tuple[str, ...]] = ("x", "y")
     actuator_units: ClassVar[str] = "mm"
 
+    # The [kinematics] table's schema: a doodlecam.schema.Table (a pydantic model). Set, the table is
+    # checked on load, each mistake one line naming the file and key (kinematics.a0), and
+    # ``self.params`` is the model; None: ``self.params`` is the table's dict, unchecked.
+    Params: ClassVar[type | None] = None
+
     def __init__(self, machine, params: dict[str, Any]):
         self.machine = machine
+        if self.Params is not None:
+            from doodlecam.schema import validate
+
+            where = getattr(machine, "source", "") or getattr(machine, "name", "") or "<profile>"
+            params = validate(dict(params or {}), where, self.Params, prefix=("kinematics",))
         self.params = params
 
     def actuator_limits(self):

@@ -1,8 +1,9 @@
 """Machine profiles: TOML files that describe a plotter.
 
-A profile is validated completely when it is loaded, so later stages can rely
-on every limit being present, numeric and positive. Errors name the file and
-the key and say how to fix it.
+A profile is validated completely when it is loaded (its schema: doodlecam/schema.py;
+plausible values: doodlecam/plausible.py), so later stages can rely on every limit
+being present, numeric and positive. Errors name the file and the key and say how to
+fix it.
 """
 
 from __future__ import annotations
@@ -13,8 +14,7 @@ from pathlib import Path
 from typing import Any
 
 from doodlecam.errors import MachineError, did_you_mean
-from doodlecam.options import (LAYOUT_DEFAULTS, ORDER_DEFAULTS, SOLVERS, TRAVEL_ALIASES, TRAVEL_LAWS, layout_options,
-                               order_options, travel_law_name)
+from doodlecam.options import layout_options, order_options
 from doodlecam.plausible import findings
 
 try:  # Python 3.11+
@@ -176,29 +176,6 @@ def _colour_key(text: str) -> str:
 
 # ---------------------------------------------------------------- loading
 
-_SCHEMA: dict[str, dict[str, tuple[type, bool]]] = {
-    # table -> key -> (type, required). Numbers accept int or float.
-    "machine": {"name": (str, True), "description": (str, False), "kinematics": (str, False), "solver": (str, False),
-                "smoothing": (float, False)},
-    "work_area": {"width": (float, True), "height": (float, True), "margin": (float, False), "home": (list, False)},
-    "axes.x": {"steps_per_mm": (float, True), "max_velocity": (float, True), "max_acceleration": (float, True)},
-    "axes.y": {"steps_per_mm": (float, True), "max_velocity": (float, True), "max_acceleration": (float, True)},
-    "pen": {"width": (float, False), "up_delay": (float, False), "down_delay": (float, False), "max_speed": (float, False),
-            "max_accel": (float, False)},
-    "travel": {"speed": (float, False), "law": (str, False)},
-    "sampling": {"delta_time": (float, False), "path_tolerance": (float, False)},
-    "fit": {"degree": (int, False), "tolerance": (float, False)},
-    # layout and order: see doodlecam/trace/layout.py and docs/tracing.md (values are checked there)
-    "layout": {k: (object, False) for k in LAYOUT_DEFAULTS},
-    "order": {k: (object, False) for k in ORDER_DEFAULTS},
-}
-_PENS_KEYS = {"name": (str, False), "colour": (str, False), "color": (str, False), "width": (float, False),
-              "up_delay": (float, False), "down_delay": (float, False), "max_speed": (float, False),
-              "max_accel": (float, False), "layers": (list, False)}
-_FREE_TABLES = ("kinematics", "trace", "post", "transport")  # plugin-defined contents
-_NON_NEGATIVE = {"work_area.margin", "pen.up_delay", "pen.down_delay", "sampling.path_tolerance"}
-
-
 MACHINES_ENV = "DOODLECAM_MACHINES"
 
 
@@ -265,174 +242,53 @@ def resolve_machine(spec: str) -> Path:
                        "or give a .toml path, or make one: doodlecam machines new NAME")
 
 
-def _check(path: str, table: str, key: str, value: Any, typ: type) -> Any:
-    where = f"{path}: [{table}] {key}"
-    if typ is float:
-        if isinstance(value, bool) or not isinstance(value, (int, float)):
-            raise MachineError(f"{where} must be a number, got {value!r}; fix the profile")
-        value = float(value)
-        if value != value or value in (float("inf"), float("-inf")):
-            raise MachineError(f"{where} must be finite, got {value!r}; fix the profile")
-        if f"{table}.{key}" in _NON_NEGATIVE:
-            if value < 0:
-                raise MachineError(f"{where} must be >= 0, got {value:g}; fix the profile")
-        elif value <= 0:
-            raise MachineError(f"{where} must be positive, got {value:g}; fix the profile")
-    elif typ is int:
-        if isinstance(value, bool) or not isinstance(value, int) or value < 1:
-            raise MachineError(f"{where} must be a positive whole number, got {value!r}; fix the profile")
-    elif not isinstance(value, typ):
-        raise MachineError(f"{where} must be a {typ.__name__}, got {value!r}; fix the profile")
-    return value
-
-
-def _table(data: dict, dotted: str) -> Any:
-    node: Any = data
-    for part in dotted.split("."):
-        if not isinstance(node, dict):
-            return None
-        node = node.get(part)
-    return node
-
-
-def _travel_law(path: str, law: str | None) -> str:
-    try:
-        return travel_law_name(law)
-    except ValueError:
-        names = list(TRAVEL_LAWS) + list(TRAVEL_ALIASES)
-        raise MachineError(f"{path}: [travel] law {law!r} is unknown{did_you_mean(str(law), names)}; use one of {', '.join(names)}") from None
-
-
 def parse_machine(data: dict[str, Any], path: str = "<profile>") -> Machine:
-    """Validate a profile's parsed TOML and build a Machine."""
-    allowed_top = {t.split(".")[0] for t in _SCHEMA} | set(_FREE_TABLES)
-    for key in data:
-        if key not in allowed_top:
-            raise MachineError(f"{path}: unknown table [{key}]{did_you_mean(key, allowed_top, '[]')}; remove or rename it")
-    axes = data.get("axes", {})
-    if isinstance(axes, dict):
-        for key in axes:
-            if key not in ("x", "y"):
-                raise MachineError(f"{path}: unknown axis [axes.{key}]; a plotter profile has [axes.x] and [axes.y]")
-    pen_list = data.get("pen") if isinstance(data.get("pen"), list) else None
-    if pen_list is not None:
-        data = {k: v for k, v in data.items() if k != "pen"}
-    vals: dict[str, dict[str, Any]] = {}
-    for table, keys in _SCHEMA.items():
-        t = _table(data, table)
-        if t is None:
-            t = {}
-            if any(req for _, req in keys.values()):
-                raise MachineError(f"{path}: missing table [{table}]; add it with keys {', '.join(k for k, (_, r) in keys.items() if r)}")
-        if not isinstance(t, dict):
-            raise MachineError(f"{path}: [{table}] must be a table; fix the profile")
-        for key in t:
-            if key not in keys:
-                raise MachineError(f"{path}: unknown key '{key}' in [{table}]{did_you_mean(key, keys)}; fix the profile")
-        vals[table] = {}
-        for key, (typ, required) in keys.items():
-            if key not in t:
-                if required:
-                    raise MachineError(f"{path}: missing key '{key}' in [{table}]; add it (see 'doodlecam machines new')")
-                continue
-            vals[table][key] = _check(path, table, key, t[key], typ)
+    """Validate a profile's parsed TOML (doodlecam.schema, then doodlecam.plausible) and build a Machine."""
+    from doodlecam.schema import validate
 
-    wa = vals["work_area"]
-    home = wa.get("home", [0.0, 0.0])
-    if len(home) != 2 or not all(isinstance(v, (int, float)) and not isinstance(v, bool) for v in home):
-        raise MachineError(f"{path}: [work_area] home must be two numbers [x, y] in mm; fix the profile")
-    margin = wa.get("margin", 10.0)
-    if 2 * margin >= min(wa["width"], wa["height"]):
-        raise MachineError(f"{path}: [work_area] margin {margin:g} mm leaves no room to draw; make it smaller than half the work area")
-    axes_t = tuple(Axis(n, **vals[f"axes.{n}"]) for n in ("x", "y"))
-    pen_v = vals["pen"]
-    pen = Pen(
-        width=pen_v.get("width", 0.5),
-        up_delay=pen_v.get("up_delay", 0.1),
-        down_delay=pen_v.get("down_delay", 0.1),
-        max_speed=pen_v.get("max_speed"),
-        max_accel=pen_v.get("max_accel"),
-    )
-    pens = _parse_pens(path, pen_list) if pen_list is not None else ()
-    if pens:
+    p = validate(data, path)
+    w = p.work_area
+    if isinstance(p.pen, list):
+        pens = tuple(Pen(width=e.width, up_delay=e.up_delay, down_delay=e.down_delay, max_speed=e.max_speed,
+                         max_accel=e.max_accel, name=e.name, colour=e.colour or e.color, layers=tuple(e.layers))
+                     for e in p.pen)
         pen = pens[0]
-    fit = vals["fit"]
-    degree = fit.get("degree", 3)
-    tolerance = fit.get("tolerance", 0.1)
-    if degree > 5:
-        raise MachineError(f"{path}: [fit] degree {degree} is too high; use 2 to 5 (3 is the report's URBS)")
-    if degree < 2:
-        raise MachineError(f"{path}: [fit] degree {degree} gives no continuous velocity; use 2 to 5 (3 is the report's URBS)")
-    plugin_options: dict[str, dict[str, Any]] = {}
-    for group in ("trace", "post", "transport"):
-        for name, opts in (data.get(group) or {}).items():
-            if not isinstance(opts, dict):
-                raise MachineError(f"{path}: [{group}.{name}] must be a table of options; fix the profile")
-            plugin_options[f"{group}.{name}"] = dict(opts)
-    m = vals["machine"]
-    solver = m.get("solver", "reach")
-    if solver not in SOLVERS:
-        raise MachineError(f"{path}: [machine] solver {solver!r} is unknown{did_you_mean(solver, SOLVERS)}; "
-                           f"use one of {', '.join(SOLVERS)}")
+    else:
+        pens, pen = (), Pen(width=p.pen.width, up_delay=p.pen.up_delay, down_delay=p.pen.down_delay,
+                            max_speed=p.pen.max_speed, max_accel=p.pen.max_accel)
+    plugin_options = {f"{group}.{name}": dict(opts) for group in ("trace", "post", "transport")
+                      for name, opts in getattr(p, group).items()}
+    where = f"{path}: "  # [layout] and [order] values: the checks the CLI's --layout / --order options use
     machine = Machine(
-        name=m["name"],
-        description=m.get("description", ""),
-        kinematics=m.get("kinematics", "cartesian"),
-        kinematics_params=dict(data.get("kinematics") or {}),
-        solver=solver,
-        smoothing=m.get("smoothing", 1.0),
-        width=wa["width"],
-        height=wa["height"],
-        margin=margin,
-        home=(float(home[0]), float(home[1])),
-        axes=axes_t,  # type: ignore[arg-type]
+        name=p.machine.name,
+        description=p.machine.description,
+        kinematics=p.machine.kinematics,
+        kinematics_params=dict(p.kinematics),
+        solver=p.machine.solver,
+        smoothing=p.machine.smoothing,
+        width=w.width,
+        height=w.height,
+        margin=w.margin,
+        home=(float(w.home[0]), float(w.home[1])),
+        axes=tuple(Axis(n, **getattr(p.axes, n).model_dump()) for n in ("x", "y")),  # type: ignore[arg-type]
         pen=pen,
         pens=pens,
-        travel_speed=vals["travel"].get("speed"),
-        travel_law=_travel_law(path, vals["travel"].get("law")),
-        delta_time=vals["sampling"].get("delta_time", 0.04),
+        travel_speed=p.travel.speed,
+        travel_law=p.travel.law,
+        delta_time=p.sampling.delta_time,
         # the pen stays as close to the curve between samples as the fit is to the picture
-        path_tolerance=vals["sampling"].get("path_tolerance", tolerance),
-        degree=degree,
-        tolerance=tolerance,
+        path_tolerance=p.fit.tolerance if p.sampling.path_tolerance is None else p.sampling.path_tolerance,
+        degree=p.fit.degree,
+        tolerance=p.fit.tolerance,
         source=path,
         plugin_options=plugin_options,
-        layout=layout_options(vals["layout"], f"{path}: [layout]", MachineError),
-        order=order_options(vals["order"], f"{path}: [order]", MachineError),
+        layout=layout_options(p.layout.model_dump(exclude_unset=True), where + "layout", MachineError, sep="."),
+        order=order_options(p.order.model_dump(exclude_unset=True), where + "order", MachineError, sep="."),
     )
     found = findings(machine)
     if found and found[0].error:
         raise MachineError(found[0].message)
     return replace(machine, warnings=tuple(f.message for f in found))
-
-
-def _parse_pens(path: str, entries: list) -> tuple[Pen, ...]:
-    """[[pen]] entries: the same keys as [pen] plus name, colour, max_accel and layers."""
-    if not entries:
-        raise MachineError(f"{path}: [[pen]] is empty; give at least one pen, or use a single [pen] table")
-    pens, seen = [], set()
-    for k, e in enumerate(entries, 1):
-        where = f"[[pen]] number {k}"
-        if not isinstance(e, dict):
-            raise MachineError(f"{path}: {where} must be a table; fix the profile")
-        for key in e:
-            if key not in _PENS_KEYS:
-                raise MachineError(f"{path}: unknown key '{key}' in {where}{did_you_mean(key, _PENS_KEYS)}; fix the profile")
-        try:
-            v = {key: _check(path, "pen", key, e[key], typ) for key, (typ, _) in _PENS_KEYS.items() if key in e}
-        except MachineError as err:
-            raise MachineError(str(err).replace("[pen]", where, 1)) from None
-        layers = v.get("layers", [])
-        if not all(isinstance(n, str) for n in layers):
-            raise MachineError(f"{path}: {where} layers must be a list of layer names (strings); fix the profile")
-        name = v.get("name", "")
-        if name and name.lower() in seen:
-            raise MachineError(f"{path}: two [[pen]] entries are named {name!r}; give each pen its own name")
-        seen.add(name.lower())
-        pens.append(Pen(width=v.get("width", 0.5), up_delay=v.get("up_delay", 0.1), down_delay=v.get("down_delay", 0.1),
-                        max_speed=v.get("max_speed"), name=name, colour=v.get("colour", v.get("color", "")),
-                        max_accel=v.get("max_accel"), layers=tuple(layers)))
-    return tuple(pens)
 
 
 def load_machine(spec: str | os.PathLike) -> Machine:

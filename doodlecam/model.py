@@ -217,7 +217,7 @@ class Travel:
         object.__setattr__(self, "start", _frozen(self.start))
         object.__setattr__(self, "end", _frozen(self.end))
 
-    @property
+    @cached_property  # the studio's summaries ask every travel of a 10^4-stroke job after each edit
     def length(self) -> float:
         return float(np.hypot(*(self.end - self.start)))
 

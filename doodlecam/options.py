@@ -137,16 +137,17 @@ def _number(value, where: str, error, minimum: float = 0.0, strict: bool = True,
     return v
 
 
-def layout_options(raw: dict[str, Any] | None, where: str = "layout", error: type[DoodleError] = InputError
-                   ) -> dict[str, Any]:
-    """Checked layout options: the defaults overlaid by ``raw`` (CLI strings or TOML values)."""
+def layout_options(raw: dict[str, Any] | None, where: str = "layout", error: type[DoodleError] = InputError,
+                   sep: str = " ") -> dict[str, Any]:
+    """Checked layout options: the defaults overlaid by ``raw`` (CLI strings or TOML values); a
+    message names an option as ``where + sep + key`` (a profile's keys: "file: layout.rotate")."""
     out = dict(LAYOUT_DEFAULTS)
     for key, value in (raw or {}).items():
         if key not in LAYOUT_DEFAULTS:
             raise error(f"{where}: unknown layout option '{key}'; use one of {', '.join(LAYOUT_DEFAULTS)}")
         if value is None:
             continue
-        w = f"{where} {key}"
+        w = f"{where}{sep}{key}"
         if key == "rotate":
             v = str(value).strip().lower().removesuffix(".0")
             if v not in ROTATIONS:
@@ -173,9 +174,9 @@ def layout_options(raw: dict[str, Any] | None, where: str = "layout", error: typ
     return out
 
 
-def order_options(raw: dict[str, Any] | None, where: str = "order", error: type[DoodleError] = InputError
-                  ) -> dict[str, Any]:
-    """Checked ordering options: the defaults overlaid by ``raw``."""
+def order_options(raw: dict[str, Any] | None, where: str = "order", error: type[DoodleError] = InputError,
+                  sep: str = " ") -> dict[str, Any]:
+    """Checked ordering options: the defaults overlaid by ``raw`` (``sep``: as in :func:`layout_options`)."""
     out = dict(ORDER_DEFAULTS)
     for key, value in (raw or {}).items():
         if key not in ORDER_DEFAULTS:
@@ -186,15 +187,15 @@ def order_options(raw: dict[str, Any] | None, where: str = "order", error: type[
             if isinstance(value, str) and value.strip().lower() in ("1", "true", "yes", "on", "0", "false", "no", "off"):
                 value = value.strip().lower() in ("1", "true", "yes", "on")
             if not isinstance(value, bool):
-                raise error(f"{where} reverse must be true or false, got {value!r}")
+                raise error(f"{where}{sep}reverse must be true or false, got {value!r}")
             out[key] = value
         elif key == "layers":
             if str(value).strip().lower() not in LAYER_ORDERS:
-                raise error(f"{where} layers must be 'pen' (each pen fitted once) or 'file' (the drawing's order), "
+                raise error(f"{where}{sep}layers must be 'pen' (each pen fitted once) or 'file' (the drawing's order), "
                             f"got {value!r}")
             out[key] = str(value).strip().lower()
         else:
-            out[key] = _number(value, f"{where} {key}", error, strict=False)
+            out[key] = _number(value, f"{where}{sep}{key}", error, strict=False)
     return out
 
 

@@ -106,6 +106,7 @@ def plan_job(drawing: Drawing, machine: Machine, solver: str = "reach", plugin_d
     ``workers``: processes that plan the strokes (doodlecam.plan.stroke; the job is the
     same with any number).
     """
+    from doodlecam.geometry.corners import split_traced
     from doodlecam.geometry.fit import fit_pieces
     from doodlecam.geometry.order import order_strokes
     from doodlecam.plan.follow import JerkBound, jerk_limit
@@ -152,10 +153,14 @@ def plan_job(drawing: Drawing, machine: Machine, solver: str = "reach", plugin_d
     # vector tracer's corners, joined hatching's zig-zags): each piece is fitted on its own, so
     # the corner is exactly where the drawing puts it and the pen stops there, pen down.
     corner = float(drawing.meta.get("split_corners_deg", 0.0))
+    # A line traced from pixels turns at every step of its staircase: its corners are found over
+    # a support of a few pixels of the grid traced, at least a few pen widths (geometry.corners).
+    traced, support, smooth, arms = traced_corner_rule(drawing, machine)
     for k, (i, p, layer) in enumerate(ordered if fitted is None else ()):
         progress("fitting", k, len(ordered))
-        for spline, err in fit_pieces(p, machine.degree, machine.tolerance, corner=corner):
-            strokes.append(Stroke(spline=spline, source_index=i, fit_error=err, layer=layer))
+        for piece in split_traced(p, support, traced, smooth, arms) if traced > 0 else (p,):
+            for spline, err in fit_pieces(piece, machine.degree, machine.tolerance, corner=corner):
+                strokes.append(Stroke(spline=spline, source_index=i, fit_error=err, layer=layer))
     timings["fit"] = time.perf_counter() - t0
 
     # Between sample instants the PLC's ramps stray from the curve where its turning
@@ -218,6 +223,27 @@ def plan_job(drawing: Drawing, machine: Machine, solver: str = "reach", plugin_d
     }
     return Job(machine=machine, strokes=tuple(planned), travels=travels, samples=samples,
                source=drawing.source, meta=meta)
+
+
+TRACED_SUPPORT = 3.0  # scales (below) on either side of a traced corner
+
+
+def traced_corner_rule(drawing: Drawing, machine: Machine) -> tuple[float, float, float, float]:
+    """(angle in degrees, 0 = off; support, smoothing and arms in mm) of the corners kept on a
+    traced picture's lines: the tracer's ``traced_corners_deg``, found over TRACED_SUPPORT x the
+    largest of the scales that round or blur a corner on the grid traced: the pen width, the
+    grid's pixel as drawn (``scale_mm_per_unit`` x ``grid_px``, picture px per traced px) and the
+    tracer's own blur (``corner_blur_px``, traced px: Canny's sigma, contours' blur), the same at
+    any resolution of the picture. The line is smoothed by the pixel (pen width or grid) before its
+    turns are measured; the arms are fitted beyond TRACED_SUPPORT picture pixels too, where a
+    picture coarser than the grid rounds its corners over its own pixels."""
+    meta = drawing.meta
+    angle = float(meta.get("traced_corners_deg", 0.0))
+    px = float(meta.get("scale_mm_per_unit", 0.0))
+    grid = px * float(meta.get("grid_px", 1.0))
+    pixel = max(machine.pen.width, grid)
+    support = TRACED_SUPPORT * max(pixel, grid * float(meta.get("corner_blur_px", 0.0)))
+    return angle, support, pixel, max(support, TRACED_SUPPORT * px)
 
 
 def corners_kept(strokes) -> int:

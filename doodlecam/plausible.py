@@ -88,33 +88,33 @@ def findings(machine: "Machine") -> list[Finding]:
     hx, hy = m.home
     eps = 1e-9 * max(m.width, m.height)
     if not (-eps <= hx <= m.width + eps and -eps <= hy <= m.height + eps):
-        out.append(Finding(True, f"{src}: [work_area] home = [{hx:g}, {hy:g}] is outside the {m.width:g} x {m.height:g} mm "
+        out.append(Finding(True, f"{src}: work_area.home = [{hx:g}, {hy:g}] is outside the {m.width:g} x {m.height:g} mm "
                                  f"work area; give the corner the pen starts from, within [0..{m.width:g}, 0..{m.height:g}] "
                                  "(e.g. [0, 0])"))
-    out.append(_seconds(f"{src}: [sampling] delta_time", m.delta_time, *DELTA_TIME, "0.04 (40 ms)"))
+    out.append(_seconds(f"{src}: sampling.delta_time", m.delta_time, *DELTA_TIME, "0.04 (40 ms)"))
     pens = m.pens or (m.pen,)
     for k, p in enumerate(pens, 1):
-        table = f"[[pen]] number {k}" if m.pens else "[pen]"
+        table = f"pen[{k}]" if m.pens else "pen"  # the dotted keys of doodlecam.schema
         for key in ("up_delay", "down_delay"):
-            out.append(_seconds(f"{src}: {table} {key}", getattr(p, key), 0.0, PEN_DELAY_MAX, "0.1-0.3"))
+            out.append(_seconds(f"{src}: {table}.{key}", getattr(p, key), 0.0, PEN_DELAY_MAX, "0.1-0.3"))
         if p.max_speed is not None:
-            out.append(_speed(f"{src}: {table} max_speed", p.max_speed))
+            out.append(_speed(f"{src}: {table}.max_speed", p.max_speed))
         if p.max_accel is not None:
-            out.append(_accel(f"{src}: {table} max_accel", p.max_accel))
+            out.append(_accel(f"{src}: {table}.max_accel", p.max_accel))
     if m.travel_speed is not None:
-        out.append(_speed(f"{src}: [travel] speed", m.travel_speed))
+        out.append(_speed(f"{src}: travel.speed", m.travel_speed))
     ctl = controller(m)
     for ax in m.axes:
-        table = f"{src}: [axes.{ax.name}]"
-        fast = _speed(f"{table} max_velocity", ax.max_velocity)
-        out += [fast, _accel(f"{table} max_acceleration", ax.max_acceleration)]
+        table = f"{src}: axes.{ax.name}"
+        fast = _speed(f"{table}.max_velocity", ax.max_velocity)
+        out += [fast, _accel(f"{table}.max_acceleration", ax.max_acceleration)]
         rate = ax.max_velocity * ax.steps_per_mm
         if rate > STEP_RATES[ctl] and not (fast and fast.error):
             top = STEP_RATES[ctl] / ax.steps_per_mm
             who = {"EiBotBoard": "the EiBotBoard steps", "GRBL": "GRBL 1.1 on an Arduino steps",
                    "other": "stepper drivers take"}[ctl]
             out.append(Finding(ctl == "EiBotBoard",
-                               f"{table} max_velocity = {ax.max_velocity:g} mm/s at {ax.steps_per_mm:g} steps/mm is "
+                               f"{table}.max_velocity = {ax.max_velocity:g} mm/s at {ax.steps_per_mm:g} steps/mm is "
                                f"{rate / 1000:.0f} kHz of steps; {who} at most about {STEP_RATES[ctl] / 1000:g} kHz: "
                                f"lower max_velocity to {top:.0f} mm/s or steps_per_mm"))
         reach = ax.max_velocity ** 2 / (2 * ax.max_acceleration)

@@ -203,7 +203,7 @@ def kinematics_for(machine: "Machine", plugin_dirs=()):
     # exact: the profile's name is compared elsewhere too (a profile is fixed once, not typed each time)
     if not any(i.kind == "machine" and i.name == machine.kinematics for i in discover(plugin_dirs)):
         names = sorted(i.name for i in discover(plugin_dirs) if i.kind == "machine")
-        raise MachineError(f"{machine.source or machine.name}: [machine] kinematics '{machine.kinematics}' is unknown"
+        raise MachineError(f"{machine.source or machine.name}: machine.kinematics = '{machine.kinematics}' is unknown"
                            f"{did_you_mean(machine.kinematics, names)}; use one of {', '.join(names)}, or give the "
                            "folder of its plugin with --plugin-dir")
     cls = get("machine", machine.kinematics, plugin_dirs)

@@ -20,29 +20,44 @@ whole steps changes a motor's rate by at most 1 step / delta_time, so the limits
 given to the planner are the profile's less that (docs/ebb.md).
 
 ``pen_acceleration`` (optional): the AxiDraw driver's acceleration limit is on the
-pen's path, not on a motor. With it the map gains four rows, the pen's acceleration
-along 0, 45, 90 and 135 degrees, each within pen_acceleration x cos 22.5 deg, so the
-pen accelerates at most pen_acceleration in every direction (a regular octagon in the
-circle; per-motor limits alone are a diamond, 29 % short of the circle on the diagonals).
+pen's path, not on a motor. With it the map gains eight rows, the pen's acceleration
+along 0, 22.5, ..., 157.5 degrees, each within pen_acceleration x cos 11.25 deg, so the
+pen accelerates at most pen_acceleration in every direction (a regular 16-gon in the
+circle, at most 1.9 % short of it; per-motor limits alone are a diamond, 29 % short on
+the diagonals; an octagon was 7.6 % short, which cost 1.4 % of the time on curvy drawings).
 """
 
 from __future__ import annotations
 
-from typing import Any
+from typing import Annotated, Any
 
 import numpy as np
+from pydantic import Field
 
 from doodlecam.api import Kinematics, check_in_work_area
 from doodlecam.errors import MachineError
+from doodlecam.schema import Num, Table
 
-_KEYS = ("steps_per_mm", "max_velocity", "max_acceleration")
-_OPTIONAL = ("pen_acceleration",)
 MOTORS = np.array([[1.0, -1.0], [1.0, 1.0]])  # work area (x, y up) -> (x + y_page, x - y_page)
-# pen acceleration <= A in every direction: its components along 0, 45, 90, 135 degrees within
-# A cos(22.5 deg) (a regular octagon inside the circle of radius A)
-_S = np.sqrt(0.5)
-OCTAGON = np.array([[1.0, 0.0], [0.0, 1.0], [_S, _S], [_S, -_S]])
+# pen acceleration <= A in every direction: its components along PEN_DIRECTIONS directions
+# k 180 / PEN_DIRECTIONS degrees within A cos(90 / PEN_DIRECTIONS deg) (a regular polygon inside the circle of radius A)
+PEN_DIRECTIONS = 8
+_ANG = np.arange(PEN_DIRECTIONS) * np.pi / PEN_DIRECTIONS
+POLYGON = np.column_stack([np.cos(_ANG), np.sin(_ANG)])
 EBB_MAX_STEP_RATE = 25000.0  # steps/s: one step per 40 us tick at most
+
+
+Positive = Annotated[Num, Field(gt=0)]
+
+
+class AxiDrawParams(Table):
+    """The [kinematics] table of an AxiDraw profile (checked on load: doodlecam.schema)."""
+
+    steps_per_mm: Positive = Field(description="steps per mm of belt on each motor, e.g. 80 (16x microstepping)")
+    max_velocity: tuple[Positive, Positive] = Field(description="[motor1, motor2] in mm/s of belt, e.g. [312, 312]")
+    max_acceleration: tuple[Positive, Positive] = Field(description="[motor1, motor2] in mm/s^2, e.g. [1077, 1077]")
+    pen_acceleration: Positive | None = Field(None, description="the pen's acceleration in every direction in "
+                                                                "mm/s^2, e.g. 762")
 
 
 class AxiDraw(Kinematics):
@@ -53,48 +68,26 @@ class AxiDraw(Kinematics):
     actuator_units = "mm"
     linear_map = MOTORS
 
+    Params = AxiDrawParams
+
     def __init__(self, machine, params: dict[str, Any]):
-        super().__init__(machine, params)
-        where = f"{getattr(machine, 'source', '') or getattr(machine, 'name', '') or '<profile>'}: [kinematics]"
-        params = dict(params or {})
-        for key in params:
-            if key not in _KEYS + _OPTIONAL:
-                raise MachineError(f"{where} has unknown key '{key}'; the axidraw plugin reads "
-                                   f"{', '.join(_KEYS + _OPTIONAL)}")
-        for key in _KEYS:
-            if key not in params:
-                raise MachineError(f"{where} is missing '{key}'; the axidraw plugin needs {', '.join(_KEYS)} "
-                                   "(see the built-in profile: doodlecam machines new NAME --from axidraw-v3)")
-        self.steps_per_mm = self._positive(where, "steps_per_mm", params["steps_per_mm"])
-        self.vmax = np.array([self._positive(where, "max_velocity", v) for v in self._pair(where, params, "max_velocity")])
-        self.amax = np.array([self._positive(where, "max_acceleration", v)
-                              for v in self._pair(where, params, "max_acceleration")])
-        self.pen_accel = (self._positive(where, "pen_acceleration", params["pen_acceleration"])
-                          if "pen_acceleration" in params else None)
+        super().__init__(machine, params)  # checks the table against AxiDrawParams
+        p = self.params
+        where = f"{getattr(machine, 'source', '') or getattr(machine, 'name', '') or '<profile>'}: kinematics"
+        self.steps_per_mm = p.steps_per_mm
+        self.vmax, self.amax = np.array(p.max_velocity), np.array(p.max_acceleration)
+        self.pen_accel = p.pen_acceleration
         if self.pen_accel is not None:  # the maker's limit is on the pen's path: rows for it after the motors'
-            self.linear_map = np.vstack([MOTORS, OCTAGON])
-            self.actuator_names = ("motor1", "motor2", "pen x", "pen y", "pen x+y", "pen x-y")
+            self.linear_map = np.vstack([MOTORS, POLYGON])
+            self.actuator_names = ("motor1", "motor2") + tuple(f"pen {a:g} deg" for a in np.degrees(_ANG))
         top = EBB_MAX_STEP_RATE / self.steps_per_mm
         if (self.vmax > top).any():
-            raise MachineError(f"{where} max_velocity {self.vmax.max():g} mm/s is above the EiBotBoard's 25000 steps/s "
+            raise MachineError(f"{where}.max_velocity = {self.vmax.max():g} mm/s is above the EiBotBoard's 25000 steps/s "
                                f"({top:g} mm/s at {self.steps_per_mm:g} steps/mm); lower it")
         spm = getattr(machine, "axes", None)
         if spm and any(abs(a.steps_per_mm - self.steps_per_mm) > 1e-9 for a in machine.axes):
-            raise MachineError(f"{where} steps_per_mm {self.steps_per_mm:g} differs from [axes.x]/[axes.y] steps_per_mm; "
+            raise MachineError(f"{where}.steps_per_mm = {self.steps_per_mm:g} differs from axes.x.steps_per_mm or axes.y.steps_per_mm; "
                                "the EBB post rounds x and y on the motors' grid, so give them the same value")
-
-    @staticmethod
-    def _positive(where: str, key: str, value) -> float:
-        if isinstance(value, bool) or not isinstance(value, (int, float)) or not np.isfinite(value) or value <= 0:
-            raise MachineError(f"{where} {key} must be positive numbers, got {value!r}; fix the profile")
-        return float(value)
-
-    @staticmethod
-    def _pair(where: str, params: dict, key: str) -> list:
-        v = params[key]
-        if not isinstance(v, list) or len(v) != 2:
-            raise MachineError(f"{where} {key} must be [motor1, motor2], got {v!r}; fix the profile")
-        return v
 
     def margin(self) -> float:
         """mm/s of belt that whole-step LMs may add to a motor's rate: 1 step per sample period."""
@@ -107,8 +100,9 @@ class AxiDraw(Kinematics):
         if self.pen_accel is None:
             return v, self.amax.copy()
         # the pen rows bound acceleration only (the pen-speed cap and the motors bound speed)
-        a_pen = self.pen_accel * np.cos(np.pi / 8)
-        return np.concatenate([v, np.full(4, 10 * self.vmax.max())]), np.concatenate([self.amax, np.full(4, a_pen)])
+        a_pen = self.pen_accel * np.cos(np.pi / (2 * PEN_DIRECTIONS))
+        return (np.concatenate([v, np.full(PEN_DIRECTIONS, 10 * self.vmax.max())]),
+                np.concatenate([self.amax, np.full(PEN_DIRECTIONS, a_pen)]))
 
     def page(self, xy) -> np.ndarray:
         """Work-area points (mm, y up) as the AxiDraw's page coordinates (mm from home, y down)."""

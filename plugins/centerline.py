@@ -27,6 +27,7 @@ import numpy as np
 from doodlecam.api import Option, Tracer
 from doodlecam.errors import InputError, PluginError
 from doodlecam.model import Drawing
+from doodlecam.plugins.edges import CORNER, CORNER_HELP, check_corner
 from doodlecam.trace.raster import IMAGE_EXTENSIONS, grid_scale, load_gray
 
 
@@ -37,13 +38,15 @@ class CenterlineTracer(Tracer):
     options = (
         Option("threshold", float, 0.0, "grey level (0-1) below which a pixel is ink; 0 = automatic (Otsu)"),
         Option("spur", float, 0.0, "drop side branches with a free end shorter than this, in px; 0 = the line width"),
-        Option("speck", float, 0.0, "drop ink blobs smaller than this many px; 0 = a disc of the line width"),
+        Option("speck", float, 0.0, "drop ink blobs smaller than this many px, and fill holes in the ink under a "
+               "quarter of it; 0 = a disc of the line width"),
         Option("simplify", float, 0.25, "line simplification tolerance in px (Ramer-Douglas-Peucker)"),
         Option("staircase", float, 1.5, "Gaussian smoothing along each stroke, in px (0 = off)"),
         Option("min_length", float, 0.0, "drop strokes shorter than this, in px; 0 = the line width"),
         Option("pixel_mm", float, 0.0, "trace a picture drawn coarser than this many mm per pixel scaled up to it, "
                "and one with lines wider than 12 px scaled down to it (0 = the pen width), so the same picture "
                "at 1x and 4x gives the same job; thin lines on finer pictures keep their resolution"),
+        Option("corner", float, CORNER, CORNER_HELP),
     )
 
     @classmethod
@@ -64,6 +67,7 @@ class CenterlineTracer(Tracer):
                    grid: float | None = None) -> Drawing:
         """``trace`` of a picture already loaded (``skel``: its skeleton, when already made; ``grid``:
         pen-width grid px per picture px, when the drawn size is known)."""
+        check_corner(self.name, opt.get("corner", CORNER))  # here: 'auto' calls this directly
         from doodlecam.trace.raster import in_picture_px
 
         ink, level = ink_mask(gray, opt["threshold"])
@@ -79,6 +83,7 @@ class CenterlineTracer(Tracer):
             polylines=tuple(p[:, ::-1] for p in polylines),  # (row, col) -> (x, y)
             units="px", y_down=True, source=str(path), extent=(float(w), float(h)),
             meta={"tracer": self.name, "options": opt, "threshold": level, **info,
+                  "traced_corners_deg": float(opt.get("corner", CORNER)),
                   "line_width_px": info["line_width_px"] / k},
         )
         return in_picture_px(d, gray.shape)
@@ -105,7 +110,13 @@ def skeleton_length(skel: np.ndarray) -> float:
 # Ink wider than _FULL_WIDTH px is traced on the picture scaled down to lines
 # _WORK_WIDTH px wide: a skeleton costs per ink pixel and per pixel of width.
 _FULL_WIDTH, _WORK_WIDTH = 12.0, 6.0
-_UP_BLUR = 0.3  # px of the picture: about the spread of a pixel's square (1/sqrt(12))
+# An upscaled picture is blurred as a much finer picture of the same scene is on its way down
+# to the grid: working_picture's anti-aliasing Gaussian (scikit-image's resize, sigma =
+# (source px per grid px - 1) / 2 source px) tends to half a grid px. (0.3 px of the picture,
+# the spread of a pixel's square, left a picture drawn 0.55 mm/px almost unblurred: a sampled
+# Gaussian that narrow hardly spreads, and the thresholded 1x camera had twice the pinholes and
+# thin dark lines of its 4x upscale.)
+_UP_BLUR = 0.5  # grid px
 
 
 def rough_width(ink: np.ndarray) -> float:
@@ -135,7 +146,7 @@ def thin_enough(gray: np.ndarray, ink: np.ndarray, level: float,
         from scipy import ndimage as ndi
 
         work, k = working_picture(gray, grid, 1.0, upscale=True)
-        work = ndi.gaussian_filter(work, _UP_BLUR * k, mode="nearest")
+        work = ndi.gaussian_filter(work, _UP_BLUR, mode="nearest")
         return work, work < level, k
     width = rough_width(ink)
     if width <= _FULL_WIDTH:
@@ -165,9 +176,22 @@ def centerlines(ink: np.ndarray, opt: dict[str, Any], skel: np.ndarray | None = 
     speck = opt["speck"] or np.pi * width * width / 4
     if speck > 1:  # specks of dust or noise: no line to draw
         ink = morphology.remove_small_objects(ink, max_size=int(speck))
-        skel &= ink
+        # Pinholes of paper in the ink (a photo's dark areas thresholded, upscaled pixels'
+        # corners) would each be a loop of the skeleton: two junctions that break a line into
+        # three strokes and a ring of short ones, and they come and go with the resolution.
+        # Holes under a quarter of a speck (a disc of half the line width) are filled; a bold
+        # letter's counter is wider than that.
+        filled = morphology.remove_small_holes(ink, max_size=int(speck / 4))
+        if np.count_nonzero(filled) != np.count_nonzero(ink):
+            ink = filled
+            skel = morphology.skeletonize(ink)
+            dist = ndi.distance_transform_edt(ink)
+            width = max(line_width(ink, skel), 1.0)  # the loops' length no longer thins the estimate
+        else:
+            skel &= ink
     spur = opt["spur"] or width
-    chains, n_objects, n_junctions = link_edges(skel, spur)
+    # pruned to a fixed point: a spur that forks (noise on a photo's dark area) goes as a whole
+    chains, n_objects, n_junctions = link_edges(skel, spur, prune=True)
     radius = (width + 1) / 2
     chains = [_out_of_caps(c, dist, radius) for c in chains]
     if len(chains) > 1:

@@ -18,6 +18,7 @@ import numpy as np
 from doodlecam.api import Option, Tracer
 from doodlecam.errors import InputError, PluginError
 from doodlecam.model import Drawing
+from doodlecam.plugins.edges import CORNER, CORNER_HELP, check_corner
 from doodlecam.trace.raster import IMAGE_EXTENSIONS, in_picture_px, load_working
 
 
@@ -37,6 +38,7 @@ class ContoursTracer(Tracer):
         Option("fill_cross", bool, False, "cross-hatch the fill (a second layer at right angles)"),
         Option("pixel_mm", float, 0.0, "trace the picture scaled (down, or up if coarser) to this many mm per pixel "
                "as drawn (0 = the pen width), so px options mean the same drawn size at any resolution"),
+        Option("corner", float, CORNER, CORNER_HELP),
     )
 
     @classmethod
@@ -51,6 +53,7 @@ class ContoursTracer(Tracer):
         from doodlecam.plugins.hatch import hatch_mask
 
         opt = self.resolve_options(options)
+        check_corner(self.name, opt["corner"])
         if opt["blur"] < 0 or opt["min_area"] < 0 or opt["simplify"] < 0 or opt["fill_spacing"] < 0.5:
             raise PluginError("tracer 'contours': blur, min_area and simplify must be >= 0 and fill_spacing >= 0.5")
         gray, shape = load_working(path, self, opt["pixel_mm"], upscale=True)
@@ -100,7 +103,8 @@ class ContoursTracer(Tracer):
             tuple(polylines), units="px", y_down=True, source=str(path), extent=(float(w), float(h)),
             meta={"tracer": self.name, "options": opt, "threshold": level, "outlines": n_outlines,
                   "blur_px": blur, "min_area_px": min_area,  # as used, in the picture's working px
-                  "polylines": len(polylines), "vertices": int(sum(len(p) for p in polylines))}), shape)
+                  "polylines": len(polylines), "vertices": int(sum(len(p) for p in polylines)),
+                  "traced_corners_deg": float(opt["corner"]), "corner_blur_px": float(blur)}), shape)
 
     @staticmethod
     def level(gray: np.ndarray, threshold: str, path) -> float:

@@ -32,6 +32,14 @@ from doodlecam.trace.raster import IMAGE_EXTENSIONS, denoise_amount, in_picture_
 _MIN_STEP = 0.02
 _TANGENT_PX = 5  # how far along a chain its direction at a junction is measured
 _BIG = 4_000_000  # pixels; larger pictures are filtered in float32
+CORNER = 30.0  # degrees: traced corners kept exact (doodlecam.geometry.corners), here and in contours, centerline
+CORNER_HELP = ("keep corners exact where a traced line turns by more than this many degrees over a few pen "
+               "widths: the stroke is split there and the pen stops on the corner without lifting (0 = off)")
+
+
+def check_corner(tracer: str, corner: float) -> None:
+    if not 0 <= corner < 180:
+        raise PluginError(f"tracer '{tracer}': corner must be 0 (off) to below 180 degrees, got {corner:g}")
 
 
 class EdgesTracer(Tracer):
@@ -53,6 +61,7 @@ class EdgesTracer(Tracer):
                "(up to smooth=3 sigma=3 for heavy noise; clean pictures are untouched); false = off"),
         Option("pixel_mm", float, 0.0, "trace the picture scaled (down, or up if coarser) to this many mm per pixel "
                "as drawn (0 = the pen width), so px options mean the same drawn size at any resolution"),
+        Option("corner", float, CORNER, CORNER_HELP),
     )
 
     @classmethod
@@ -68,6 +77,7 @@ class EdgesTracer(Tracer):
 
     def trace_gray(self, gray: np.ndarray, path: Path, opt: dict[str, Any]) -> Drawing:
         """``trace`` of a picture already loaded, with resolved options."""
+        check_corner(self.name, opt.get("corner", CORNER))  # here: 'auto' calls this directly
         noise = noise_level(gray)
         if opt["denoise"] and (a := denoise_amount(noise)) > 0:
             # the settings that rescued a noisy photo by hand, reached at heavy noise
@@ -88,7 +98,8 @@ class EdgesTracer(Tracer):
                   "edge_objects": n_objects, "junctions": n_junctions, "polylines": len(polylines),
                   "vertices": int(sum(len(p) for p in polylines)),
                   "length_px": float(_lengths(polylines).sum()),
-                  "low_threshold": low, "high_threshold": high, "noise": noise},
+                  "low_threshold": low, "high_threshold": high, "noise": noise,
+                  "traced_corners_deg": float(opt.get("corner", CORNER)), "corner_blur_px": float(opt["sigma"])},
         )
 
     @staticmethod
@@ -179,14 +190,16 @@ def thin(edges: np.ndarray) -> np.ndarray:
     return skel[1:-1, 1:-1]
 
 
-def link_edges(edges: np.ndarray, min_length: float = 0.0) -> tuple[list[np.ndarray], int, int]:
+def link_edges(edges: np.ndarray, min_length: float = 0.0, prune: bool = False) -> tuple[list[np.ndarray], int, int]:
     """Chains of (row, col) points covering a thin edge map, each edge pixel once.
 
     Returns (chains, number of edge objects, number of junction clusters).
     Edge objects are the non-branching runs between junctions; a chain
     shorter than ``min_length`` with a free end (a spur or a speck) is
     dropped, and the rest are joined straight through junctions, so fewer
-    pen lifts are needed. Closed chains repeat their first point.
+    pen lifts are needed. With ``prune`` the dropping repeats until nothing
+    changes: a short chain left with a free end once its branches are gone (a
+    forked spur) goes too. Closed chains repeat their first point.
     """
     from scipy.sparse import csgraph
 
@@ -271,6 +284,14 @@ def link_edges(edges: np.ndarray, min_length: float = 0.0) -> tuple[list[np.ndar
 
     # Drop spurs and specks before joining, so they cannot hijack a junction.
     alive = (length >= min_length) | ((ca >= 0) & (cb >= 0) & (ca != cb))
+    while prune:  # a spur's own branches gone, the spur has a free end: drop it too, to a fixed point
+        ends = np.r_[ca[alive], cb[alive]]
+        count = np.bincount(ends[ends >= 0], minlength=n)
+        tied = (ca >= 0) & (cb >= 0) & (ca != cb) & (count[np.maximum(ca, 0)] > 1) & (count[np.maximum(cb, 0)] > 1)
+        now = alive & ((length >= min_length) | tied)
+        if np.array_equal(now, alive):
+            break
+        alive = now
     chains = _join(pts, start[alive], stop[alive], ca[alive], cb[alive])
     return chains, len(first), len(np.unique(jl))
 

@@ -54,18 +54,42 @@ which equals J q'' + (dJ/du) q'. The second half is the same with D, C, a4, a3.
 
 from __future__ import annotations
 
-import difflib
 import math
-from typing import Any
+from typing import Annotated, Any
 
 import numpy as np
+from pydantic import BeforeValidator, Field
 
 from doodlecam.api import Kinematics
 from doodlecam.errors import MachineError, PlanError
+from doodlecam.schema import Num, Table
 
-_REQUIRED = ("a0", "a1", "a2", "a3", "a4", "origin", "max_velocity", "max_acceleration")
-_OPTIONAL = ("min_transmission_angle",)
 DEFAULT_MIN_TRANSMISSION_DEG = 20.0
+
+
+def _both(v):
+    """One number for both cranks' limit."""
+    return [v, v] if isinstance(v, (int, float)) and not isinstance(v, bool) else v
+
+
+Positive = Annotated[Num, Field(gt=0)]
+CrankPair = Annotated[tuple[Positive, Positive], BeforeValidator(_both)]
+
+
+class FiveBarParams(Table):
+    """The [kinematics] table of a five-bar profile (checked on load: doodlecam.schema)."""
+
+    a0: Positive = Field(description="the distance A-D between the crank pivots in mm, e.g. 620")
+    a1: Positive = Field(description="the length of crank A-B in mm, e.g. 200")
+    a2: Positive = Field(description="the length of coupler B-P in mm, e.g. 544")
+    a3: Positive = Field(description="the length of coupler C-P in mm, e.g. 544")
+    a4: Positive = Field(description="the length of crank D-C in mm, e.g. 200")
+    origin: tuple[Num, Num] = Field(description="pivot A in work-area mm, two numbers [x, y], e.g. [-170, -358]")
+    max_velocity: CrankPair = Field(description="[crank 1, crank 4] in rad/s, e.g. [1.5, 1.5] (one number: both)")
+    max_acceleration: CrankPair = Field(description="[crank 1, crank 4] in rad/s^2, e.g. [15, 15] (one number: both)")
+    min_transmission_angle: Num = Field(DEFAULT_MIN_TRANSMISSION_DEG, gt=0, lt=60,
+                                        description="degrees between 0 and 60 (0 would admit the singular poses; "
+                                                    "20-40 is usual)")
 
 
 def _cross(u: np.ndarray, v: np.ndarray) -> np.ndarray:
@@ -94,54 +118,22 @@ class FiveBar(Kinematics):
     actuator_units = "rad"
     linear_map = None  # nonlinear: the planner uses derivatives()
 
+    Params = FiveBarParams
+
     def __init__(self, machine, params: dict[str, Any]):
-        super().__init__(machine, params)
-        where = f"{getattr(machine, 'source', '') or getattr(machine, 'name', '') or '<profile>'}: [kinematics]"
-        self._where = where
-        params = dict(params or {})
-        for key in params:
-            if key not in _REQUIRED + _OPTIONAL:
-                hint = difflib.get_close_matches(key, _REQUIRED + _OPTIONAL, n=1)
-                did = f" (did you mean '{hint[0]}'?)" if hint else ""
-                raise MachineError(f"{where} has unknown key '{key}'{did}; the fivebar plugin reads {', '.join(_REQUIRED + _OPTIONAL)}")
-        for key in _REQUIRED:
-            if key not in params:
-                raise MachineError(f"{where} is missing '{key}'; the fivebar plugin needs {', '.join(_REQUIRED)} (see the built-in profile: doodlecam machines new NAME --from fivebar)")
-        self.a0, self.a1, self.a2, self.a3, self.a4 = (self._number(params, k, positive=True) for k in ("a0", "a1", "a2", "a3", "a4"))
-        self.origin = self._pair(params, "origin", positive=False)
-        self.vmax = self._pair(params, "max_velocity", positive=True)
-        self.amax = self._pair(params, "max_acceleration", positive=True)
-        mu = self._number(params, "min_transmission_angle", positive=False) if "min_transmission_angle" in params \
-            else DEFAULT_MIN_TRANSMISSION_DEG
-        if not 0.0 < mu < 60.0:  # 0 would admit the singular poses themselves
-            raise MachineError(f"{where} min_transmission_angle must be in (0, 60) degrees, got {mu:g}; 20-40 is usual")
+        super().__init__(machine, params)  # checks the table against FiveBarParams
+        p = self.params
+        where = f"{getattr(machine, 'source', '') or getattr(machine, 'name', '') or '<profile>'}: kinematics"
+        self.a0, self.a1, self.a2, self.a3, self.a4 = p.a0, p.a1, p.a2, p.a3, p.a4
+        self.origin, self.vmax, self.amax = (np.array(v, float) for v in (p.origin, p.max_velocity, p.max_acceleration))
+        mu = p.min_transmission_angle
         self.min_transmission = math.radians(mu)
         if self.a0 >= self.a1 + self.a2 + self.a3 + self.a4:
-            raise MachineError(f"{where} a0 = {self.a0:g} mm is not shorter than a1 + a2 + a3 + a4 = "
+            raise MachineError(f"{where}.a0 = {self.a0:g} mm is not shorter than a1 + a2 + a3 + a4 = "
                                f"{self.a1 + self.a2 + self.a3 + self.a4:g} mm, so the arm cannot close; shorten a0 or lengthen the links")
         if not self._workspace_grid().any():
-            raise MachineError(f"{where} links a0..a4 = {self.a0:g}, {self.a1:g}, {self.a2:g}, {self.a3:g}, {self.a4:g} mm leave no "
+            raise MachineError(f"{where}: links a0..a4 = {self.a0:g}, {self.a1:g}, {self.a2:g}, {self.a3:g}, {self.a4:g} mm leave no "
                                f"point with transmission angles >= {mu:g} deg; change the lengths or lower min_transmission_angle")
-
-    # ------------------------------------------------------------ params
-
-    def _number(self, params: dict, key: str, positive: bool) -> float:
-        v = params[key]
-        if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v):
-            raise MachineError(f"{self._where} {key} must be a finite number, got {v!r}; fix the profile")
-        if positive and v <= 0:
-            raise MachineError(f"{self._where} {key} must be positive, got {v:g}; fix the profile")
-        return float(v)
-
-    def _pair(self, params: dict, key: str, positive: bool) -> np.ndarray:
-        v = params[key]
-        if isinstance(v, (int, float)) and not isinstance(v, bool) and positive:
-            v = [v, v]  # one limit for both cranks
-        unit = {"origin": "[x, y] in mm", "max_velocity": "[crank 1, crank 4] in rad/s",
-                "max_acceleration": "[crank 1, crank 4] in rad/s^2"}[key]
-        if not isinstance(v, (list, tuple)) or len(v) != 2:
-            raise MachineError(f"{self._where} {key} must be two numbers {unit}, got {v!r}; fix the profile")
-        return np.array([self._number({key: x}, key, positive) for x in v])
 
     # ------------------------------------------------------------ geometry
 

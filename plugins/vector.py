@@ -566,7 +566,7 @@ def _mesh(path: Path, opt) -> Drawing:
 
     polys = simplify(polys, opt["tolerance"] / 2)
     meta.update(tracer="vector", format="mesh", watertight=bool(mesh.is_watertight), faces=len(mesh.faces),
-                polylines=len(polys))
+                polylines=len(polys), bounds_mm=np.round(mesh.bounds, 6).tolist())  # the studio's STL panel shows them
     return Drawing(tuple(polys), units="mm", y_down=False, source=str(path), meta=meta)
 
 
@@ -593,7 +593,8 @@ def _section(mesh, plane: str, path: Path):
     size = max(hi - lo, float(np.ptp(mesh.vertices, axis=0).max()), 1e-9)
     polys = _join([s for s in seg2], 1e-7 * size)
     closed = sum(1 for p in polys if len(p) >= 3 and np.array_equal(p[0], p[-1]))
-    return polys, {"plane": plane, "level_mm": level, "closed_outlines": closed, "open_outlines": len(polys) - closed}
+    return polys, {"plane": plane, "level_mm": level, "span_mm": [lo, hi], "closed_outlines": closed,
+                   "open_outlines": len(polys) - closed}
 
 
 def _silhouette(mesh, direction: str, path: Path):

@@ -22,6 +22,9 @@ class EbbPost(PostProcessor):
         Option("servo_down", int, 15248, "SC,5: pen-down servo position (units of 83.3 ns)"),
         Option("servo_rate_up", int, 0, "SC,11: servo speed going up (0 = leave the board's setting)"),
         Option("servo_rate_down", int, 0, "SC,12: servo speed going down (0 = leave the board's setting)"),
+        Option("lift_clear", float, 0.0, "s after a lift starts when the pen is off the paper: travel starts then and "
+               "overlaps the rest of the lift (SP,1 waits this long; the AxiDraw driver's negative pen_delay_up); "
+               "0 = wait the pen's whole up_delay"),
     )
 
     def write(self, job, options: dict[str, Any]) -> bytes:
@@ -32,4 +35,6 @@ class EbbPost(PostProcessor):
         for key in ("servo_up", "servo_down"):
             if not 1 <= options[key] <= 65535:
                 raise OutputError(f"post ebb: {key} must be 1..65535 (SC takes 16-bit values), got {options[key]}")
+        if not 0.0 <= options["lift_clear"] <= 60.0:
+            raise OutputError(f"post ebb: lift_clear must be 0..60 s, got {options['lift_clear']:g}")
         return write_ebb(job, registry.kinematics_for(job.machine), options)

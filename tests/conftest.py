@@ -112,3 +112,19 @@ def plc_strokes(path):
         else:
             cur["v"].append((c.x / kx, c.y / ky))
     return header, [s for s in strokes if s["v"]]
+
+
+def plc_pieces(header, runs, samples):
+    """The runs of ``plc_strokes`` split into the job's strokes: a MOVE's run of DRAWs holds
+    the strokes drawn without lifting (Job.lifts), each with as many targets as its samples,
+    each starting where the one before left the machine (mm)."""
+    out, it = [], iter(samples)
+    for run in runs:
+        start, at = run["start"], 0
+        while at < len(run["v"]):
+            part = run["v"][at:at + len(next(it).velocity)]
+            out.append({"start": start, "v": part})
+            v = np.vstack([[0, 0], part])
+            start = start + np.sum(0.5 * header.delta_time * (v[1:] + v[:-1]), axis=0)
+            at += len(part)
+    return out

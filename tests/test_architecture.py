@@ -23,7 +23,7 @@ LAYERS: list[tuple[str, ...]] = [
     ("doodlecam.geometry.kernels",),  # compiled B-spline kernels: NumPy and numba only
     ("doodlecam.errors",),
     ("doodlecam.atomic", "doodlecam.extras", "doodlecam.options", "doodlecam.plausible"),
-    ("doodlecam.model",),
+    ("doodlecam.model", "doodlecam.schema"),  # schema: the machine profile's pydantic models
     ("doodlecam.api", "doodlecam.machine"),
     ("doodlecam.registry",),  # the ground ends here
     ("doodlecam.geometry", "doodlecam.motion", "doodlecam.link"),

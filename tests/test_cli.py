@@ -16,7 +16,7 @@ from doodlecam.plan.follow import path_deviation
 from doodlecam.model import StrokeSamples
 from doodlecam.plan.sample import reference_positions
 
-from conftest import plc_strokes
+from conftest import plc_pieces, plc_strokes
 
 ROOT = Path(__file__).resolve().parent.parent
 CAMERA = ROOT / "samples" / "images" / "camera.png"
@@ -45,14 +45,16 @@ def test_convert_writes_all_outputs_and_summary_matches_files(camera_job):
     assert sorted(p.name for p in out.iterdir()) == ["camera.gcode", "camera.plc", "camera.svg"]
     header, cmds = read_plc((out / "camera.plc").read_bytes())
     types = np.array([c.type for c in cmds])
-    assert (types == 1).sum() == s["strokes"] + 1  # a move to each stroke, then home
+    # a move to each stroke drawn after a lift, then home (the pieces of a traced line between its
+    # corners follow each other pen down)
+    assert (types == 1).sum() == s["pen_lifts"] + 1 and s["pen_lifts"] + s["corners_kept"] <= s["strokes"]
     assert (types == 0).sum() == s["samples"]
     assert header.no_commands == len(cmds)
     assert header.delta_time == pytest.approx(0.04)
     # planned time >= time the PLC spends on its draw samples (the rest is travel and pen)
     assert s["job_time_s"] >= s["samples"] * header.delta_time * 0.999
     gcode = (out / "camera.gcode").read_text()
-    assert gcode.count("G0 ") >= s["strokes"]
+    assert gcode.count("G0 ") >= s["pen_lifts"]
     assert f"{s['strokes']} strokes" in gcode
     assert s["worst_acceleration_ratio"] <= 1 + 1e-9 and s["worst_velocity_ratio"] <= 1 + 1e-9
     assert 20 <= s["strokes"] <= 2000 and s["pen_down_mm"] > 500
@@ -62,8 +64,10 @@ def test_convert_writes_all_outputs_and_summary_matches_files(camera_job):
 def test_plc_samples_reproduce_every_fitted_stroke(tmp_path):
     machine = load_machine("doodlebot")
     res = convert(CAMERA, tmp_path, Settings(machine=machine, posts=("plc",)))
-    header, strokes = plc_strokes(tmp_path / "camera.plc")
+    header, runs = plc_strokes(tmp_path / "camera.plc")
     kx, ky = header.steps_per_mm_x, header.steps_per_mm_y
+    assert len(runs) == res.job.pen_lifts  # the pieces of a traced line between corners: one run
+    strokes = plc_pieces(header, runs, res.job.samples)
     assert len(strokes) == len(res.job.strokes)
     worst = between = 0.0
     for st, stroke, smp in zip(strokes, res.job.strokes, res.job.samples):

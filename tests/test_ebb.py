@@ -176,5 +176,66 @@ def test_axidraw_kinematics_map_and_profiles():
         assert kin.inverse(np.array([[0.0, -1.0]]))[:, :2].tolist() == [[1.0, -1.0]]
         v, a = kin.actuator_limits()
         assert (v[:2] < 312.5).all() and (a > 0).all()
-        # the pen's rows: acceleration along 0, 45, 90, 135 degrees within 762 cos 22.5
-        assert kin.linear_map.shape == (6, 2) and np.allclose(a[2:], 762 * np.cos(np.pi / 8))
+        # the pen's rows: acceleration along every 22.5 degrees within 762 cos 11.25 (a 16-gon in the
+        # circle: every pen acceleration they admit is <= 762, and every one <= 762 cos 11.25 passes)
+        rows = kin.linear_map[2:]
+        assert rows.shape == (8, 2) and np.allclose(a[2:], 762 * np.cos(np.pi / 16))
+        ang = np.linspace(0, 2 * np.pi, 3601)
+        dirs = np.column_stack([np.cos(ang), np.sin(ang)])
+        reach = 1 / np.abs(dirs @ rows.T).max(axis=1) * a[2]  # the largest admitted acceleration per direction
+        assert reach.max() <= 762 * (1 + 1e-9) and reach.min() >= 762 * np.cos(np.pi / 16) * (1 - 1e-9)
+
+
+def test_lift_clear_overlaps_the_lift_with_travel(tmp_path):
+    """post ebb lift_clear: after each lift SP,1 waits only that long (the travel starts while the servo
+    finishes rising); the plan saves the difference per lift and the motion is the same."""
+    from doodlecam import pipeline
+    from doodlecam.machine import load_machine
+
+    m = load_machine("axidraw-v3")
+    src = ROOT / "samples/vectors/layers.svg"
+    texts = []
+    for opts in ({}, {"lift_clear": 0.05}):
+        r = pipeline.convert(src, tmp_path / str(len(texts)), pipeline.Settings(machine=m, posts=("ebb",),
+                                                                               post_options={"ebb": opts}))
+        texts.append(r.outputs[0].read_text().splitlines())
+    head = [dict(l[2:].split(": ", 1) for l in t if l.startswith("; ") and ": " in l) for t in texts]
+    ups = [[l for l in t if l.startswith("SP,1")] for t in texts]
+    assert set(ups[0]) == {"SP,1,130"} and ups[1][0] == "SP,1,130" and set(ups[1][1:]) == {"SP,1,50"}
+    saved = float(head[0]["planned_time"]) - float(head[1]["planned_time"])
+    assert saved == pytest.approx(0.08 * (len(ups[1]) - 1), abs=1e-6)
+    assert [l for l in texts[0] if not l.startswith(("SP", ";"))] == [l for l in texts[1] if not l.startswith(("SP", ";"))]
+    from doodlecam.errors import OutputError
+
+    with pytest.raises(OutputError, match="lift_clear must be 0..60 s"):
+        pipeline.convert(src, tmp_path / "bad", pipeline.Settings(machine=m, posts=("ebb",),
+                                                                  post_options={"ebb": {"lift_clear": -0.1}}))
+    assert not (tmp_path / "bad").exists() or not any((tmp_path / "bad").iterdir())
+    pen_down_after = [r.pen_down for r in execute(texts[1]) if r.line.startswith("LM")]
+    assert pen_down_after.count(True) == [r.pen_down for r in execute(texts[0]) if r.line.startswith("LM")].count(True)
+
+
+def test_the_sampler_adds_the_fewest_periods_it_needs(tmp_path, monkeypatch):
+    """Where whole-period ramps cannot follow a stroke's plan in ceil(T / dT) periods the sampler adds
+    periods; it bisects back from its 5 % steps, so on a stroke of fewer than 100 periods the one-fewer
+    count has been tried (and failed): the stroke is not slower than the sampler can make it."""
+    import doodlecam.plan.sample as sample
+    from doodlecam import pipeline
+    from doodlecam.machine import load_machine
+
+    tried = set()
+    qp = sample._qp
+
+    def spy(p, *args, **kw):
+        tried.add(len(p))  # one row per period
+        return qp(p, *args, **kw)
+
+    monkeypatch.setattr(sample, "_qp", spy)
+    m = load_machine("axidraw-v3")
+    job = pipeline.convert(ROOT / "samples/images/text.png", tmp_path, pipeline.Settings(machine=m, posts=("ebb",))).job
+    dt = m.delta_time
+    added = [(int(np.ceil(s.profile.duration / dt - 1e-9)), len(smp.velocity)) for s, smp in zip(job.strokes, job.samples)]
+    added = [(m0, n) for m0, n in added if n > max(m0, 2) and m0 < 100]
+    assert any(n - m0 >= 2 for m0, n in added), added  # strokes that needed more than one extra period
+    for m0, n in added:
+        assert n - 1 in tried, (m0, n)

@@ -123,7 +123,7 @@ def test_profile_tables():
     data = dict(PROFILE, layout={"rotate": "auto", "margin": 0, "width": 150}, order={"reverse": False, "budget": 0.2})
     m = parse_machine(data, "p.toml")
     assert m.layout["rotate"] == "auto" and m.layout["margin"] == 0.0 and m.order["reverse"] is False
-    with pytest.raises(MachineError, match=r"p.toml: \[layout\] rotate"):
+    with pytest.raises(MachineError, match=r"p.toml: layout.rotate must be one of"):
         parse_machine(dict(PROFILE, layout={"rotate": "sideways"}), "p.toml")
     with pytest.raises(MachineError, match="unknown key"):
         parse_machine(dict(PROFILE, layout={"sizee": 1}), "p.toml")

@@ -6,7 +6,8 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from doodlecam.geometry.order import order_strokes
-from doodlecam.geometry.order_search import greedy, local_search, nearest_k, perturb, rotate_loops, tour_cost
+from doodlecam.geometry.order import nearest_k
+from doodlecam.geometry.order_search import greedy, local_search, perturb, rotate_loops, tour_cost
 
 
 def _strokes(rng, n, loops=0.3, grid=None):

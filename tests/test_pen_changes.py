@@ -115,8 +115,8 @@ def test_bad_pen_entries_are_one_line_errors(change, message):
         expect = "[[pen]] is empty"
     else:
         data = _toml(PROFILE.replace(change, message))
-        expect = {"max_speed = -4.0": "[[pen]] number 2 max_speed must be positive",
-                  "widht = 1.0": "unknown key 'widht' in [[pen]] number 2",
+        expect = {"max_speed = -4.0": "p.toml: pen[2].max_speed = -4 must be positive",
+                  "widht = 1.0": "unknown key pen[2].widht (did you mean 'width'?)",
                   'name = "Fineliner"': "two [[pen]] entries are named"}[message]
     with pytest.raises(MachineError) as e:
         parse_machine(data, "p.toml")

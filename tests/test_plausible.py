@@ -36,11 +36,11 @@ def edited(tmp_path, old, new, name="bad.toml"):
 
 # The four profiles: each passed 'machines check' and converted without a word.
 SLIPS = [
-    ("home = [0.0, 0.0]", "home = [500.0, 0.0]", ["[work_area] home", "outside the 297 x 210 mm", "[0, 0]"]),
-    ("delta_time = 0.04", "delta_time = 40", ["[sampling] delta_time", "looks like milliseconds", "write 0.04"]),
-    ("up_delay = 0.15", "up_delay = 150", ["[pen] up_delay", "looks like milliseconds", "write 0.15"]),
+    ("home = [0.0, 0.0]", "home = [500.0, 0.0]", ["work_area.home = [500, 0]", "outside the 297 x 210 mm", "[0, 0]"]),
+    ("delta_time = 0.04", "delta_time = 40", ["sampling.delta_time = 40 s", "looks like milliseconds", "write 0.04"]),
+    ("up_delay = 0.15", "up_delay = 150", ["pen.up_delay = 150 s", "looks like milliseconds", "write 0.15"]),
     ("max_velocity = 100.0", "max_velocity = 6000",
-     ["[axes.x] max_velocity", "looks like mm/min", "write 100 (mm/s)"]),
+     ["axes.x.max_velocity = 6000 mm/s", "looks like mm/min", "write 100 (mm/s)"]),
 ]
 
 
@@ -72,11 +72,11 @@ def refused(edit) -> str:
 
 def test_bounds_of_each_value():
     assert "delta_time = 0.0001 s is shorter than 1 ms" in refused(lambda d: d["sampling"].update(delta_time=1e-4))
-    assert "[pen] down_delay" in refused(lambda d: d["pen"].update(down_delay=9.0))
-    assert "[travel] speed = 9000" in refused(lambda d: d.update(travel={"speed": 9000.0}))
-    assert "[pen] max_speed = 3000" in refused(lambda d: d["pen"].update(max_speed=3000.0))
+    assert "pen.down_delay = 9 s" in refused(lambda d: d["pen"].update(down_delay=9.0))
+    assert "travel.speed = 9000" in refused(lambda d: d.update(travel={"speed": 9000.0}))
+    assert "pen.max_speed = 3000" in refused(lambda d: d["pen"].update(max_speed=3000.0))
     assert "max_acceleration = 200000" in refused(lambda d: d["axes"]["y"].update(max_acceleration=2e5))
-    assert "[[pen]] number 2 up_delay" in refused(
+    assert "pen[2].up_delay = 100 s" in refused(
         lambda d: d.update(pen=[{"name": "a"}, {"name": "b", "up_delay": 100.0}]))
     # far beyond mm/min too: no misleading hint
     assert "looks like" not in refused(lambda d: d["axes"]["x"].update(max_velocity=5e5))
@@ -88,7 +88,7 @@ def test_bounds_of_each_value():
 
 def test_warnings_are_kept_for_check_and_the_summary():
     m = parse_machine(data(lambda d: d["axes"]["x"].update(max_velocity=0.2)), "p.toml")
-    assert any("[axes.x] max_velocity = 0.2 mm/s is very slow" in w and "write 200" in w for w in m.warnings)
+    assert any("axes.x.max_velocity = 0.2 mm/s is very slow" in w and "write 200" in w for w in m.warnings)
     m = parse_machine(data(lambda d: d["axes"]["y"].update(max_acceleration=5.0)), "p.toml")
     assert any("if you meant 5 m/s^2, write 5000" in w for w in m.warnings)
     assert any("takes 1440 mm, more than the 200 mm of travel" in w for w in m.warnings)
@@ -110,7 +110,7 @@ def test_step_rate_against_the_controller(tmp_path):
     text = Path(ax.source).read_text().replace("steps_per_mm = 80.0\nmax_velocity = 165.7",
                                                "steps_per_mm = 200.0\nmax_velocity = 165.7", 1)
     (tmp_path / "ebb.toml").write_text(text)
-    with pytest.raises(MachineError, match=r"\[axes.x\] max_velocity = 165.7 mm/s at 200 steps/mm is 33 kHz.*"
+    with pytest.raises(MachineError, match=r"axes.x.max_velocity = 165.7 mm/s at 200 steps/mm is 33 kHz.*"
                                            r"EiBotBoard steps at most about 25 kHz: lower max_velocity to 125"):
         load_machine(tmp_path / "ebb.toml")
 
@@ -126,12 +126,12 @@ def test_unknown_solver_and_kinematics_name_the_file_and_key(tmp_path):
     prof = edited(tmp_path, 'solver = "reach"', 'solver = "rech"')
     r = cli("machines", "check", prof)
     assert r.returncode == 2 and len(r.stderr.strip().splitlines()) == 1
-    assert f"{prof}: [machine] solver 'rech' is unknown (did you mean 'reach'?)" in r.stderr
+    assert f"{prof}: machine.solver = 'rech' is unknown (did you mean 'reach'?)" in r.stderr
     prof = edited(tmp_path, 'kinematics = "cartesian"', 'kinematics = "corexy"', "k.toml")
     for args in (("machines", "check", prof), ("convert", CAMERA, "-o", tmp_path / "o", "-m", prof)):
         r = cli(*args)
         assert r.returncode == 2 and len(r.stderr.strip().splitlines()) == 1, r.stderr
-        assert f"{prof}: [machine] kinematics 'corexy' is unknown" in r.stderr and "cartesian" in r.stderr
+        assert f"{prof}: machine.kinematics = 'corexy' is unknown" in r.stderr and "cartesian" in r.stderr
     assert not (tmp_path / "o").exists()
 
 

@@ -87,6 +87,19 @@ def page(server):
         assert not errors, errors
 
 
+@contextlib.contextmanager
+def second_tab(page, url: str):
+    """Another tab of ``page``'s browser on ``url``, ready; closed at the end, with no page errors."""
+    pg = page.context.browser.new_page(viewport={"width": 1400, "height": 850})
+    errors = []
+    pg.on("pageerror", lambda e: errors.append(str(e)))
+    pg.goto(url)
+    pg.wait_for_selector("body[data-ready='1']")
+    yield pg
+    pg.close()
+    assert not errors, errors
+
+
 def shot(page, name: str) -> None:
     if SHOTS is not None:
         page.screenshot(path=str(SHOTS / f"studio-{name}.png"))
@@ -184,15 +197,15 @@ def test_4_undo_restores_the_plan(page, server):
     assert page.text_content("#stat-time") == f"{s['job_time_s']:.2f} s"
 
 
-def test_4b_right_click_inserts_a_control_point_and_ctrl_z_undoes(page, server):
+def test_4b_right_click_offers_insert_after_and_ctrl_z_undoes(page, server):
     k = page.evaluate("studio.selected")
     assert k >= 0
     n = len(page.evaluate(f"studio.view.strokes[{k}].control"))
     c = page.evaluate(f"studio.view.strokes[{k}].control[3]")
     x, y = page.evaluate(f"studioScreen({c[0]}, {c[1]})")
     box = page.locator("#paper").bounding_box()
-    page.once("dialog", lambda d: d.accept())  # "Insert a control point after point 4?"
-    page.mouse.click(box["x"] + x, box["y"] + y, button="right")
+    page.mouse.click(box["x"] + x, box["y"] + y, button="right")  # the point's menu: insert after / delete
+    page.click("#point-menu [data-point-op=insert]")
     page.wait_for_function(f"studio.view.strokes[{k}].control.length === {n + 1}")
     assert summary(server)["can_undo"]
     page.keyboard.press("Control+z")
@@ -224,7 +237,7 @@ def test_5_export_gcode_equals_convert(page, server, tmp_path):
 
 
 def test_6_simulate(page, server):
-    page.select_option("#sim-speed", "16")
+    page.select_option("#sim-speed", "10")
     page.click("#play")
     page.wait_for_function("studioPerf.frames.length > 30", timeout=30_000)
     page.click("#play")  # pause
@@ -256,7 +269,7 @@ def test_7b_send_to_the_grbl_emulator_pause_resume_stop(page, server):
     sender = server["app"].state.sender
     lines = prepare(server["app"].state.session.export("gcode")[1].decode())  # the edited job
     page.select_option("#target", "grbl-simulator")
-    assert page.is_visible("#machine-panel")
+    assert page.is_visible("#machine-panel") and not page.is_visible("#ebb-panel")
     page.click("[data-machine=status]")
     page.wait_for_selector("#machine-status[data-state=Idle]")
     emu = sender._grbl.emulator
@@ -497,12 +510,8 @@ def test_14_an_axidraw_sends_to_its_eibotboard_with_pause_and_resume(page, tmp_p
     and the board receives every command of the job once, in order."""
     from doodlecam.link.ebb.jobfile import read_ebb
 
-    with serve(tmp_path, "axidraw-v3") as srv:  # a second studio, in a second tab of the same browser
-        pg = page.context.browser.new_page(viewport={"width": 1400, "height": 850})
-        errors = []
-        pg.on("pageerror", lambda e: errors.append(str(e)))
-        pg.goto(srv["url"])
-        pg.wait_for_selector("body[data-ready='1']")
+    # a second studio, in a second tab of the same browser
+    with serve(tmp_path, "axidraw-v3") as srv, second_tab(page, srv["url"]) as pg:
         offered = pg.evaluate("Array.from(document.querySelectorAll('#target option')).filter((o) => !o.hidden)"
                               ".map((o) => o.value)")
         assert offered == ["ebb-simulator", "ebb-serial"] and pg.input_value("#target") == "ebb-simulator"
@@ -527,6 +536,82 @@ def test_14_an_axidraw_sends_to_its_eibotboard_with_pause_and_resume(page, tmp_p
         pg.wait_for_selector("#send-status[data-state=done]", timeout=120_000)
         assert pg.text_content("#send-status").startswith(f"done: {len(lines)} commands in ")
         assert [c for c in emu.received if c.split(",")[0] not in ("V", "QM", "QS")] == lines
-        pg.close()
+        # the EiBotBoard panel: `doodlecam machine ebb`'s controls on the same board, back at home after the job
+        assert pg.is_visible("#ebb-panel") and not pg.is_visible("#machine-panel")
+        n0 = len(emu.received)
+        pg.click("[data-ebb=pen_down]")
+        pg.wait_for_selector("#ebb-status[data-action=pen_down]", timeout=30_000)
+        assert emu.pen_up == 0 and pg.text_content("#ebb-status").startswith("sent SP,0,200: ")
+        pg.fill("#ebb-jog-step", "10")
+        pg.click("[data-ebb-jog='1,0']")  # 10 mm right: both motors forward, the pen raised first
+        pg.wait_for_selector("#ebb-status[data-action=jog]", timeout=30_000)
+        assert tuple(emu.pos) == (800, 800) and emu.pen_up == 1
+        pg.click("[data-ebb-jog='0,-1']")  # 10 mm down the paper (away from home): motor 1 on, motor 2 back
+        pg.wait_for_selector("#ebb-status[data-position='10,208']", timeout=30_000)
+        assert tuple(emu.pos) == (1600, 0)
+        pg.click("[data-ebb-jog='-1,0']")
+        pg.wait_for_selector("#ebb-status[data-position='0,208']", timeout=30_000)
+        pg.click("[data-ebb-jog='-1,0']")  # past the left edge of the work area: refused, nothing moves
+        pg.wait_for_function("() => /would leave/.test(document.getElementById('error').textContent)", timeout=30_000)
+        assert tuple(emu.pos) == (800, -800)
+        pg.click("[data-ebb=home]")
+        pg.wait_for_selector("#ebb-status[data-action=home]", timeout=30_000)
+        assert tuple(emu.pos) == (0, 0) and emu.pen_up == 1
+        assert [c.split(",")[0] for c in emu.received[n0:] if c.split(",")[0] not in ("V", "QM", "QS")] == \
+            ["SP", "SP", "XM", "SP", "XM", "SP", "XM", "SP", "HM"]
+        shot(pg, "ebb-panel")
         sender.close()
+
+
+def test_15_other_tabs_follow_a_large_load_and_an_edit_through_the_event_stream(page, tmp_path):
+    """Two tabs of one studio: tab A uploads a drawing of 1 200 paths, which the studio shows as traced at once
+    and plans in the background; tab B, which sends no request of its own (no polling), follows through
+    /api/events: it shows the traced paths, then the planned job, then A's edit of a stroke."""
+    import sys
+
+    sys.path.insert(0, str(ROOT / "tests"))
+    from generated_art import generated_svg
+
+    svg = tmp_path / "lines.svg"
+    svg.write_text(generated_svg(1200, "lines"))
+    with serve(tmp_path) as srv:
+        session = srv["app"].state.session
+        browser = page.context.browser
+        a, b = (browser.new_page(viewport={"width": 1400, "height": 850}) for _ in range(2))
+        errors, asked = [], []
+        for pg in (a, b):
+            pg.on("pageerror", lambda e: errors.append(str(e)))
+            pg.goto(srv["url"])
+            pg.wait_for_selector("body[data-ready='1']")
+        b.on("request", lambda r: asked.append(r.url.split("?")[0].split("/", 3)[-1]))
+        a.set_input_files("#file", str(svg))
+        for pg in (a, b):  # the traced paths, while the job is planned
+            pg.wait_for_selector("body[data-preview='1']", timeout=60_000)
+            assert pg.evaluate("studio.view.preview.offsets.length") == 1201
+            assert pg.evaluate("studio.view.strokes.length") == 0
+        # B's tracer panel follows too: the vector tracer's options, not the edges' it showed with no file
+        b.wait_for_function("!document.querySelector('#tracer-options [name=sigma]')")
+        shot(b, "planning")
+        assert session.job is None or session.planning is None  # planned in the background (or just done)
+        for pg in (a, b):  # then the planned job
+            pg.wait_for_function("document.body.dataset.preview === '' && studio.view.strokes.length > 0",
+                                 timeout=300_000)
+            s = summary(srv)
+            assert pg.text_content("#stat-strokes") == str(s["strokes"]) and pg.is_hidden("#planning")
+            assert pg.evaluate("[studio.view.summary.job, studio.view.summary.version]") == [s["job"], s["version"]]
+        k = _select_longest(a)
+        before = b.evaluate(f"studio.view.strokes[{k}].control")
+        version = summary(srv)["version"]
+        a.click("#stroke-tools [data-op=reverse]")
+        a.wait_for_function(f"studio.view.summary.version > {version}", timeout=60_000)  # A's edit is done
+        b.wait_for_function(f"studio.view.summary.version === {summary(srv)['version']}", timeout=60_000)
+        assert b.evaluate(f"studio.view.strokes[{k}].control") == before[::-1]
+        assert b.text_content("#stat-time") == f"{summary(srv)['job_time_s']:.2f} s"
+        # tab B asked only for what the events told it of (a view per change, its tracer panel per new job id:
+        # the preview's and the planned job's), and nothing while nothing changes: no polling
+        assert asked.count("api/view") == 3 and asked.count("api/state") == 2 and set(asked) == {"api/view", "api/state"}, asked
+        time.sleep(3)
+        assert len(asked) == 5, asked
+        a.close()
+        b.close()
     assert not errors, errors

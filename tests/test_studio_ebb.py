@@ -233,3 +233,52 @@ def test_targets_are_checked(studio, tmp_path):
     other = client(tmp_path, machine="doodlebot")
     assert "ebb-simulator" not in other.get("/api/state").json()["targets"]
     assert "axidraw kinematics" in one_line(other.post("/api/send", json={"target": "ebb-simulator"}))
+
+
+def commands_since(emu, n: int) -> list[str]:
+    return [s for s in emu.received[n:] if s.split(",")[0] not in QUERIES]
+
+
+def test_machine_panel_drives_the_board(tmp_path):
+    """The studio's EiBotBoard panel (``doodlecam machine ebb``'s controls): what the emulator received and did."""
+    c = client(tmp_path)
+    sender = c.app.state.sender
+    m = load_machine("axidraw-v3")
+
+    def act(action, **kw):
+        r = c.post("/api/machine", json={"target": "ebb-simulator", "action": action, **kw})
+        assert r.status_code == 200, r.text
+        return r.json()
+
+    try:
+        r = act("pen_down")
+        emu = sender._ebb.emulator
+        assert r["sent"] == "SP,0,200" and emu.pen_up == 0 and r["position_mm"] == [0.0, m.height]
+        # 10 mm right and 5 mm down the paper (y up on the page, away from home on the board): the pen is
+        # raised first; motor 1 = x + y_page, motor 2 = x - y_page at 80 steps/mm
+        r = act("jog", x=10, y=-5)
+        assert emu.pen_up == 1 and tuple(emu.pos) == (1200, 400)
+        assert r["position_mm"] == [10.0, m.height - 5] and "pen at (10.0, 213.0) mm" in r["line"]
+        before = len(emu.received)
+        assert "would leave" in one_line(c.post("/api/machine", json={"target": "ebb-simulator", "action": "jog",
+                                                                      "x": -20, "y": 0}))
+        assert commands_since(emu, before) == [] and tuple(emu.pos) == (1200, 400)
+        assert "must be a number" in one_line(c.post("/api/machine", json={"target": "ebb-simulator", "action": "jog",
+                                                                            "x": "far", "y": 0}))
+        r = act("home")
+        assert tuple(emu.pos) == (0, 0) and emu.pen_up == 1 and r["sent"].startswith("SP,1,200 HM,")
+        r = act("status")
+        assert r["sent"] == "" and r["position_mm"] == [0.0, m.height]
+        before = len(emu.received)
+        r = act("motors_off")
+        assert commands_since(emu, before) == ["EM,0,0"] and "motors off" in r["line"]
+        assert "unknown EiBotBoard action" in one_line(c.post("/api/machine", json={"target": "ebb-simulator",
+                                                                                     "action": "dance"}))
+        # while a send drives the board, the panel waits for it
+        assert c.post("/api/send", json={"target": "ebb-simulator", "speed": 1}).status_code == 200
+        assert "send to the EiBotBoard is running" in one_line(c.post("/api/machine", json={
+            "target": "ebb-simulator", "action": "pen_up"}))
+        control(c, "stop")
+        wait(sender, lambda s: s["state"] not in ("sending", "stopping"))
+    finally:
+        sender.close()

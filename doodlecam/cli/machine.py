@@ -142,30 +142,14 @@ def machine_ebb(ctx):
     """Manual controls of an EiBotBoard (AxiDraw): pen up/down, motors off, jog, home, status."""
 
 
-def _board(ctx):
-    from doodlecam.link.ebb.jobfile import EbbJob
-    from doodlecam.link.ebb.sender import EbbSender, find_port
+def _run(ctx, action: str, **kw) -> None:
+    from doodlecam.link.ebb import manual
 
     o = ctx.obj or {}
     port = o.get("port")
-    s = EbbSender(find_port() if port in (None, "auto") else port, EbbJob({}, ()), "manual",
-                  timeout=o.get("timeout", 5.0))
-    s._open()
-    s.handshake()
-    return s
-
-
-def _run(ctx, commands: list[str], wait: bool = True) -> None:
-    s = _board(ctx)
-    try:
-        for c in commands:
-            s._ask(c, s.timeout)
-        if wait:
-            s.wait_idle(600)
-        pos = s._ask("QS", s.timeout).split("\n")[0]
-        click.echo(f"EiBotBoard firmware {s.version} on {s.port_name}: motors at {pos} steps")
-    finally:
-        s.ser.close()
+    r = manual.run(None if port in (None, "auto") else port, manual.commands(action, **kw),
+                   timeout=o.get("timeout", 5.0))
+    click.echo(f"EiBotBoard firmware {r['firmware']} on {r['port']}: motors at {r['steps'][0]},{r['steps'][1]} steps")
 
 
 @machine_ebb.command("pen")
@@ -173,38 +157,35 @@ def _run(ctx, commands: list[str], wait: bool = True) -> None:
 @click.pass_context
 def ebb_pen(ctx, state):
     """Raise or lower the pen (SP)."""
-    _run(ctx, [f"SP,{1 if state == 'up' else 0},200"])
+    _run(ctx, f"pen_{state}")
 
 
 @machine_ebb.command("motors-off")
 @click.pass_context
 def ebb_off(ctx):
     """Switch the motors off so the carriage moves by hand (EM,0,0); the position is forgotten."""
-    _run(ctx, ["EM,0,0"])
+    _run(ctx, "motors_off")
 
 
 @machine_ebb.command("jog")
 @click.argument("x", type=float)
 @click.argument("y", type=float)
-@click.option("--speed", type=float, default=50.0, show_default=True, help="mm/s.")
+@click.option("--speed", type=float, default=50.0, show_default=True, help="mm/s of the pen.")
 @click.pass_context
 def ebb_jog(ctx, x, y, speed):
     """Move the pen up by X Y mm on the page (y away from home), with XM (motor 1 = x + y, motor 2 = x - y)."""
-    k = 80.0
-    a, b = round(x * k), round(y * k)
-    ms = max(1, round(1000 * max(abs(x), abs(y), 1e-9) / speed))
-    _run(ctx, ["SP,1,200", f"XM,{ms},{a},{b}"])
+    _run(ctx, "jog", dx=x, dy=y, speed=speed)
 
 
 @machine_ebb.command("home")
 @click.pass_context
 def ebb_home(ctx):
     """Pen up, then back to where the motors were switched on (the start corner: HM)."""
-    _run(ctx, ["SP,1,200", "HM,4000"])
+    _run(ctx, "home")
 
 
 @machine_ebb.command("status")
 @click.pass_context
 def ebb_status(ctx):
     """Firmware version and step position (V, QS)."""
-    _run(ctx, [], wait=False)
+    _run(ctx, "status")

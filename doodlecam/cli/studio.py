@@ -46,7 +46,7 @@ def studio(file, port, host, no_browser, folders, max_upload, **options):
         if not file.is_file():
             raise InputError(f"{file}: no such file; check the path")
         click.echo(f"tracing and planning {file} ...")
-        session.load(file.name, file.read_bytes())
+        session.load(file.name, file.read_bytes(), background=False)  # planned too: its errors are one line here
 
     # the socket is bound here, so a busy port or a bad address is one line, not a server log
     family = socket.AF_INET6 if ":" in host else socket.AF_INET

@@ -146,10 +146,26 @@ def merge_ends(polylines: Sequence[np.ndarray], tolerance: float, allow_reverse:
 
 # ---------------------------------------------------------------- ordering
 
+def nearest_k(pts: np.ndarray, k: int) -> np.ndarray:
+    """(m, k): each point's k nearest other points, nearest first; -1 where there are fewer."""
+    from scipy.spatial import cKDTree
+
+    m = len(pts)
+    out = np.full((m, k), -1, np.int64)
+    if m < 2 or k < 1:
+        return out
+    kk = min(k + 1, m)
+    idx = cKDTree(pts).query(pts, k=kk)[1].reshape(m, kk)
+    # drop the point itself: not always the first column (coincident points tie at distance 0), and
+    # missing when more than kk points coincide (then any of them, the last, goes)
+    keep = idx != np.arange(m)[:, None]
+    keep[keep.all(axis=1), -1] = False
+    out[:, :kk - 1] = idx[keep].reshape(m, kk - 1)
+    return out
+
+
 def _neighbours(p0: np.ndarray, p1: np.ndarray, k: int) -> np.ndarray:
     """(2n, k) the k nearest other stroke ends of end 2i + side (side 0 = p0), nearest first."""
-    from doodlecam.geometry.order_search import nearest_k
-
     ends = np.empty((2 * len(p0), 2))
     ends[0::2], ends[1::2] = p0, p1
     return nearest_k(ends, k)

@@ -1,7 +1,9 @@
-"""The compiled pieces of ``doodlecam.geometry.order``: greedy tour, neighbour lists, 2-opt / Or-opt, kicks.
+"""The compiled pieces of ``doodlecam.geometry.order``: greedy tour, 2-opt / Or-opt, kicks.
 
-Greedy and neighbour lists use a uniform grid of about one cell per point,
-searched ring by ring until the next ring lies farther than what was found.
+Greedy uses a uniform grid of about one cell per point, searched ring by ring
+until the next ring lies farther than what was found; its points die as their
+strokes are drawn (the grid is rebuilt over the living ones), which a static
+k-d tree cannot do. The neighbour lists are SciPy's cKDTree (``order.nearest_k``).
 The local search: from every stroke end to each of its k nearest other ends
 (only while that end is closer than the pen-up edge it has now), the moves
 that create that short pen-up edge are scored (2-opt: reverse the strokes in
@@ -500,48 +502,6 @@ def _nearest(x, y, pts, owner, used, x0, y0, x1, y1, cell, nx, ny, start, items,
         if hit >= 0 and best <= (r * cell) * (r * cell):
             break
     return hit
-
-
-@numba.njit(cache=True, nogil=True)
-def nearest_k(pts, k):  # pragma: no cover - compiled
-    """(m, k): each point's k nearest other points, nearest first; -1 where there are fewer."""
-    m = pts.shape[0]
-    out = np.full((m, k), -1, np.int64)
-    if m < 2 or k < 1:
-        return out
-    x0, y0, x1, y1, cell, nx, ny, start, items, count, cell_of = _grid(pts, np.arange(m))
-    buf = np.empty(8 * max(nx, ny) + 8, np.int64)
-    bd = np.empty(k)
-    bi = np.empty(k, np.int64)
-    for q in range(m):
-        x, y = pts[q, 0], pts[q, 1]
-        cx, cy = cell_of[q] % nx, cell_of[q] // nx
-        got = 0
-        for r in range(max(cx, nx - 1 - cx, cy, ny - 1 - cy) + 1):
-            for u in range(_ring(cx, cy, r, nx, ny, buf)):
-                c = buf[u]
-                for t in range(start[c], start[c + 1]):
-                    p = items[t]
-                    if p == q:
-                        continue
-                    dx = pts[p, 0] - x
-                    dy = pts[p, 1] - y
-                    d = dx * dx + dy * dy
-                    if got == k and d >= bd[k - 1]:
-                        continue
-                    h = got if got < k else k - 1  # insertion into the sorted best list
-                    while h > 0 and bd[h - 1] > d:
-                        bd[h] = bd[h - 1]
-                        bi[h] = bi[h - 1]
-                        h -= 1
-                    bd[h] = d
-                    bi[h] = p
-                    if got < k:
-                        got += 1
-            if got == k and bd[k - 1] <= (r * cell) * (r * cell):
-                break
-        out[q, :got] = bi[:got]
-    return out
 
 
 @numba.njit(cache=True, nogil=True)

@@ -380,7 +380,7 @@ def _trapezoid(spline: Spline, limits: Limits, b0: float, bN: float) -> Profile:
     accelerates at the largest allowed a, cruises at the largest allowed b and
     brakes (hatching has thousands of these; the general solver costs ~1.5 ms each)."""
     q1 = spline.derivative_controls[1][0]  # q', mm per u, the same everywhere
-    d = limits.M @ q1  # actuator units per u
+    d = linear_map(q1[None, :], np.asarray(limits.M, float))[0]  # actuator units per u (written out, as plan.lines)
     with np.errstate(divide="ignore"):
         a = float(np.min(limits.amax / np.abs(d)))
         cap = float(np.min(limits.vmax ** 2 / d ** 2))

@@ -372,9 +372,8 @@ def sample_stroke(stroke: Stroke, dt: float, limits, steps_per_mm=(80.0, 80.0), 
         if fast is not None:
             return fast
     L = max(spline.length, 1e-9)
-    m0 = max(int(np.ceil(prof.duration / dt - 1e-9)), 2)  # up, then down to rest
-    m = m0
-    while m <= m0 * (1 + max_extra) + 4:
+
+    def attempt(m: int) -> StrokeSamples | None:
         c = prof.duration / (m * dt)  # time scale <= 1: a uniformly slower plan is within limits
         t = dt * np.arange(1, m + 1)
         u, ud, _ = prof.state_at(c * t)
@@ -402,6 +401,12 @@ def sample_stroke(stroke: Stroke, dt: float, limits, steps_per_mm=(80.0, 80.0), 
             # the box is 3/4 of the tolerance: the rest absorbs the linearisation error
             res = _qp(np.column_stack([p, u]), tang, v_plan, end, dt, 0.75 * tol, limits, L, nrm, trust, crank,
                       (u - anchor) * L)
+            if res is None and it == 0 and trust is not None:
+                # the ramps may need to run further behind (or ahead of) the plan than the trust region
+                # lets one solve shift: the first solve then sets the timing without it, and the
+                # re-linearised solves that follow keep it (docs/sampling.md)
+                res = _qp(np.column_stack([p, u]), tang, v_plan, end, dt, 0.75 * tol, limits, L, nrm, None, crank,
+                          (u - anchor) * L)
             if res is None:
                 break
             v, x, d = res
@@ -418,10 +423,28 @@ def sample_stroke(stroke: Stroke, dt: float, limits, steps_per_mm=(80.0, 80.0), 
                 # plan's); costing later shifts from there, not from the last solve, lets the
                 # re-linearised solves converge instead of drifting (docs/sampling.md)
                 anchor = u
-        if ok:
-            vel = np.vstack([v, np.zeros((1, 2))])
-            return StrokeSamples(start=start, velocity=vel, delta_time=dt, time_scale=c, sample_u=np.append(0.0, u))
-        m += max(1, m0 // 20)
+        if not ok:
+            return None
+        vel = np.vstack([v, np.zeros((1, 2))])
+        return StrokeSamples(start=start, velocity=vel, delta_time=dt, time_scale=c, sample_u=np.append(0.0, u))
+
+    m0 = max(int(np.ceil(prof.duration / dt - 1e-9)), 2)  # up, then down to rest
+    m, bad = m0, m0 - 1
+    while m <= m0 * (1 + max_extra) + 4:
+        got = attempt(m)
+        if got is not None:
+            # periods were added in steps of 5 %: bisect back towards the last failure, to 1 % (more
+            # periods = a uniformly slower plan, so feasibility is monotone in practice; a failed
+            # probe only keeps the longer samples)
+            while m - bad > max(1, m0 // 100):
+                mid = (m + bad) // 2
+                probe = attempt(mid)
+                if probe is None:
+                    bad = mid
+                else:
+                    m, got = mid, probe
+            return got
+        bad, m = m, m + max(1, m0 // 20)
     raise PlanError("cannot follow the stroke within the limits with velocity samples every "
                     f"{dt * 1000:g} ms; use a shorter [sampling] delta_time")
 
@@ -437,8 +460,15 @@ def straight_samples(stroke: Stroke, dt: float, limits, k: np.ndarray, tol: floa
     D exactly, is the optimum (scaling down keeps every limit). Generated
     drawings are mostly such lines: this is ~50x cheaper than the QP. ``limits``
     are already lowered for whole steps; None (use the QP) for nonlinear
-    kinematics, a curve, a stroke under one step long, or instants more than
-    ``tol`` per axis off the line (the whole-step ends can tilt it that far).
+    kinematics, a curve, a stroke under one step long, or an instant too far
+    off its aim.
+
+    The whole-step ends tilt the drawn segment off the line by up to half a
+    step per axis at each end. Each instant aims at the point as far along the
+    line as it is along the segment, so its offset is the blend of the ends'
+    (at most half a step per axis); it must be within ``tol`` or within half a
+    step less what writing the targets in whole steps/s may move it (dT / 2
+    steps), else the QP bends the pen onto the line.
     """
     from doodlecam.plan.planner import is_straight
 
@@ -451,7 +481,9 @@ def straight_samples(stroke: Stroke, dt: float, limits, k: np.ndarray, tol: floa
     if D * k.max() < 1.0:
         return None
     e = end / D
-    along = np.abs(np.asarray(limits.M, float) @ e)
+    from doodlecam.plan.planner import linear_map
+
+    along = np.abs(linear_map(e[None, :], np.asarray(limits.M, float))[0])  # written out, as plan.lines
     use = along > 0
     vcap = float(np.min(limits.vmax[use] / along[use])) * (1 - 1e-6)
     if limits.pen_speed is not None:
@@ -463,7 +495,7 @@ def straight_samples(stroke: Stroke, dt: float, limits, k: np.ndarray, tol: floa
     while True:
         j = np.arange(1, m)
         speed = np.minimum(np.minimum(dv * j, dv * (m - j)), vcap)
-        reach = dt * float(speed.sum())
+        reach = dt * float(np.cumsum(speed)[-1])  # summed in order, as plan.lines' compiled loop sums it
         if reach >= D:
             break
         m += 1
@@ -472,13 +504,17 @@ def straight_samples(stroke: Stroke, dt: float, limits, k: np.ndarray, tol: floa
     f = np.minimum(np.append(0.0, np.cumsum(0.5 * dt * (v[1:] + v[:-1]))) / D, 1.0)  # instants 0 .. m dT
     a0, d = spline.start, spline.end - spline.start
     pos = start + f[:, None] * end
-    u = np.clip((pos - a0) @ d / float(d @ d), 0.0, 1.0)  # the straight spline is a0 + u d
-    if np.abs(pos - (a0 + u[:, None] * d))[:-1].max() > tol:
+    u = f  # the straight spline is a0 + u d
+    if (np.abs(pos - (a0 + u[:, None] * d))[1:-1] > straight_bound(tol, k, dt)).any():
         return None
-    u[-1] = 1.0
     vel = np.vstack([speed[:, None] * e, np.zeros((1, 2))])
     return StrokeSamples(start=start, velocity=vel, delta_time=dt, time_scale=stroke.profile.duration / (m * dt),
                          sample_u=u)
+
+
+def straight_bound(tol: float, k: np.ndarray, dt: float) -> np.ndarray:
+    """Per axis (mm), how far a straight stroke's instant may be from its aim (straight_samples)."""
+    return np.maximum(tol, (0.5 - 0.5 * dt - 1e-9) / np.asarray(k, float))
 
 
 def _jacobians(kinematics, xy: np.ndarray) -> np.ndarray:

@@ -198,19 +198,35 @@ def plan_strokes(ctx: Context, strokes: list[Stroke], pens: list, workers: int =
     """plan_one for every stroke, in order; with ``workers`` > 1 (and enough strokes) in
     that many processes, each taking CHUNK strokes at a time. ``progress(k)``: called
     as strokes finish."""
+    from doodlecam.plan.lines import eligible, plan_lines
+
     total = len(strokes)
-    items = [(n, s, pen) for n, (s, pen) in enumerate(zip(strokes, pens), 1)]
-    if workers <= 1 or total < PARALLEL_MIN:
+    # straight strokes in closed form, all at once; the rest (and any of those the closed forms
+    # do not cover) one by one
+    lines = [i for i, s in enumerate(strokes) if eligible(ctx, s)]
+    done = {i: Outcome(*o, replans=0, slowed_for_ramps=False, ramp=0.0, slowed=1.0)
+            for i, o in zip(lines, plan_lines(ctx, [strokes[i] for i in lines], [pens[i] for i in lines]))
+            if o is not None}
+    if progress and done:
+        progress(len(done))
+    items = [(n, s, pen) for n, (s, pen) in enumerate(zip(strokes, pens), 1) if n - 1 not in done]
+    rest = _plan_each(ctx, items, total, workers, progress)
+    return [done[i] if i in done else next(rest) for i in range(total)]
+
+
+def _plan_each(ctx: Context, items: list, total: int, workers: int, progress):
+    """plan_one for every (n, stroke, pen) of items, as an iterator in their order."""
+    if workers <= 1 or len(items) < PARALLEL_MIN:
         out = []
         for n, s, pen in items:
             out.append(plan_one(ctx, n, total, s, pen))
             if progress:
                 progress(1)
-        return out
+        return iter(out)
     import multiprocessing
     from concurrent.futures import ProcessPoolExecutor
 
-    tasks = [(total, items[i:i + CHUNK]) for i in range(0, total, CHUNK)]
+    tasks = [(total, items[i:i + CHUNK]) for i in range(0, len(items), CHUNK)]
     # fork: the workers inherit the loaded kernels and the context instead of unpickling them
     pool = ProcessPoolExecutor(max_workers=workers, mp_context=multiprocessing.get_context("fork"),
                                initializer=_start_worker, initargs=(ctx,))
@@ -222,4 +238,4 @@ def plan_strokes(ctx: Context, strokes: list[Stroke], pens: list, workers: int =
                 progress(len(part))
     finally:
         pool.shutdown(wait=True, cancel_futures=True)
-    return out
+    return iter(out)

@@ -121,6 +121,14 @@ def _run_queue_wait() -> float | None:
         return None
 
 
+def _spent(name: str, w0: float, c0: float, q0: float | None) -> str:
+    """A Server-Timing header's parts since (wall, thread CPU, run-queue wait) ``w0, c0, q0``: where a
+    request's time went, for the page's and the benchmarks' measurements."""
+    out = f"{name};dur={(time.perf_counter() - w0) * 1e3:.1f}, cpu;dur={(time.thread_time() - c0) * 1e3:.1f}"
+    q1 = _run_queue_wait()
+    return out + (f", runqueue;dur={(q1 - q0) * 1e3:.1f}" if q0 is not None and q1 is not None else "")
+
+
 def _error(status: int, message: str) -> JSONResponse:
     return JSONResponse({"error": message}, status_code=status)
 
@@ -215,8 +223,9 @@ def create_app(session: Session, config: StudioConfig | None = None) -> FastAPI:
         # the page offers the targets that drive this machine: an AxiDraw's EiBotBoard, else a PLC or GRBL
         targets = ["ebb-simulator", "ebb-serial"] if studio_ebb.wants_ebb(m) else \
             ["simulator", "host", "grbl-simulator", "serial"]
-        return {"machine": m.name, "targets": targets, "loaded": session.job is not None,
-                "summary": session.summary() if session.job is not None else None,
+        loaded = session.job is not None or session.preview is not None  # a preview: planned in the background
+        return {"machine": m.name, "targets": targets, "loaded": loaded,
+                "summary": session.summary() if loaded else None,
                 "folders": [str(f) for f in config.folders], "send": sender.snapshot()[1]}
 
     @app.get("/api/tracers")
@@ -232,7 +241,14 @@ def create_app(session: Session, config: StudioConfig | None = None) -> FastAPI:
     @app.post("/api/load")
     async def load(request: Request, name: str = "", tracer: str | None = None, options: str | None = None):
         data = await body(request)
-        return await run_in_threadpool(session.load, name, data, tracer or None, options_param(options))
+
+        def run():
+            w0, c0, q0 = time.perf_counter(), time.thread_time(), _run_queue_wait()
+            r = JSONResponse(session.load(name, data, tracer or None, options_param(options)))
+            r.headers["Server-Timing"] = _spent("load", w0, c0, q0)
+            return r
+
+        return await run_in_threadpool(run)
 
     @app.post("/api/open")
     async def open_path(request: Request):
@@ -255,8 +271,11 @@ def create_app(session: Session, config: StudioConfig | None = None) -> FastAPI:
         return await run_in_threadpool(session.retrace, doc.get("tracer") or None, opts)
 
     @app.get("/api/view")
-    def view():
-        return _json(session.view())
+    def view(flat: bool = False):
+        w0, c0, q0 = time.perf_counter(), time.thread_time(), _run_queue_wait()
+        r = _json(session.view(flat))
+        r.headers["Server-Timing"] = _spent("view", w0, c0, q0)
+        return r
 
     @app.get("/api/stroke/{i}")
     def stroke(i: str):
@@ -285,14 +304,9 @@ def create_app(session: Session, config: StudioConfig | None = None) -> FastAPI:
                 summary = session.edit(str(op), i, **doc)
                 # reply=patch: what changed, in the same answer (the page's re-plan after a drag)
                 r = _json(session.patch() if patch and session.last_changed else summary)
-            # where the time went, for the page's (and the benchmark's) measurements: waiting for the
-            # session, wall and CPU time of this thread, and its time runnable but waiting for a core
-            timing = (f"lock;dur={(w1 - w0) * 1e3:.1f}, edit;dur={(time.perf_counter() - w1) * 1e3:.1f}, "
-                      f"cpu;dur={(time.thread_time() - c0) * 1e3:.1f}")
-            q1 = _run_queue_wait()
-            if q0 is not None and q1 is not None:
-                timing += f", runqueue;dur={(q1 - q0) * 1e3:.1f}"
-            r.headers["Server-Timing"] = timing
+            # where the time went: waiting for the session, then the edit (wall, this thread's CPU and its
+            # time runnable but waiting for a core)
+            r.headers["Server-Timing"] = f"lock;dur={(w1 - w0) * 1e3:.1f}, " + _spent("edit", w1, c0, q0)
             return r
 
         return await run_in_threadpool(run)
@@ -317,8 +331,15 @@ def create_app(session: Session, config: StudioConfig | None = None) -> FastAPI:
         return await step(request, "redo")
 
     @app.get("/api/timeline")
-    def timeline():
-        return _json(session.timeline())
+    def timeline(layers: str | None = None):
+        """The executed motion (of ``layers``, a JSON list of names, when given: what a one-layer send draws)."""
+        if layers is None:
+            return _json(session.timeline())
+        try:
+            names = json.loads(layers)
+        except json.JSONDecodeError:
+            raise InputError("layers must be a JSON list of layer names, e.g. [\"red\"]") from None
+        return _json(session.timeline(names))
 
     @app.get("/api/export/{post}")
     def export(post: str):
@@ -411,6 +432,10 @@ def create_app(session: Session, config: StudioConfig | None = None) -> FastAPI:
         grbl = target == studio_grbl.EMULATOR or target.startswith(studio_grbl.SERIAL_PREFIX)
 
         def start():
+            begin()  # raises when the send cannot start
+            return sender.note(layers=doc.get("layers"))
+
+        def begin():
             layers = doc.get("layers")  # plot one layer (or a few): only their strokes are sent
             if studio_ebb.is_ebb(target):  # an AxiDraw: the ebb post's command stream (it refuses other machines)
                 _, data = session.export("ebb", layers)
@@ -450,12 +475,16 @@ def create_app(session: Session, config: StudioConfig | None = None) -> FastAPI:
 
     @app.post("/api/machine")
     async def machine_control(request: Request):
-        """One of ``doodlecam machine``'s commands on a GRBL target (token-protected like sends)."""
+        """One of ``doodlecam machine``'s commands on a GRBL or EiBotBoard target (token-protected like sends)."""
         from doodlecam.link.grbl.timing import grbl_settings_for
 
         doc = await payload(request)
         action = doc.pop("action", None)
-        port = sender.grbl_port(doc.pop("target", studio_grbl.EMULATOR))
+        target = doc.pop("target", studio_grbl.EMULATOR)
+        if isinstance(target, str) and studio_ebb.is_ebb(target):  # an AxiDraw: the EiBotBoard's manual controls
+            port, label = sender.ebb_port(target)
+            return await run_in_threadpool(studio_ebb.machine_action, port, label, str(action), doc, session.machine)
+        port = sender.grbl_port(target)
 
         def run():
             pens = None
@@ -477,6 +506,40 @@ def create_app(session: Session, config: StudioConfig | None = None) -> FastAPI:
                     return  # the send goes on: it belongs to the server, not to the page
                 version, snap = await asyncio.to_thread(sender.wait, version, 0.5)
                 yield f"data: {json.dumps(snap)}\n\n"
+
+        return StreamingResponse(stream(), media_type="text/event-stream", headers={"Cache-Control": "no-store"})
+
+    # every change an open page follows wakes the event streams (they wait on the send's condition)
+    def wake():
+        with sender.changed:
+            sender.changed.notify_all()
+
+    session.listeners.append(wake)
+
+    @app.get("/api/events")
+    async def events(request: Request):
+        """Server-sent events for as long as the page is open: ``job`` (the job's id and version and the
+        background planning's progress) whenever one changes — another tab loaded or edited the job —
+        and ``send`` (the send's state) on every change of it."""
+
+        def changed(job, send_version):
+            with sender.changed:  # woken by the sender's changes and the session's (wake)
+                sender.changed.wait_for(lambda: session.event() != job or sender.s.version != send_version, 1.0)
+            return session.event(), sender.snapshot()
+
+        async def stream():
+            job, (send_version, snap) = session.event(), sender.snapshot()
+            yield f"retry: 1000\nevent: job\ndata: {json.dumps(job)}\n\nevent: send\ndata: {json.dumps(snap)}\n\n"
+            while not await request.is_disconnected():
+                new_job, (new_version, snap) = await asyncio.to_thread(changed, job, send_version)
+                out = ""
+                if new_job != job:
+                    job = new_job
+                    out += f"event: job\ndata: {json.dumps(job)}\n\n"
+                if new_version != send_version:
+                    send_version = new_version
+                    out += f"event: send\ndata: {json.dumps(snap)}\n\n"
+                yield out or ": still here\n\n"  # a comment: a closed page is noticed within a second
 
         return StreamingResponse(stream(), media_type="text/event-stream", headers={"Cache-Control": "no-store"})
 

@@ -59,8 +59,10 @@ class SendState:
     total: int = 0
     line: int | None = None  # GRBL: the G-code file's line number being sent next
     time_left_s: float = 0.0
+    time_total_s: float = 0.0  # the link's model of the whole job's time (time_left_s at its first command)
     position_mm: tuple[float, float] | None = None
     machine_state: str = ""  # GRBL's own state from its status reports (Run, Hold:0, Idle ...)
+    layers: list[str] | None = None  # the layers sent (None: every layer), for the page's live view
     message: str = ""
     version: int = 0  # bumped on every change, for the event stream
     started: float = field(default_factory=time.monotonic)
@@ -70,8 +72,10 @@ class SendState:
         controls = CONTROLS.get(self.transport, PLC_CONTROLS).get(self.state, ())
         return {"state": self.state, "transport": self.transport, "target": self.target, "executed": self.executed,
                 "total": self.total, "line": self.line, "percent": round(pct, 2),
-                "time_left_s": round(self.time_left_s, 2), "position_mm": self.position_mm,
+                "time_left_s": round(self.time_left_s, 2), "time_total_s": round(self.time_total_s, 2),
+                "position_mm": self.position_mm,
                 "machine_state": self.machine_state, "message": self.message, "controls": list(controls),
+                "layers": self.layers,
                 "elapsed_s": round(time.monotonic() - self.started, 2),
                 "version": self.version}  # grows with every change: the page keeps the newest it has seen
 
@@ -129,6 +133,11 @@ class Sender:
             self.s.version += 1
             self.changed.notify_all()
 
+    def note(self, **kw) -> dict:
+        """Add what the page needs to the state of the send just started (the layers sent); its snapshot."""
+        self._update(**kw)
+        return self.snapshot()[1]
+
     def snapshot(self) -> tuple[int, dict]:
         with self.lock:
             return self.s.version, self.s.public()
@@ -148,6 +157,12 @@ class Sender:
         if self.busy and self.s.transport == "grbl":
             raise InputError("a send to GRBL is running; the panel can talk to GRBL when it has ended")
         return self._grbl.port(target, keep_speed=True)[0]
+
+    def ebb_port(self, target: str) -> tuple[str | None, str]:
+        """(port, label) of an EiBotBoard target for the machine panel; refused while a send uses the board."""
+        if self.busy and self.s.transport == "ebb":
+            raise InputError("a send to the EiBotBoard is running; the panel can talk to it when it has ended")
+        return self._ebb.port(target)
 
     def _pen_change(self, machine):
         """The links' ``pen_change``: the send waits in state 'waiting' (the pen up, the machine holding
@@ -218,7 +233,8 @@ class Sender:
         with self.changed:
             self.s = SendState(state="sending", transport="plc",
                                target=target if sim is None else f"PLC simulator {host}:{port}",
-                               total=sender.n, time_left_s=float(left[0]), version=self.s.version + 1)
+                               total=sender.n, time_left_s=float(left[0]), time_total_s=float(left[0]),
+                               version=self.s.version + 1)
             self.changed.notify_all()
         self._thread = threading.Thread(target=self._run, name="studio-send", daemon=True)
         self._thread.start()
@@ -328,7 +344,8 @@ class Sender:
 
         with self.changed:
             self.s = SendState(state="sending", transport="grbl", target=label, total=len(lines),
-                               line=lines[0].lineno, time_left_s=float(left[0]), version=self.s.version + 1)
+                               line=lines[0].lineno, time_left_s=float(left[0]), time_total_s=float(left[0]),
+                               version=self.s.version + 1)
             self.changed.notify_all()
         def done(r) -> str:
             return f"{r['lines']} lines in {r['elapsed_s']:.2f} s" + (f", resumed at line {r['start_line']}"
@@ -416,7 +433,7 @@ class Sender:
 
         with self.changed:
             self.s = SendState(state="sending", transport="ebb", target=label, total=len(job.lines),
-                               time_left_s=left[0], version=self.s.version + 1)
+                               time_left_s=left[0], time_total_s=left[0], version=self.s.version + 1)
             self.changed.notify_all()
 
         def done(r) -> str:

@@ -239,7 +239,7 @@ def in_picture_px(drawing, shape: tuple[int, int]):
     sx, sy = shape[1] / ws[1], shape[0] / ws[0]
     polys = tuple((p + 0.5) * (sx, sy) - 0.5 for p in drawing.polylines)
     return replace(drawing, polylines=polys, extent=(float(shape[1]), float(shape[0])),
-                   meta={**drawing.meta, "working_px": (ws[1], ws[0])})
+                   meta={**drawing.meta, "working_px": (ws[1], ws[0]), "grid_px": float(sx)})
 
 
 def noise_level(gray: np.ndarray) -> float:

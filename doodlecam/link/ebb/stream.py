@@ -313,7 +313,9 @@ def job_lines(job, kinematics, options: dict) -> tuple[list[str], Counter]:
             w.pen(True, pen.down_delay)
         w.stroke(stroke_samples, pen.max_speed)
         if i + 1 == len(job.samples) or lifts[i + 1]:
-            w.pen(False, pen.up_delay)
+            # the board starts the next move once SP's wait is over, the servo still rising: a pen
+            # that clears the paper early (lift_clear) travels while it finishes the lift
+            w.pen(False, min(pen.up_delay, options.get("lift_clear") or pen.up_delay))
     w.travel(w.motor(job.travels[-1].end if job.travels else m.home)[0])
     return L, w.c
 

@@ -115,6 +115,9 @@ class Nak(IntEnum):
     STALE_CHALLENGE = 8  # a HEADER / CANCEL without the PLC's current challenge (the NAK carries it): nothing done
 
 
+
+_NAK_REASONS = frozenset(n.value for n in Nak)
+
 FAULT_TEXT = {
     Fault.NONE: "no fault",
     Fault.BOUNDARY: "a command would cross the work-area boundary; the PLC stopped before it and aborted the job",
@@ -435,7 +438,7 @@ def decode(datagram: bytes, key: bytes | None = None) -> Message:
         status = _status(body)
         if kind == Msg.NAK:
             reason, port, detail, ip, when = _NAK.unpack_from(body, _STATUS.size)
-            if reason not in Nak._value2member_map_:
+            if reason not in _NAK_REASONS:
                 raise ProtocolError(f"unknown NAK reason {reason}")
             owner = (str(ipaddress.IPv4Address(ip)), port) if reason == Nak.BUSY else None
             return Message(**base, status=status, reason=reason, detail=detail, owner=owner, when=when)

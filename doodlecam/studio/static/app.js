@@ -1,6 +1,8 @@
 // doodlecam studio: the page. Plain ES modules, no build step.
 import { evaluate } from "/static/bspline.js";
 import { linePlot } from "/static/plot.js";
+import { follow as followLive, drawLive, clearLive } from "/static/live.js";
+import { vectorPanel, meshSummary } from "/static/meshpanel.js";
 
 const $ = (id) => document.getElementById(id);
 const token = new URLSearchParams(location.search).get("token") || "";
@@ -40,6 +42,7 @@ const S = {
   view: null, // /api/view
   hidden: new Set(), // layers the user hid on the paper
   selected: -1,
+  point: -1, // the selected control point of the selected stroke (insert after / delete it)
   drag: null, // {point, control}
   scale: 1, ox: 0, oy: 0, // screen = (x * scale + ox, -y * scale + oy)
   fitted: false,
@@ -87,6 +90,7 @@ function draw(target = ctx, withSelection = true) {
   g.strokeStyle = "#999"; g.lineWidth = 0.8; g.setLineDash([4, 4]); g.beginPath();
   for (const t of S.view.travels) { g.moveTo(sx(t[0]), sy(t[1])); g.lineTo(sx(t[2]), sy(t[3])); }
   g.stroke(); g.setLineDash([]);
+  if (S.view.preview) drawPreview(g);
   // pen-down strokes as executed, coloured by planned speed (one path per colour)
   const vmax = m.vmax, paths = Array.from({ length: COLORS }, () => new Path2D());
   const byPen = $("colour-by-pen").checked, penPaths = new Map(); // colour -> one path per pen
@@ -114,6 +118,7 @@ function draw(target = ctx, withSelection = true) {
     for (const s of S.view.strokes) g.fillText(String(s.i + 1), sx(s.points[0][0]) + 3, sy(s.points[0][1]) - 3);
   }
   if (withSelection) drawSelection(g);
+  if (target === ctx) drawLive(g, sx, sy, W, H); // during a send: what the machine has drawn, in ink
   if (S.machinePos && target === ctx) { // where the machine's pen is during a send (PLC status / GRBL reports)
     const [x, y] = S.machinePos;
     g.strokeStyle = "#d00"; g.fillStyle = "rgba(221, 0, 0, 0.25)"; g.lineWidth = 2;
@@ -124,6 +129,7 @@ function draw(target = ctx, withSelection = true) {
 
 function drawSelection(g) {
   const s = S.view && S.view.strokes[S.selected];
+  pointHint(s);
   if (!s || S.hidden.has(s.layer)) return; // a hidden layer's stroke is not shown, selected or not
   const control = S.drag ? S.drag.control : s.control;
   const n = Math.max(200, control.length * 12);
@@ -136,8 +142,59 @@ function drawSelection(g) {
   g.stroke();
   g.fillStyle = "#e07000";
   for (const p of control) g.fillRect(sx(p[0]) - 2, sy(p[1]) - 2, 4, 4);
+  markPoint(g, control);
   // the stroke order: its number at its start
   g.fillStyle = "#000"; g.font = "12px sans-serif"; g.fillText(String(s.i + 1), sx(control[0][0]) + 5, sy(control[0][1]) - 5);
+}
+
+// ------------------------------------------------------------------ the view: flat arrays, a preview while planning
+
+// The server sends the geometry as a few flat arrays (GET /api/view?flat=1, docs/studio.md): a 10 000-stroke
+// job is then one JSON parse of numbers, not 10^5 small objects. The page keeps one object per stroke
+// (points as [x, y] pairs), as the rest of the page and the edits' patches use it.
+async function fetchView() {
+  const t0 = performance.now();
+  const v = await api("/api/view?flat=1");
+  const t1 = performance.now();
+  const pairs = (flat, a, b) => { const out = new Array(b - a); for (let k = a; k < b; k++) out[k - a] = [flat[2 * k], flat[2 * k + 1]]; return out; };
+  const g = v.geometry;
+  v.strokes = [];
+  if (g) {
+    for (let i = 0; i < g.degree.length; i++) {
+      v.strokes.push({ i, degree: g.degree[i], length: g.length[i], time: g.time[i], layer: g.layer_names[g.layer[i]],
+        points: pairs(g.xy, g.offsets[i], g.offsets[i + 1]), speed: g.speed.slice(g.offsets[i], g.offsets[i + 1]),
+        control: pairs(g.control, g.control_offsets[i], g.control_offsets[i + 1]) });
+    }
+    delete v.geometry;
+    const t = v.travels; v.travels = [];
+    for (let k = 0; k < t.length; k += 5) v.travels.push(t.slice(k, k + 5));
+  }
+  window.studioPerf.view = { request: t1 - t0, decode: performance.now() - t1 };
+  document.body.dataset.preview = v.preview ? "1" : "";
+  showPlanning(v.summary.planning);
+  return v;
+}
+
+// A large drawing is shown as traced while the server plans it: one grey path, no selection or edits.
+function drawPreview(g) {
+  const { offsets, xy } = S.view.preview, path = new Path2D();
+  for (let i = 0; i + 1 < offsets.length; i++) {
+    for (let k = offsets[i]; k < offsets[i + 1]; k++) {
+      if (k === offsets[i]) path.moveTo(sx(xy[2 * k]), sy(xy[2 * k + 1])); else path.lineTo(sx(xy[2 * k]), sy(xy[2 * k + 1]));
+    }
+  }
+  g.strokeStyle = "#777"; g.lineWidth = 1; g.stroke(path);
+}
+
+window.studioRedraw = () => { const t = performance.now(); draw(); return performance.now() - t; }; // for the benchmark
+
+function showPlanning(p) {
+  const el = $("planning");
+  el.hidden = !p;
+  if (!p) return;
+  el.textContent = p.error ? `planning failed: ${p.error}`
+    : `planning the job: ${p.stage} ${p.done} of ${p.total} — shown as traced until it is planned; edits, export and send then`;
+  el.dataset.done = p.done;
 }
 
 // ------------------------------------------------------------------ layers
@@ -186,23 +243,25 @@ function summary(s) {
   $("stat-control").textContent = s.control_points;
   $("stat-ink").textContent = `${(s.pen_down_mm / 1000).toFixed(3)} m`;
   $("stat-travel").textContent = `${(s.travel_mm / 1000).toFixed(3)} m`;
-  $("stat-time").textContent = `${s.job_time_s.toFixed(2)} s`;
+  $("stat-time").textContent = s.planning ? "planning…" : `${s.job_time_s.toFixed(2)} s`;
   $("stat-ratio").textContent = `a ${s.worst_acceleration_ratio.toFixed(4)}, v ${s.worst_velocity_ratio.toFixed(4)}`;
   $("stat-made").textContent = s.tracer_made || "–";
   $("undo").disabled = !s.can_undo; $("redo").disabled = !s.can_redo;
   document.body.dataset.jobTime = s.job_time_s;
+  meshSummary(s); // the STL panel says where the mesh was cut
 }
 
 async function refresh() {
   // the view and the selected stroke's figures are fetched at once
   const figs = S.selected >= 0 ? api(`/api/stroke/${S.selected}`).catch(() => null) : null;
-  S.view = await api("/api/view");
+  S.view = await fetchView();
   if (!S.fitted) fitView();
   $("machine").textContent = `machine ${S.view.machine.name} · ${S.view.summary.file}`;
   summary(S.view.summary);
   legend();
   layersPanel();
   if (S.selected >= S.view.strokes.length) S.selected = -1;
+  clearLive(); // a finished send's drawing belongs to the job it drew
   if (S.timeline) { // a new or changed job: the simulation starts over on it
     S.timeline = null; S.sim.playing = false; S.sim.t = 0; $("scrub").value = 0; $("sim-time").textContent = "";
   }
@@ -217,6 +276,7 @@ async function applyPatch(p) {
   S.view.summary = p.summary;
   summary(p.summary);
   S.timeline = null; S.base = null;
+  clearLive();
   draw();
   if (S.selected >= 0) await figures(S.selected === p.figures.i ? p.figures : null);
 }
@@ -271,6 +331,7 @@ paper.addEventListener("mousedown", (e) => {
   if (!S.view || e.button !== 0) return;
   const k = nearestPoint(e.offsetX, e.offsetY);
   if (k >= 0) {
+    S.point = k; // a click on a point selects it; a drag moves it
     S.drag = { point: k, control: S.view.strokes[S.selected].control.map((p) => p.slice()), moved: false };
     return;
   }
@@ -295,7 +356,7 @@ paper.addEventListener("mousemove", (e) => {
 window.addEventListener("mouseup", async (e) => {
   if (S.drag) {
     const d = S.drag;
-    if (!d.moved) { S.drag = null; return; }
+    if (!d.moved) { S.drag = null; draw(); return; }
     const t0 = performance.now();
     try {
       // one request: the edit answers with what it changed (the stroke, travels, summary, figures)
@@ -315,7 +376,7 @@ window.addEventListener("mouseup", async (e) => {
     return;
   }
   if (pan && !pan.moved && e.target === paper) {
-    S.selected = nearestStroke(e.offsetX, e.offsetY);
+    S.selected = nearestStroke(e.offsetX, e.offsetY); S.point = -1;
     draw(); figures();
   }
   pan = null;
@@ -328,15 +389,50 @@ paper.addEventListener("wheel", (e) => {
   draw();
 }, { passive: false });
 paper.addEventListener("dblclick", () => { if (S.view) { fitView(); draw(); } });
-paper.addEventListener("contextmenu", async (e) => {
+// ------------------------------------------------------------------ control points: insert after, delete
+
+// Explicit actions on the selected point (buttons, keys I / Insert and Delete / Backspace, the right-click menu):
+// the server inserts or deletes it, re-plans only that stroke (reply=patch) and keeps the step for undo.
+function pointHint(s) {
+  const n = s ? s.control.length : 0, k = s && S.point < n ? S.point : -1;
+  const text = !s ? "select a stroke, then click one of its control points"
+    : k < 0 ? `click a control point of stroke ${s.i + 1} to select it (${n} points)`
+    : `point ${k + 1} of ${n} selected: I inserts a point after it, Del deletes it, Esc deselects`;
+  if ($("point-hint").textContent !== text) $("point-hint").textContent = text;
+  $("insert-point").disabled = k < 0 || k >= n - 1; // after the last point there is no next one to go halfway to
+  $("delete-point").disabled = k < 0 || n <= s.degree + 1; // a clamped B-spline keeps degree + 1 points
+}
+function markPoint(g, control) {
+  const p = control[S.point];
+  if (!p) return;
+  g.strokeStyle = "#d00"; g.lineWidth = 2; g.strokeRect(sx(p[0]) - 5, sy(p[1]) - 5, 10, 10);
+}
+async function pointEdit(op) {
+  const s = S.view && S.view.strokes[S.selected], k = S.point;
+  $("point-menu").hidden = true;
+  if (!s || k < 0 || $(op === "insert" ? "insert-point" : "delete-point").disabled) return;
+  const r = await api("/api/edit", { method: "POST", json: { op, stroke: S.selected, point: k, reply: "patch", ...onJob() } });
+  S.point = op === "insert" ? k + 1 : Math.min(k, s.control.length - 2); // the new point, or the one after the deleted
+  if (r.strokes && Array.isArray(r.strokes)) await applyPatch(r); else await refresh();
+}
+for (const b of document.querySelectorAll("[data-point-op]")) b.addEventListener("click", () => pointEdit(b.dataset.pointOp).catch(() => {}));
+paper.addEventListener("contextmenu", (e) => { // right-click a point: select it and offer its two actions
   if (!S.view) return;
   const k = nearestPoint(e.offsetX, e.offsetY);
   if (k < 0) return;
   e.preventDefault();
-  const s = S.view.strokes[S.selected];
-  const op = k < s.control.length - 1 && confirm(`Insert a control point after point ${k + 1}? (Cancel: delete point ${k + 1})`)
-    ? "insert" : "delete_point";
-  await edit({ op, point: k });
+  S.point = k; draw();
+  const menu = $("point-menu"), [ins, del] = menu.querySelectorAll("button");
+  ins.disabled = $("insert-point").disabled; del.disabled = $("delete-point").disabled;
+  menu.style.left = `${e.offsetX + 8}px`; menu.style.top = `${e.offsetY + 8}px`; menu.hidden = false;
+});
+window.addEventListener("mousedown", (e) => { if (!$("point-menu").contains(e.target)) $("point-menu").hidden = true; });
+window.addEventListener("keydown", (e) => {
+  if (e.ctrlKey || e.metaKey || e.altKey || ["INPUT", "SELECT", "TEXTAREA"].includes(e.target.tagName)) return;
+  if ($("paper-tab").hidden) return; // the keys act on the paper only
+  if (e.key === "Escape") { S.point = -1; $("point-menu").hidden = true; draw(); return; }
+  const op = e.key === "Delete" || e.key === "Backspace" ? "delete_point" : e.key === "Insert" || e.key === "i" ? "insert" : null;
+  if (op && S.point >= 0) { e.preventDefault(); pointEdit(op).catch(() => {}); }
 });
 
 // the job and version this page shows: an edit made on an older view is refused by the server
@@ -367,13 +463,6 @@ $("stroke-tools").addEventListener("click", async (e) => {
 
 async function undoRedo(which) { await api(`/api/${which}`, { method: "POST", json: onJob() }); await refresh(); }
 
-// open tabs follow the job: another tab's load or edit shows here within a few seconds
-setInterval(async () => {
-  if (!S.view || S.drag || pending > 0 || document.hidden) return;
-  const st = await fetch("/api/state", { headers: { "x-doodlecam-token": token } }).then((r) => r.json()).catch(() => null);
-  const s = st && st.summary;
-  if (s && (s.job !== S.view.summary.job || s.version !== S.view.summary.version)) await refresh();
-}, 2000);
 $("undo").onclick = () => undoRedo("undo");
 $("redo").onclick = () => undoRedo("redo");
 window.addEventListener("keydown", (e) => {
@@ -421,7 +510,7 @@ async function tracerPanel() {
   const tr = TRACERS.find((t) => t.name === name);
   const box = $("tracer-options");
   box.innerHTML = "";
-  if (!tr) return;
+  if (!tr) { if ($("stl-panel")) $("stl-panel").hidden = true; return; }
   const given = st.summary ? st.summary.tracer_options : {};
   for (const o of tr.options) {
     const v = o.name in given ? given[o.name] : o.default;
@@ -444,6 +533,8 @@ async function tracerPanel() {
     box.append(label);
     input.addEventListener("change", retraceSoon);
   }
+  if (tr.name === "vector") vectorPanel(box, tr, st.summary, ext, retraceSoon); // SVG/DXF or STL options only
+  else if ($("stl-panel")) $("stl-panel").hidden = true;
 }
 $("tracer").addEventListener("change", async () => {
   await api("/api/trace", { method: "POST", json: { tracer: $("tracer").value || null, options: {} } });
@@ -476,11 +567,12 @@ function posAt(t) {
   return [P[lo][0] + f * (P[hi][0] - P[lo][0]), P[lo][1] + f * (P[hi][1] - P[lo][1]), S.timeline.pen[hi], lo];
 }
 function simFrame(now) {
+  if (!S.timeline) { S.sim.frame = 0; return; } // the job changed under a pending frame
   const t0 = performance.now();
   const sim = S.sim, T = S.timeline.duration;
-  if (sim.playing) {
-    sim.t = Math.min(T, sim.t + (now - sim.last) / 1000 * Number($("sim-speed").value));
-    sim.last = now;
+  if (sim.playing) { // machine time advances by the screen's time times the speed: the clock shows machine time
+    sim.t = Math.min(T, sim.t + Math.max(0, now - sim.last) / 1000 * Number($("sim-speed").value));
+    sim.last = Math.max(sim.last, now); // (a frame's timestamp may precede the click that started the play)
   }
   if (!S.base || S.base.width !== paper.width || S.base.key !== `${S.scale},${S.ox},${S.oy}`) {
     S.base = document.createElement("canvas"); S.base.width = paper.width; S.base.height = paper.height;
@@ -492,23 +584,32 @@ function simFrame(now) {
   const [x, y, pen] = posAt(sim.t);
   ctx.fillStyle = pen ? "#d00" : "#fff"; ctx.strokeStyle = "#000"; ctx.lineWidth = 1.5;
   ctx.beginPath(); ctx.arc(sx(x), sy(y), 6, 0, 2 * Math.PI); ctx.fill(); ctx.stroke();
-  $("sim-time").textContent = `${sim.t.toFixed(1)} / ${T.toFixed(1)} s (left ${(T - sim.t).toFixed(1)} s)`;
+  $("sim-time").textContent = `${sim.t.toFixed(1)} / ${T.toFixed(1)} s (left ${(T - sim.t).toFixed(1)} s)` +
+    (sim.playing && sim.t < T ? ` at ${$("sim-speed").value}×` : sim.t < T ? " paused" : "");
   $("scrub").value = Math.round(sim.t / T * 1000);
-  window.studioPerf.frames.push({ at: now, script: performance.now() - t0 });
-  if (sim.playing && sim.t < T) requestAnimationFrame(simFrame);
+  window.studioPerf.frames.push({ at: now, script: performance.now() - t0, t: sim.t, x, y });
+  sim.frame = 0;
+  if (sim.playing && sim.t < T) sim.frame = requestAnimationFrame(simFrame); // one chain of frames at a time
   else { sim.playing = false; $("play").textContent = "▶ Simulate"; }
 }
-async function ensureTimeline() { if (!S.timeline) S.timeline = await api("/api/timeline"); }
-$("play").onclick = async () => {
+let timelineLoading = null; // one request for clicks that come while it is on its way
+async function ensureTimeline() {
+  if (S.timeline) return;
+  timelineLoading = timelineLoading || api("/api/timeline").finally(() => { timelineLoading = null; });
+  const tl = await timelineLoading;
+  if (!S.timeline) S.timeline = tl;
+}
+$("play").onclick = async () => { // play / pause: the state changes at the click, whatever the network does
   if (!S.view) return;
-  await ensureTimeline();
   const sim = S.sim;
   sim.playing = !sim.playing;
   $("play").textContent = sim.playing ? "❚❚ Pause" : "▶ Simulate";
-  if (sim.playing) {
-    if (sim.t >= S.timeline.duration) sim.t = 0;
-    sim.last = performance.now(); requestAnimationFrame(simFrame);
-  }
+  if (!sim.playing) return;
+  await ensureTimeline();
+  if (!sim.playing || sim.frame) return; // paused meanwhile, or its frames already run
+  if (sim.t >= S.timeline.duration) sim.t = 0;
+  sim.last = performance.now();
+  sim.frame = requestAnimationFrame(simFrame);
 };
 $("scrub").addEventListener("input", async () => {
   if (!S.view) return;
@@ -549,6 +650,7 @@ $("target").onchange = () => {
   const t = $("target").value;
   $("target-host").hidden = t !== "host"; $("target-serial").hidden = t !== "serial"; $("target-ebb").hidden = t !== "ebb-serial";
   $("machine-panel").hidden = !GRBL_TARGETS.includes(t);
+  $("ebb-panel").hidden = !t.startsWith("ebb-");
   $("send-speed-label").hidden = REAL_TARGETS.includes(t);
 };
 function offerTargets(targets) { // the links that drive this machine (an AxiDraw: its EiBotBoard)
@@ -574,6 +676,7 @@ function showSend(s) {
   // the machine's pen on the drawing while a send runs
   const at = ACTIVE.includes(s.state) && s.position_mm ? s.position_mm : null;
   if (String(at) !== String(S.machinePos)) { S.machinePos = at; document.body.dataset.machinePos = at ? at.join(",") : ""; draw(); }
+  liveView(s);
   // a pen change needs the operator: a dialog they cannot miss
   const modal = $("pen-modal");
   if (s.state === "waiting") { $("pen-modal-text").textContent = s.message; if (!modal.open) modal.showModal(); }
@@ -588,6 +691,18 @@ function showSend(s) {
   const offer = !ACTIVE.includes(s.state) && /Start over|Abandon/.test(s.message || "") || s.state === "stopped";
   $("start-over").hidden = $("abandon").hidden = !offer;
 }
+// the drawn part over the toolpath (live.js), and the last moves after every line was answered
+function liveView(s) {
+  if (S.view) {
+    const timeline = (layers) => api("/api/timeline" + (layers ? "?layers=" + encodeURIComponent(JSON.stringify(layers)) : ""));
+    followLive(s, timeline).then((changed) => changed && draw()).catch(() => {});
+  }
+  if (s.state === "sending" && s.total && s.executed >= s.total) { // the link waits for the machine to be idle
+    $("send-status").textContent += " — the machine is finishing its last moves";
+    document.body.dataset.finishing = s.version; // (for tests: the page saw it before "done")
+  }
+}
+$("live-hide").onclick = () => { if (clearLive()) draw(); };
 function follow() {
   const es = new EventSource(withToken("/api/send/events"));
   es.onmessage = (e) => { const s = JSON.parse(e.data); showSend(s); if (!ACTIVE.includes(s.state)) es.close(); };
@@ -629,6 +744,39 @@ for (const b of document.querySelectorAll("[data-jog]")) {
   };
 }
 
+// ------------------------------------------------------------------ events: other tabs, planning, sends
+
+// One event stream while the page is visible (GET /api/events): "job" when the job or its version changes
+// (another tab loaded or edited it, or its background planning moved on or ended), "send" on every change
+// of the send. A hidden tab closes it (browsers allow few open connections to a host) and catches up when shown.
+let events = null, followTimer = null;
+function openEvents() {
+  if (events || document.hidden) return;
+  events = new EventSource(withToken("/api/events"));
+  events.addEventListener("job", (e) => { S.serverJob = JSON.parse(e.data); showPlanning(S.serverJob.planning); followJob(); });
+  events.addEventListener("send", (e) => showSend(JSON.parse(e.data)));
+}
+function followJob() {
+  const j = S.serverJob, v = S.view && S.view.summary;
+  if (!j || !j.job || (v && j.job === v.job && j.version === v.version)) return;
+  if (S.drag || pending > 0) { // this page's own request answers first; then one look again
+    followTimer = followTimer || setTimeout(() => { followTimer = null; followJob(); }, 200);
+    return;
+  }
+  const other = !v || j.job !== v.job; // another job (another file): its tracer's panel too
+  if (other) S.selected = -1; // no stroke of the old job stays selected
+  const t0 = performance.now();
+  refresh().then(() => (other ? tracerPanel() : null))
+    .then(() => { window.studioPerf.followed = (window.studioPerf.followed || 0) + 1; window.studioPerf.followMs = performance.now() - t0; })
+    .catch(() => {});
+}
+document.addEventListener("visibilitychange", () => {
+  if (!document.hidden) openEvents();
+  else if (events) { events.close(); events = null; }
+});
+
+import("/static/ebbpanel.js").then((m) => m.init(api, sendTarget)); // the EiBotBoard's manual controls
+
 // ------------------------------------------------------------------ tabs
 
 document.querySelector(".tabs").addEventListener("click", (e) => {
@@ -654,5 +802,6 @@ $("show-order").addEventListener("change", () => { S.base = null; draw(); });
   if (ACTIVE.includes(st.send.state)) follow(); // a send outlives its page: pick it up
   if (st.loaded) { await refresh(); await tracerPanel(); window.studioPerf.firstView = performance.now(); }
   else await tracerPanel();
+  openEvents();
   document.body.dataset.ready = "1";
 })();
