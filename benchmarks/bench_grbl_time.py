@@ -4,7 +4,8 @@ For each sample picture (doodlebot profile: 80 steps/mm, 150 mm/s, 2000 mm/s²,
 GRBL $11 = 0.010, $1 = 25 ms) three programs with the same pen commands,
 dwells, stroke order and chord tolerance (0.05 mm):
 
-* ``cap``  — doodlecam's default G-code (``feeds = cap``: longest chords, F = pen cap);
+* ``cap``  — doodlecam's default G-code (``feeds = cap``: chords chosen for GRBL's planner, their
+  vertices on its step positions, F = pen cap);
 * ``plan`` — doodlecam's ``feeds = plan`` (the PLC plan's feeds, the old default);
 * ``vpype`` — the ``plan`` polylines (the spline within the chord tolerance) written by
   vpype-gcode at F9000, the machine's maximum feed.
@@ -19,10 +20,15 @@ environment, never in doodlecam's::
 With ``--firmware GRBL_LOCK`` (GRBL 1.1h's own code in the load-independent simulator of
 ``../shared/grbl-fw``: ``build.sh OUTDIR`` makes ``OUTDIR/grbl_lock``) the ``cap`` and ``vpype``
 programs also run on the firmware with the doodlebot EEPROM (``--eeprom``), and the table gives
-its job times (``job_s``) and their ratio: the independent reference for the model::
+its job times (``job_s``) and their ratio: the independent reference for the model; a second table
+splits the firmware's time into drawing, travel and standing still (its step trace)::
 
     /work/shared/grbl-fw/build.sh /tmp/fw
     .venv/bin/python benchmarks/bench_grbl_time.py --vpype /tmp/vpype-env/bin/vpype --firmware /tmp/fw/grbl_lock
+
+The ``bound`` column is the model's time for ``cap`` if GRBL never slowed at a junction, over
+``vpype``'s: no choice of chords does better with these pen commands, dwells, travels and stroke
+ends, which take the same time in both programs.
 
 Prints a markdown table; exits non-zero if ``cap`` is not at most 0.9x ``vpype`` everywhere.
 """
@@ -34,6 +40,7 @@ import subprocess
 import sys
 import tempfile
 import time
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -79,8 +86,10 @@ def svg(lines: list[np.ndarray], w: float, h: float) -> str:
             f"{paths}</svg>\n")
 
 
-def firmware_time(grbl_lock: Path, eeprom: Path, gcode: str, run: Path) -> float:
-    """GRBL 1.1h's own job time (s) for the program, from the simulator's summary line."""
+def firmware_time(grbl_lock: Path, eeprom: Path, gcode: str, run: Path) -> tuple[float, dict[str, float]]:
+    """GRBL 1.1h's own job time (s) for the program, from the simulator's summary line, and where it goes
+    (from its step trace, 16 MHz ticks): ``draw`` from the first to the last step of each pen-down stretch,
+    ``travel`` the same pen up, ``still`` the rest (dwells, $1 delays, synchronisations)."""
     import shutil
 
     run.mkdir(parents=True, exist_ok=True)
@@ -91,7 +100,21 @@ def firmware_time(grbl_lock: Path, eeprom: Path, gcode: str, run: Path) -> float
     words = dict(w.split("=", 1) for w in last.split() if "=" in w)
     if int(words.get("error", 0)) or int(words.get("alarm", 0)):
         raise SystemExit(f"the firmware answered errors or alarms: {last}")
-    return float(words["job_s"])
+    parts = {"draw": 0.0, "travel": 0.0}
+    pen, first, last_step = 0, None, None
+    for line in (run / "trace.txt").read_text().splitlines():
+        kind, tick, *rest = line.split()
+        if kind == "P" or kind == "E":  # a pen command (spindle PWM, enable) or the end: close the stretch
+            if first is not None:
+                parts["draw" if pen else "travel"] += (last_step - first) / 16e6
+            first = None
+            pen = int(rest[1]) if kind == "P" else pen
+        elif kind == "S":
+            first = int(tick) if first is None else first
+            last_step = int(tick)
+    job = float(words["job_s"])
+    parts["still"] = job - parts["draw"] - parts["travel"]
+    return job, parts
 
 
 def main() -> int:
@@ -110,7 +133,7 @@ def main() -> int:
 
     machine = load_machine("doodlebot")
     grbl = GrblSettings.from_machine(machine)
-    rows, worst = [], 0.0
+    rows, parts, worst = [], [], 0.0
     with tempfile.TemporaryDirectory() as tmp:
         cfg = Path(tmp) / "vpype.toml"
         cfg.write_text(PROFILE)
@@ -133,23 +156,36 @@ def main() -> int:
             back = polylines(text["vpype"])  # vpype must have kept the strokes as given
             assert len(back) == len(lines) and all(np.allclose(a, b, atol=2e-3) for a, b in zip(back, lines))
             t = {k: estimate_gcode(v, grbl, start=tuple(machine.home)).total for k, v in text.items()}
+            # the best any chords could do with these pen commands, travels and stroke ends: GRBL never
+            # slowing at a junction (the rest of the job, dwells, $1 delays and travels, is the same in both)
+            free = estimate_gcode(text["cap"], replace(grbl, junction_deviation=1e9), start=tuple(machine.home)).total
             n = {k: sum(1 for x in v.splitlines() if x.startswith("G1")) for k, v in text.items()}
             ratio = t["cap"] / t["vpype"]
             worst = max(worst, ratio)
             fw = ""
             if args.firmware:
-                f = {k: firmware_time(args.firmware, args.eeprom, text[k], Path(tmp) / f"fw-{name}-{k}") for k in ("cap", "vpype")}
+                runs = {k: firmware_time(args.firmware, args.eeprom, text[k], Path(tmp) / f"fw-{name}-{k}")
+                        for k in ("cap", "vpype")}
+                f = {k: v[0] for k, v in runs.items()}
+                parts += [f"| {name} | {k} | " + " | ".join(f"{v[1][c]:.2f}" for c in ("draw", "travel", "still")) + " |"
+                          for k, v in runs.items()]
                 fw = f" {f['cap']:.2f} | {f['vpype']:.2f} | {f['cap'] / f['vpype']:.3f} | {t['cap'] / f['cap']:.3f} |"
             rows.append(f"| {name} | {len(job.strokes)} | {t['plan']:.1f} ({n['plan']}) | {t['vpype']:.1f} ({n['vpype']}) "
-                        f"| {t['cap']:.1f} ({n['cap']}) | {ratio:.3f} | {cpu['cap']:.2f} / {cpu['plan']:.2f} |" + fw)
+                        f"| {t['cap']:.1f} ({n['cap']}) | {ratio:.3f} | {free / t['vpype']:.3f} "
+                        f"| {cpu['cap']:.2f} / {cpu['plan']:.2f} |" + fw)
     print("GRBL 1.1 job time by doodlecam's planner model, s (G1 lines); doodlebot, $11=0.010, $1=25 ms, "
           "chord tolerance 0.05 mm\n")
-    head = "| picture | strokes | feeds=plan | vpype-gcode F9000 | feeds=cap (default) | cap / vpype | post CPU s cap / plan |"
+    head = ("| picture | strokes | feeds=plan | vpype-gcode F9000 | feeds=cap (default) | cap / vpype "
+            "| bound: no junction slow-down / vpype | post CPU s cap / plan |")
     if args.firmware:
         head += " firmware: cap s | firmware: vpype s | firmware: cap / vpype | estimate / firmware (cap) |"
     print(head)
     print("|" + "---|" * (head.count("|") - 1))
     print("\n".join(rows))
+    if parts:
+        print("\nWhere the firmware's time goes, s (its step trace)\n")
+        print("| picture | program | drawing | travel | standing: dwells, $1 delays, syncs |\n|---|---|---|---|---|")
+        print("\n".join(parts))
     return 0 if worst <= 0.9 else 1
 
 

@@ -3,11 +3,12 @@
 Each stroke becomes G1 segments along its spline, every chord within
 ``chord_tolerance`` of it, in one of two modes (``feeds``):
 
-* ``cap`` (default): the longest chords within the tolerance (or a half,
-  quarter ... of it), all at the pen-speed cap; the firmware's planner sets
-  the speeds. Per stroke the polyline that ``doodlecam.link.grbl.timing``
-  (GRBL 1.1's planner) runs fastest is written, among those a serial line at
-  ``baud`` can feed.
+* ``cap`` (default): the longest chords within the tolerance (or within
+  2^(-k/4) of it), their vertices on the motor-step positions that make
+  GRBL's step-rounded chords turn smoothly, all at the pen-speed cap; the
+  firmware's planner sets the speeds. Per stroke the polyline that
+  ``doodlecam.link.grbl.timing`` (GRBL 1.1's planner) runs fastest is
+  written, among those a serial line at ``baud`` can feed.
 * ``plan``: segment ends at the planned sample instants, split further until
   every chord is within the tolerance; each feed is the chord over the
   planned time between its ends, so a controller that follows F reproduces
@@ -40,9 +41,12 @@ import numpy as np
 
 from doodlecam.api import Option, PostProcessor
 from doodlecam.errors import OutputError, PluginError
-from doodlecam.geometry.chords import chord_ok, greedy_chords, one_step_apart
+from doodlecam.geometry.chords import chord_ok, greedy_chords, one_step_apart, snap_chords
 
-CAP_LEVELS = 5  # chord tolerances tried for feeds = cap: tol, tol/2, ... tol/16
+CAP_LEVELS = 24  # chord tolerances for feeds = cap: tol, tol/2^(1/4), ... (down to MIN_LEVEL_STEPS)
+CHORD_LEVEL = 2 ** -0.25
+MIN_LEVEL_STEPS = 0.15  # the finest level's tolerance, in motor steps
+START_LEVEL_STEPS = 0.3  # the level the search starts from, in motor steps
 MAX_LINE = 79  # GRBL's line buffer is 80 bytes including the terminating NUL
 
 
@@ -370,19 +374,54 @@ class GcodePost(PostProcessor):
             return None
         return p, {k: (np.round(c - p[k], 3), cw) for k, (c, cw) in arcs.items()}
 
-    def _cap_candidates(self, stroke, tol: float):
-        """feeds = cap: polylines of the longest chords within tol, tol/2, tol/4 ... (u values of their vertices).
+    @staticmethod
+    def _cap_search(stroke, tol: float, spm: np.ndarray, feed: float, grbl):
+        """feeds = cap: a search over chord lengths for one stroke (a generator: it yields candidate polylines,
+        rounded as printed, and is sent back each one's time on GRBL, inf when unusable).
 
         Longer chords turn more at each junction, and GRBL's junction speed falls
-        as the turn grows, while shorter ones starve its 15-block look-ahead: which
-        is faster depends on the curve, so the caller times each with GRBL's model.
+        as the turn grows, while shorter ones starve its 15-block look-ahead and
+        suffer more from its rounding to whole steps: which is faster depends on
+        the curve, so the caller times each with GRBL's model. Level k takes the
+        longest chords within (tol - fine) / 2^(k/4) of the curve, then places
+        each vertex on one of the step positions around it, within the whole
+        tolerance (the vertices leave the curve, the chords stay within the
+        tolerance of it), so that GRBL's rounded chords turn smoothly
+        (``doodlecam.geometry.chords.snap_chords``). The search starts near a
+        third of a step (where traced curves run fastest) and walks to finer or
+        coarser levels while they pay.
         """
-        u, q, fine = self._dense(stroke, tol)
-        for k, e in enumerate(tol * 0.5 ** np.arange(CAP_LEVELS)):
-            room = e - fine - 7.1e-4
-            if room < 0.25 * e and k:
-                return
-            yield u[_greedy_chords(q, max(room, 0.25 * e))]
+        _, q, fine = GcodePost._dense(stroke, tol)
+        q = np.ascontiguousarray(q)
+        r0 = tol - fine - 7.1e-4  # unsnapped vertices are rounded to 3 decimals
+        rooms = r0 * CHORD_LEVEL ** np.arange(CAP_LEVELS)
+        rooms = rooms[(rooms >= MIN_LEVEL_STEPS / spm.max()) | (np.arange(CAP_LEVELS) == 0)]
+        acc = np.asarray(grbl.acceleration, float)
+
+        def candidate(k: int) -> np.ndarray:
+            idx = _greedy_chords(q, rooms[k])
+            near = np.round(q[idx], 3)
+            if (np.round(near * spm) == np.round(near[0] * spm)).all():
+                return near  # the stroke is within one step: a dot, no move
+            # GRBL's rounded chords within r0 of q, so the printed ones (7.1e-4 away) are within tol - fine
+            p, found = snap_chords(q, idx, r0, float(spm[0]), float(spm[1]), feed / 60.0,
+                                   float(acc[0]), float(acc[1]), float(grbl.junction_deviation))
+            return p if found else near
+
+        start = int(np.argmin(np.abs(np.log(rooms * spm.max() / START_LEVEL_STEPS))))
+        best = yield candidate(start)
+        k = start
+        while best < np.inf and k + 1 < len(rooms):  # finer while it pays
+            t = yield candidate(k + 1)
+            if not t < best:
+                break
+            best, k = t, k + 1
+        if k == start:
+            while k > 0:  # else coarser while it pays, or until a serial line can feed it (inf: it cannot)
+                t = yield candidate(k - 1)
+                if best < np.inf and not t < best:
+                    break
+                best, k = t, k - 1
 
     def _stroke_points(self, stroke, dt: float, tol: float, min_feed: float, mode: str, cap: float, machine,
                        grbl, baud: int, arcs: bool = False):
@@ -426,8 +465,8 @@ class GcodePost(PostProcessor):
 
         spm = np.array([machine.x.steps_per_mm, machine.y.steps_per_mm])
         out: list = [None] * len(strokes)
-        best: dict[int, tuple] = {}  # stroke -> (points, time) of its best level so far
-        levels = {}
+        best: dict[int, tuple] = {}  # stroke -> (points, key) of its best level so far
+        searches = {}
         for i, st in enumerate(strokes):
             if st.profile is None:
                 raise OutputError("job is not planned (a stroke has no feed profile); plan it before writing G-code")
@@ -435,15 +474,15 @@ class GcodePost(PostProcessor):
                 p = np.round(st.spline(np.array([0.0, 1.0])), 3)
                 out[i] = p[_one_step_apart(p, spm)]
             else:
-                levels[i] = self._cap_candidates(st, tol)  # coarse to fine
-        active = list(levels)
-        while active:
+                searches[i] = self._cap_search(st, tol, spm, feeds[i], grbl)
+        sent: dict[int, float | None] = dict.fromkeys(searches)  # the time to send each search next
+        while sent:
             cand = []
-            for i in active:
-                u = next(levels[i], None)
-                if u is None:
+            for i, t in sent.items():
+                try:
+                    p = searches[i].send(t)
+                except StopIteration:
                     continue
-                p = np.round(strokes[i].spline(u), 3)
                 cand.append((i, p[_one_step_apart(p, spm)]))
             if not cand:
                 break
@@ -463,14 +502,16 @@ class GcodePost(PostProcessor):
                 feed = np.repeat([feeds[i] / 60.0 for i, _ in moving], n)[:-1]
                 bt = _segment_time(np.c_[pts, np.zeros(len(pts))], feed, grbl, rest)
             start = dict(zip((i for i, _ in moving), first))
-            active = []
+            sent = {}
             for i, p in cand:
                 times = bt[start[i]:start[i] + len(p) - 1] if i in start else np.zeros(0)
                 t = float(times.sum())
-                if i in best and (t >= best[i][1] or not _serial_keeps_up(p, times, baud)):
-                    continue  # finer chords stopped paying or outrun the line: keep the best
-                best[i] = (p, t)
-                active.append(i)
+                usable = _serial_keeps_up(p, times, baud)
+                # the fastest candidate a serial line can feed; if none can, the one of fewest lines
+                key = (0, t) if usable else (1, len(p))
+                if i not in best or key < best[i][1]:
+                    best[i] = (p, key)
+                sent[i] = t if usable else np.inf
         for i, (p, _) in best.items():
             out[i] = p
         return [(p, np.full(len(p) - 1, feeds[i]), {}) for i, p in enumerate(out)]
@@ -530,6 +571,13 @@ class GcodePost(PostProcessor):
                 body.append(f"G0 X{_num(p[0, 0])} Y{_num(p[0, 1])}")
                 program.append(("G0", p[0, 0], p[0, 1], None, None))
                 pen(options["pen_down"], tool.down_delay)
+            elif n and len(p) and len(paths[n - 1][0]) and (_num(p[0, 0]), _num(p[0, 1])) != \
+                    (_num(paths[n - 1][0][-1, 0]), _num(paths[n - 1][0][-1, 1])):
+                # pen down from the last stroke's end, which the two strokes' vertices may place on different
+                # steps (each within the tolerance of the point they share)
+                fs = _num(max(feed[0] if len(feed) else caps[pen_no[n]], 0.1), 1)
+                body.append(f"G1 X{_num(p[0, 0])} Y{_num(p[0, 1])} F{fs}")
+                program.append(("G1", p[0, 0], p[0, 1], None, float(fs)))
             last_f = ""
             for k, ((x, y), f) in enumerate(zip(p[1:].tolist(), feed.tolist())):
                 fs = _num(max(f, 0.1), 1)  # never print F0

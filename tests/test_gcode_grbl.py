@@ -36,16 +36,24 @@ def test_output_parsed_back_keeps_tolerance_cap_and_steps(size, n, seed, tol, fe
     text = write(job, feeds=feeds, chord_tolerance=tol)
     (pts, fs), = strict_parse(text, "grbl", "M3 S0", "M3 S1000", "G4 P0.15")
     spline = job.strokes[0].spline
+    g0 = [x for x in text.splitlines() if x.startswith("G0 ")][0].split()  # where the pen goes down
+    start = np.array([float(g0[1][1:]), float(g0[2][1:])])
     if not pts:  # a stroke within one motor step of its start: pen down and up only, a dot
         assert (np.round(spline.end * 80.0) == np.round(np.round(spline.start, 3) * 80.0)).all()
         return
-    poly = np.vstack([np.round(spline.start, 3), pts])
+    poly = np.vstack([start, pts])
     dense = spline(np.linspace(0.0, 1.0, 5_001))
     assert _dist_to_polyline(dense, poly).max() <= tol + 1e-6  # the curve never strays from the chords
-    assert _dist_to_polyline(poly, dense).max() <= 2e-3  # the vertices lie on the curve (3 decimals)
+    if feeds == "plan":
+        assert _dist_to_polyline(poly, dense).max() <= 2e-3  # the vertices lie on the curve (3 decimals)
+    else:  # cap: vertices on GRBL's step positions near the curve, the chords within the tolerance of it
+        along = poly[:-1, None] + np.linspace(0.0, 1.0, 20)[:, None] * np.diff(poly, axis=0)[:, None]
+        assert _dist_to_polyline(along.reshape(-1, 2), dense).max() <= tol + 1e-6
+        steps = np.sign(poly) * np.floor(np.abs(poly) * 80.0 + 0.5) / 80.0  # as GRBL rounds the targets
+        assert _dist_to_polyline(dense, steps).max() <= tol + 0.5 * np.sqrt(2) / 80.0 + 1e-6
     assert np.abs(np.diff(np.round(poly * 80.0), axis=0)).max(1).min(initial=1) >= 1  # a step or more each
     assert max(fs, default=0.0) <= 9000.0 and min(fs, default=1.0) > 0  # F never above the pen cap
-    assert np.allclose(poly[-1], spline.end, atol=6e-4)  # ends where the stroke ends
+    assert np.allclose(poly[[0, -1]], [spline.start, spline.end], atol=tol + 1e-6)  # its ends, within the tolerance
 
 
 def test_a_stroke_within_one_step_writes_no_move():
@@ -114,3 +122,27 @@ def test_arcs_option_writes_arcs_within_tolerance_that_grbl_accepts(emu_factory,
     r = bounded(lambda: send_gcode(emu.port, job_file, state_file=None))
     assert r["lines"] == len([x for x in text.splitlines() if not x.startswith(";")])
     assert emu.pos[:2] == [0.0, 0.0] and any(x.startswith("G3") for x in emu.received)
+
+
+def test_strokes_that_meet_are_drawn_through_their_shared_point_within_the_tolerance():
+    """Pen down across two strokes that meet (a split outline): the chords run from one into the other with no
+    point skipped, every chord within the tolerance of the two curves, though the vertices sit on GRBL's steps."""
+    t = np.linspace(0.0, 30.0, 61)
+    a = Spline(3, np.c_[100.0 + t, 80.0 + 5.0 * np.sin(t / 4.0) + 0.05 * np.sin(3.1 * t)])
+    b = Spline(3, np.c_[a.end[0] + 0.4 * t, a.end[1] + t + 0.05 * np.sin(2.3 * t)])  # from where a ends
+    pa, pb = trapezoid_profile(a), trapezoid_profile(b)
+    travels = (Travel(start=np.zeros(2), end=a.start, duration=1.0), Travel(start=a.end, end=b.start, duration=0.0),
+               Travel(start=b.end, end=np.zeros(2), duration=1.0))
+    job = Job(machine=M, strokes=(Stroke(spline=a, profile=pa), Stroke(spline=b, profile=pb)), travels=travels,
+              samples=(samples_for(a, pa, M.delta_time), samples_for(b, pb, M.delta_time)), source="two")
+    assert job.lifts == (True, False)
+    text = write(job)
+    assert text.count("M3 S1000") == 1
+    moves = [x.split() for x in text.splitlines() if x.startswith(("G0 X", "G1 X"))][:-1]  # the last: home
+    poly = np.array([[float(w[1][1:]), float(w[2][1:])] for w in moves])
+    dense = np.vstack([a(np.linspace(0.0, 1.0, 4001)), b(np.linspace(0.0, 1.0, 4001))])
+    assert _dist_to_polyline(dense, poly).max() <= 0.05 + 1e-6  # both curves near the chords, the joint too
+    along = poly[:-1, None] + np.linspace(0.0, 1.0, 20)[:, None] * np.diff(poly, axis=0)[:, None]
+    assert _dist_to_polyline(along.reshape(-1, 2), dense).max() <= 0.05 + 1e-6
+    # the shared point: a vertex on its nearest step, where one stroke ends and the other starts
+    assert np.abs(poly - np.round(a.end * 80.0) / 80.0).max(1).min() <= 1e-3

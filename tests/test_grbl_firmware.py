@@ -44,3 +44,42 @@ def test_the_estimate_is_within_one_percent_of_the_firmware_on_short_chords(firm
     model = timing.estimate_gcode(gcode, SETTINGS).total
     assert abs(model / fw - 1) <= 0.01, (model, fw)
 
+
+
+def test_default_chords_on_grbls_steps_run_faster_on_the_firmware_within_the_tolerance(grbl_firmware, tmp_path,
+                                                                                       monkeypatch):
+    """feeds=cap puts each vertex on one of GRBL's step positions so the rounded chords turn smoothly: on the
+    firmware the stroke is drawn faster than with the same chords rounded as printed, every executed step stays within
+    the tolerance of the curve (plus half a step: GRBL's line stepping)."""
+    import doodlecam.postprocessors.gcode as post
+    from test_gcode_dialects import _dist_to_polyline, write
+    from test_gcode_grbl import one_stroke_job
+
+    t = np.linspace(0.0, 90.0, 181)  # a traced curve: slow bends and small wiggles, control points 0.5 mm apart
+    job = one_stroke_job(np.c_[40.0 + t, 60.0 + 8.0 * np.sin(t / 6.0) + 0.05 * np.sin(3.1 * t)])
+    dense = job.strokes[0].spline(np.linspace(0.0, 1.0, 20_001))
+
+    def run(text: str) -> tuple[float, np.ndarray]:
+        trace = tmp_path / f"trace{len(list(tmp_path.iterdir()))}.txt"
+        _, fields = grbl_firmware(text, "-s", str(trace))
+        assert fields["error"] == "0" and fields["alarm"] == "0", fields
+        steps, ticks, pen = [], [], 0
+        for line in trace.read_text().splitlines():
+            w = line.split()
+            if w[0] == "P":
+                pen = int(w[3])
+            elif w[0] == "S" and pen:
+                steps.append((int(w[2]), int(w[3])))
+                ticks.append(int(w[1]))
+        return (ticks[-1] - ticks[0]) / 16e6, np.array(steps) / 80.0  # the drawing's time (16 MHz clock)
+
+    snapped = write(job, chord_tolerance=0.05)
+    fw, executed = run(snapped)
+    assert _dist_to_polyline(executed, dense).max() <= 0.05 + 0.5 * np.sqrt(2) / 80.0
+    assert _dist_to_polyline(dense[::10], executed).max() <= 0.05 + 0.5 * np.sqrt(2) / 80.0
+    # the same search with every vertex where rounding the curve's point puts it
+    monkeypatch.setattr(post, "snap_chords", lambda q, idx, *a: (q[idx], False))
+    rounded = write(job, chord_tolerance=0.05)
+    assert rounded != snapped
+    fw_rounded, _ = run(rounded)
+    assert fw < 0.95 * fw_rounded, (fw, fw_rounded)

@@ -82,3 +82,139 @@ def one_step_apart(st):  # pragma: no cover - compiled
         else:
             lx, ly = st[k, 0], st[k, 1]
     return keep
+
+
+# --- chords on GRBL's step lattice -------------------------------------------------------------------------
+# GRBL plans every block from its target rounded to whole steps, so on 0.2-0.5 mm chords a half step of
+# rounding turns a junction by a degree or two and its junction-deviation planner slows there. Choosing each
+# vertex among the step positions around it, so that the rounded chords turn smoothly, removes that loss.
+
+
+@numba.njit(cache=True, nogil=True, inline="always")
+def _lround(x):  # pragma: no cover - compiled
+    """GRBL's lround: to the nearest, halves away from zero."""
+    return np.floor(abs(x) + 0.5) * (1.0 if x >= 0 else -1.0)
+
+
+@numba.njit(cache=True, nogil=True)
+def _covers(q, i, j, ax, ay, bx, by, room2):  # pragma: no cover - compiled
+    """Every point q[i..j] is within sqrt(room2) of the segment a-b."""
+    dx, dy = bx - ax, by - ay
+    dd = dx * dx + dy * dy
+    for k in range(i, j + 1):
+        px, py = q[k, 0] - ax, q[k, 1] - ay
+        s = 0.0
+        if dd > 0:
+            s = min(max((px * dx + py * dy) / dd, 0.0), 1.0)
+        rx, ry = px - s * dx, py - s * dy
+        if rx * rx + ry * ry > room2:
+            return False
+    return True
+
+
+@numba.njit(cache=True, nogil=True)
+def _junction_cost(ux, uy, wx, wy, v, acc_x, acc_y, dev):  # pragma: no cover - compiled
+    """(1/v_j - 1/v)^4 for GRBL's junction speed v_j (planner.c) between unit directions u and w, 0 when
+    v_j >= v: a high power, so one slow junction costs more than several slightly slow ones (close
+    junctions share one slow-down)."""
+    cos = -(ux * wx + uy * wy)
+    if cos < -0.999999:  # straight on
+        return 0.0
+    vj = 0.0  # a reversal stops
+    if cos <= 0.999999:
+        jx, jy = wx - ux, wy - uy
+        jn = np.sqrt(jx * jx + jy * jy)
+        ja = 1e38  # limit_value_by_axis_maximum along the junction vector
+        if jx != 0.0:
+            ja = min(ja, acc_x * jn / abs(jx))
+        if jy != 0.0:
+            ja = min(ja, acc_y * jn / abs(jy))
+        sd = np.sqrt(max(0.5 * (1.0 - cos), 0.0))
+        vj = np.sqrt(max(ja * dev * sd / (1.0 - sd), 0.0))
+    if vj >= v:
+        return 0.0
+    return (1.0 / max(vj, 1e-3) - 1.0 / v) ** 4
+
+
+@numba.njit(cache=True, nogil=True)
+def snap_chords(q, idx, room, sx, sy, v, acc_x, acc_y, dev):  # pragma: no cover - compiled
+    """Vertices for the chords q[idx[k]] -> q[idx[k+1]] among GRBL's step positions: (points (m, 2) as
+    printed to 3 decimals, found).
+
+    Each vertex is one of the 3 x 3 step positions around its point (the first and last: the nearest one;
+    as GRBL rounds the printed value:
+    steps/mm ``sx``, ``sy``), within ``room`` of it; each chord, as GRBL rounds its ends, passes within
+    ``room`` of every q between its ends, and moves at least one step. Among those, a dynamic programme
+    over consecutive vertex pairs picks the one whose junctions cost least for GRBL's planner (feed ``v``
+    mm/s, accelerations, junction deviation ``dev``). ``found`` is False when no choice keeps ``room``.
+    """
+    m = idx.shape[0]
+    C = 9
+    P = np.empty((m, C, 2))  # printed
+    X = np.empty((m, C, 2))  # where GRBL goes: the printed value rounded to whole steps
+    ok = np.zeros((m, C), np.bool_)
+    room2 = room * room
+    for k in range(m):
+        qx, qy = q[idx[k], 0], q[idx[k], 1]
+        nx, ny = _lround(qx * sx), _lround(qy * sy)
+        c = 0
+        for di in range(-1, 2):
+            for dj in range(-1, 2):
+                px, py = np.round((nx + di) / sx, 3), np.round((ny + dj) / sy, 3)
+                ex, ey = _lround(px * sx) / sx, _lround(py * sy) / sy
+                P[k, c, 0], P[k, c, 1], X[k, c, 0], X[k, c, 1] = px, py, ex, ey
+                ok[k, c] = (ex - qx) ** 2 + (ey - qy) ** 2 <= room2
+                if (k == 0 or k == m - 1) and c != 4:
+                    ok[k, c] = False  # the ends on the nearest step: a stroke that goes on from them meets them
+                c += 1
+    out = np.empty((m, 2))
+    if m < 2:
+        return out, False
+    INF = 1e300
+    cost = np.full((C, C), INF)  # cost[i, j]: vertex k-1 at candidate i, vertex k at j
+    back = np.zeros((m, C, C), np.int8)
+    new = np.empty((C, C))
+    U = np.zeros((C, C, 2))  # unit direction of chord k-1 from candidate i to j
+    W = np.zeros((C, C, 2))  # of chord k from j to n
+    for k in range(0, m - 1):
+        new[:, :] = INF
+        for j in range(C):
+            if not ok[k, j]:
+                continue
+            for n in range(C):
+                if not ok[k + 1, n] or (X[k, j, 0] == X[k + 1, n, 0] and X[k, j, 1] == X[k + 1, n, 1]):
+                    continue
+                if not _covers(q, idx[k], idx[k + 1], X[k, j, 0], X[k, j, 1], X[k + 1, n, 0], X[k + 1, n, 1],
+                               room2):
+                    continue
+                dx, dy = X[k + 1, n, 0] - X[k, j, 0], X[k + 1, n, 1] - X[k, j, 1]
+                d = np.sqrt(dx * dx + dy * dy)
+                W[j, n, 0], W[j, n, 1] = dx / d, dy / d
+                if k == 0:  # the first chord: no junction yet
+                    new[j, n] = 0.0
+                    continue
+                best, bi = INF, 0
+                for i in range(C):
+                    if cost[i, j] < INF:
+                        c = cost[i, j] + _junction_cost(U[i, j, 0], U[i, j, 1], W[j, n, 0], W[j, n, 1], v, acc_x,
+                                                        acc_y, dev)
+                        if c < best:
+                            best, bi = c, i
+                new[j, n] = best
+                back[k + 1, j, n] = bi
+        cost[:, :] = new
+        U[:, :, :] = W
+    best, bj, bn = INF, 0, 0
+    for j in range(C):
+        for n in range(C):
+            if cost[j, n] < best:
+                best, bj, bn = cost[j, n], j, n
+    if best >= INF:
+        return out, False
+    ch = np.empty(m, np.int64)
+    ch[m - 1], ch[m - 2] = bn, bj
+    for k in range(m - 1, 1, -1):
+        ch[k - 2] = back[k, ch[k - 1], ch[k]]
+    for k in range(m):
+        out[k, 0], out[k, 1] = P[k, ch[k], 0], P[k, ch[k], 1]
+    return out, True
