@@ -153,7 +153,8 @@ def replan_api_cpu(session, n: int = 10) -> float:
 
     from doodlecam.studio.app import StudioConfig, create_app
 
-    c = TestClient(create_app(session, StudioConfig(token="bench")), headers={"x-doodlecam-token": "bench"})
+    c = TestClient(create_app(session, StudioConfig(token="bench")), headers={"x-doodlecam-token": "bench"},
+                   base_url="http://127.0.0.1")  # the studio answers only to its own host
     view = c.get("/api/view").json()
     k = min(range(len(view["strokes"])), key=lambda i: abs(len(view["strokes"][i]["control"]) - 100))
     control = np.array(view["strokes"][k]["control"])
