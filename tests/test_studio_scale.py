@@ -33,8 +33,9 @@ def client() -> tuple[TestClient, Session]:
     return TestClient(app, headers={"x-doodlecam-token": "t"}, base_url="http://127.0.0.1"), session
 
 
-def events(c: TestClient, until, timeout: float = 120.0) -> list[tuple[str, dict]]:
-    """(name, data) of /api/events until ``until(name, data)`` holds for one of them."""
+def events(c: TestClient, until, timeout: float = 120.0, opened=None) -> list[tuple[str, dict]]:
+    """(name, data) of /api/events until ``until(name, data)`` holds for one of them; ``opened()`` is
+    called once the first event is in (e.g. to let a held plan go on only when the stream can see it)."""
     out, name, end = [], None, time.monotonic() + timeout
     with c.stream("GET", "/api/events") as r:
         assert r.status_code == 200 and r.headers["content-type"].startswith("text/event-stream")
@@ -44,6 +45,8 @@ def events(c: TestClient, until, timeout: float = 120.0) -> list[tuple[str, dict
                 name = line[7:]
             elif line.startswith("data: "):
                 out.append((name, json.loads(line[6:])))
+                if opened is not None and len(out) == 1:
+                    opened()
                 if until(*out[-1]):
                     return out
     raise AssertionError(out)
@@ -95,8 +98,8 @@ def test_a_drawing_is_shown_as_traced_then_planned_in_the_background(held):
     for r in (c.post("/api/edit", json={"op": "reverse", "stroke": 0, "job": s["job"], "version": s["version"]}),
               c.get("/api/view"), c.get("/api/export/gcode"), c.get("/api/timeline")):
         assert r.status_code == 400 and "still being planned" in r.json()["error"], r.text
-    held.set()  # the plan goes on; the events say how far it got, then that it is done
-    seen = events(c, lambda name, d: name == "job" and d["planning"] is None)
+    # the plan goes on once the stream is open; the events say how far it got, then that it is done
+    seen = events(c, lambda name, d: name == "job" and d["planning"] is None, opened=held.set)
     jobs = [d for name, d in seen if name == "job"]
     assert jobs[0]["planning"] is not None and jobs[-1]["version"] > s["version"] and jobs[-1]["job"] != s["job"]
     done = [d["planning"]["done"] for d in jobs[:-1] if d["planning"]["stage"] == "planning"]
