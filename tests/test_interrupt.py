@@ -30,7 +30,9 @@ def _check(p: subprocess.Popen, out: Path) -> int:
         return 0
     if p.returncode == -signal.SIGINT and files == OUTPUTS and not err:
         return 0  # it had finished and written everything: the signal came while the interpreter shut down
-    assert p.returncode == 130, err
+    # exit 130, or ended by the SIGINT itself after the one line (seen once in CI with the signal
+    # 95 ms after start): a shell reports both as $? = 130
+    assert p.returncode in (130, -signal.SIGINT), err
     assert err.splitlines() == ["doodlecam: interrupted; no file was written"], err
     assert files == [], files  # no output, no temporary file
     return 130
