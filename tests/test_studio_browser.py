@@ -563,7 +563,7 @@ def test_14_an_axidraw_sends_to_its_eibotboard_with_pause_and_resume(page, tmp_p
         sender.close()
 
 
-def test_15_other_tabs_follow_a_large_load_and_an_edit_through_the_event_stream(page, tmp_path):
+def test_15_other_tabs_follow_a_large_load_and_an_edit_through_the_event_stream(page, tmp_path, monkeypatch):
     """Two tabs of one studio: tab A uploads a drawing of 1 200 paths, which the studio shows as traced at once
     and plans in the background; tab B, which sends no request of its own (no polling), follows through
     /api/events: it shows the traced paths, then the planned job, then A's edit of a stroke."""
@@ -572,8 +572,15 @@ def test_15_other_tabs_follow_a_large_load_and_an_edit_through_the_event_stream(
     sys.path.insert(0, str(ROOT / "tests"))
     from generated_art import generated_svg
 
+    from doodlecam.studio.session import Session
+
     svg = tmp_path / "lines.svg"
     svg.write_text(generated_svg(1200, "lines"))
+    # the background plan waits until both tabs show the traced paths (1 200 lines plan in well under
+    # a second: the preview could be gone before a tab looked)
+    gate, plan = threading.Event(), Session._plan
+    monkeypatch.setattr(Session, "_plan", lambda self, d, progress=None:
+                        (progress is None or gate.wait(120)) and plan(self, d, progress))
     with serve(tmp_path) as srv:
         session = srv["app"].state.session
         browser = page.context.browser
@@ -592,7 +599,8 @@ def test_15_other_tabs_follow_a_large_load_and_an_edit_through_the_event_stream(
         # B's tracer panel follows too: the vector tracer's options, not the edges' it showed with no file
         b.wait_for_function("!document.querySelector('#tracer-options [name=sigma]')")
         shot(b, "planning")
-        assert session.job is None or session.planning is None  # planned in the background (or just done)
+        assert session.job is None  # still planned in the background
+        gate.set()
         for pg in (a, b):  # then the planned job
             pg.wait_for_function("document.body.dataset.preview === '' && studio.view.strokes.length > 0",
                                  timeout=300_000)
