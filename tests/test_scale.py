@@ -137,6 +137,20 @@ def test_touching_segments_are_drawn_as_one_stroke_with_their_exact_length(tmp_p
     assert abs(s["pen_down_mm"] - exact) <= 1e-3 * exact
 
 
+def test_ends_merged_a_hair_apart_at_a_corner_leave_no_stroke_of_no_length(tmp_path):
+    # 100 000 generated paths once failed after 3 minutes on this: a path starting 1.7e-7 mm behind where
+    # the previous one ends, at a corner; the merged ends' hair of a segment became a stroke of its own
+    svg = tmp_path / "hair.svg"
+    svg.write_text('<svg xmlns="http://www.w3.org/2000/svg" width="100mm" height="100mm" viewBox="0 0 100 100">'
+                   '<path d="M10,10 L30,10" fill="none" stroke="black"/>'
+                   '<path d="M29.99999983,10 L30,30" fill="none" stroke="black"/></svg>')
+    res = convert(svg, tmp_path / "out", Settings(machine=load_machine("doodlebot"), layout={"scale": 1.0},
+                                                   posts=("plc",)))
+    s = res.summary()
+    assert (s["strokes"], s["pen_lifts"]) == (2, 1)  # the two segments, drawn without lifting
+    assert abs(s["pen_down_mm"] - 40.0) <= 1e-3
+
+
 def test_a_degenerate_jerk_plan_is_replaced_by_a_bounded_one():
     """A 6 mm stroke of a generated drawing turning very tightly near its end over 264 control
     points: its first jerk-bounded plan took 1.5e5 s (and the sampler asked for 1 GB). It is planned

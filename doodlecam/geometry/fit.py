@@ -20,12 +20,19 @@ import numpy as np
 
 from doodlecam.geometry.kernels import basis_at as _basis_at
 from doodlecam.geometry.kernels import knot as _knot
-from doodlecam.model import Spline
+from doodlecam.model import SAME_POINT, Spline
 
 
 def _dedupe(p: np.ndarray) -> np.ndarray:
-    keep = np.ones(len(p), bool)
-    keep[1:] = np.any(np.abs(np.diff(p, axis=0)) > 1e-12, axis=1)
+    """p without the points within model.SAME_POINT (per axis) of the last point kept: one point to
+    the job as to its pen lifts, so no piece between two corners is a stroke of no length (seen: ends
+    merged 1.7e-7 mm apart at a corner of a generated drawing)."""
+    if np.any(np.abs(np.diff(p, axis=0)) > SAME_POINT, axis=1).all():
+        return p
+    keep = [0]
+    for i in range(1, len(p)):  # rare: measured from the last point kept, so a dense run is not dropped whole
+        if np.abs(p[i] - p[keep[-1]]).max() > SAME_POINT:
+            keep.append(i)
     return p[keep]
 
 

@@ -183,8 +183,8 @@ def sampled_rows(spline: Spline, u: np.ndarray, kinematics, vmax, amax, pen_spee
 
 
 def jerk_coefficients(spline: Spline, u: np.ndarray, taus=(0.0, 0.5, 1.0)):
-    """Per tau in ``taus``: (tau, u there, c1, c2) on every interval of the grid u,
-    the pen's jerk across the path being sqrt(b) (c1 a + c2 b) (see jerk_rows)."""
+    """(taus (T,), u there (T, K), c1 (T, K), c2 (T, K)) on the K intervals of the grid u,
+    the pen's jerk across the path being sqrt(b) (c1 a + c2 b) there (see jerk_rows)."""
     h = np.diff(u)
     taus = np.asarray(taus, float)
     uu = (u[:-1, None] + taus[None, :] * h[:, None]).T  # (len(taus), K): all at once
@@ -197,7 +197,7 @@ def jerk_coefficients(spline: Spline, u: np.ndarray, taus=(0.0, 0.5, 1.0)):
     kappa = c12 / sp ** 3
     kappa_s = (c13 * sp ** 2 - 3 * c12 * dot12) / sp ** 6  # d kappa / d arc length
     c1, c2 = 3 * kappa * sp ** 2, 3 * kappa * dot12 + sp ** 3 * kappa_s
-    return [(tau, uu[i], c1[i], c2[i]) for i, tau in enumerate(taus)]
+    return taus, uu, c1, c2
 
 
 def jerk_rows(coefficients, u: np.ndarray, b_hat: np.ndarray, jerk_max) -> Rows:
@@ -211,16 +211,18 @@ def jerk_rows(coefficients, u: np.ndarray, b_hat: np.ndarray, jerk_max) -> Rows:
     |c1 a + c2 b| <= jerk_max / sqrt(b_hat) are conservative. This jerk is what the
     PLC's constant-acceleration periods cannot follow (docs/sampling.md).
     """
-    h = np.diff(u)
-    parts = []
-    for tau, uu, c1, c2 in coefficients:
-        bh = b_hat[:-1] * (1 - tau) + b_hat[1:] * tau
-        jm = jerk_max(uu) if callable(jerk_max) else jerk_max
-        g = jm / np.sqrt(np.maximum(bh, 1e-300))
-        tot, beta = c2[:, None], (c2 * tau + c1 / (2 * h))[:, None]
-        parts.append((np.concatenate([tot, -tot], 1), np.concatenate([beta, -beta], 1), np.column_stack([g, g])))
-    tot, beta, gamma = (np.concatenate([p[i] for p in parts], axis=1) for i in range(3))
-    return Rows(tot, beta, gamma, np.full(len(u), np.inf))
+    taus, uu, c1, c2 = coefficients
+    tau = taus[:, None]  # all points at once (T, K); per interval the columns go tau by tau, + then -
+    bh = b_hat[None, :-1] * (1 - tau) + b_hat[None, 1:] * tau
+    jm = jerk_max(uu) if callable(jerk_max) else jerk_max
+    g = np.broadcast_to(jm / np.sqrt(np.maximum(bh, 1e-300)), c1.shape)
+    beta = c2 * tau + c1 / (2 * np.diff(u))[None, :]
+
+    def columns(x):  # (T, K) -> (K, 2T): x, -x for each tau in turn
+        return np.stack([x, -x], axis=-1).transpose(1, 0, 2).reshape(x.shape[1], -1)
+
+    gamma = np.stack([g, g], axis=-1).transpose(1, 0, 2).reshape(g.shape[1], -1)
+    return Rows(columns(c2), columns(beta), gamma, np.full(len(u), np.inf))
 
 
 def stack(a: Rows, b: Rows) -> Rows:
