@@ -7,8 +7,10 @@ positions at the sample instants are the planned positions rounded to whole step
 (the running sum, as for the PLC), so nothing drifts and every stroke ends on its
 last step exactly. Rounding moves a period's mean rate by (rounding now - rounding
 before) / dT, at most 1 step / dT: the period's start and end rates are both shifted
-by that, so its acceleration stays the plan's. A period in which a motor reverses is
-split at the reversal (an LM turns each motor one way). Pen-up travel is a straight
+by that, so its acceleration stays the plan's. A period in which a motor reverses is one
+LM whose rate runs through zero: firmware 3.0 turns the motor back mid-move (board.axis_move,
+turn_params); with ``firmware=2.7`` (older boards roll a negative rate over) it is split at the
+reversal. So on 3.0 a stroke never has more commands than periods. Pen-up travel is a straight
 trapezoid (accelerate, cruise, decelerate: three LMs) within the profile's pen-up
 limits. Every LM clears the accumulators (Clear = 3), so each LM ends on the tick its
 last step is due and the stream's time is known exactly (doodlecam.link.ebb.board).
