@@ -171,28 +171,37 @@ def test_lm_arithmetic_matches_plotink():
 
 
 def test_turn_params_turn_a_motor_back_inside_one_lm():
-    """stream.turn_params: a ramp through zero as one LM ending on its last step on the period's last tick,
-    net steps exact, the steps out and back counted, the acceleration never above the plan's."""
-    from doodlecam.link.ebb.board import ACC, TICK_HZ, axis_move
+    """stream.turn_params: a ramp through zero as one LM, net steps exact, the steps out and back counted, the
+    acceleration never above the plan's; its last step on the period's last tick, or (the other axis setting
+    the LM's length) ending where the plan does, the rates within a step per period of the plan's."""
+    from doodlecam.link.ebb.board import ACC, TICK_HZ, axis_move, trunc_half
     from doodlecam.link.ebb.stream import turn_params
 
     rnd = random.Random(5)
-    made = back = 0
+    made = back = free = 0
     for _ in range(300):
-        vs, ve = rnd.uniform(50, 3000) * rnd.choice([1, -1]), 0.0
+        vs = rnd.uniform(50, 3000) * rnd.choice([1, -1])
         ve = -np.sign(vs) * rnd.uniform(50, 3000)
         T = rnd.choice([250, 1000, 2000])
-        n = int(round((vs + ve) / 2 * T / TICK_HZ)) + rnd.choice([-1, 0, 1])
-        p = turn_params(n, vs, ve, T)
-        if p is None:
-            continue
-        made += 1
-        ticks, pos, _ = axis_move(*p)
-        assert (ticks, pos) == (T, n)
-        assert abs(p[1]) >= abs(n)  # out and back (a turn inside one step cell takes no step back)
-        back += abs(p[1]) > abs(n)
-        assert abs(p[2]) <= abs(ve - vs) * ACC / TICK_HZ / T
-    assert made > 250 and back > 200, (made, back)
+        planned = (vs + ve) / 2 * T / TICK_HZ  # steps, from a start on a whole step
+        n = int(round(planned))
+        for frac in (None, planned - n):
+            p = turn_params(n, vs, ve, T, frac)
+            if p is None:
+                continue
+            made += 1
+            ticks, pos, _ = axis_move(*p)
+            assert pos == n and (ticks == T if frac is None else ticks <= T)
+            assert abs(p[1]) >= abs(n)  # out and back (a turn inside one step cell takes no step back)
+            back += abs(p[1]) > abs(n)
+            assert abs(p[2]) <= abs(ve - vs) * ACC / TICK_HZ / T
+            if frac is not None:
+                free += 1
+                sign = -1 if p[1] < 0 else 1
+                r0 = p[0] - trunc_half(p[2])
+                ends = sign * np.array([r0 + p[2], r0 + p[2] * T]) * TICK_HZ / ACC
+                assert (np.abs(ends - [vs, ve]) * T / TICK_HZ <= 1.0).all(), (ends, vs, ve)
+    assert made > 500 and back > 400 and free > 250, (made, back, free)
 
 
 def _circles(path: Path, n: int = 40) -> Path:
@@ -244,7 +253,7 @@ def test_turning_motors_cost_no_extra_commands(tmp_path):
     assert int(head["3.0"]["draw_commands"]) / float(head["3.0"]["draw_time"]) <= 1 / m.delta_time
     # the LMs really turn motors back (a rate through zero inside one command)
     turned = sum(1 for r in execute(text.splitlines()) if r.pen_down and len(r.rate)
-                 and ((r.rate[0] * r.rate[-1]) < 0).any())
+                 and ((r.rate.max(axis=0) > 0) & (r.rate.min(axis=0) < 0)).any())
     assert turned > 0.1 * periods
     assert int(head["2.7"]["draw_commands"]) > int(head["3.0"]["draw_commands"]) + turned // 2
     for fw in ("3.0", "2.7"):

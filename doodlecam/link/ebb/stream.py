@@ -95,19 +95,24 @@ def axis_params(n: int, vs: float, ve: float, ticks: int) -> tuple[int, int, int
     return rate, sign * m, a
 
 
-def turn_params(n: int, vs: float, ve: float, ticks: int) -> tuple[int, int, int] | None:
+def turn_params(n: int, vs: float, ve: float, ticks: int, frac: float | None = None) -> tuple[int, int, int] | None:
     """(Rate, Steps, Accel) for one axis that turns back inside an LM (firmware 2.9+, board.axis_move
     turn=True): a constant acceleration from about ``vs`` through zero to about ``ve`` steps/s (opposite
-    signs), ``n`` steps net, its last step on tick ``ticks``. Steps counts the steps out and back. None
-    where the whole ticks leave no such move (the period is then split at the turn)."""
+    signs), ``n`` steps net, Steps counting the steps out and back. With ``frac`` None its last step falls
+    on tick ``ticks`` (it sets the LM's length); else the other axis does, and the accumulator ends where
+    the plan does, ``frac`` (planned - whole end position, steps) from the middle of its step, so the rates
+    move by at most about 1 step over the LM, as an LM that keeps its direction. None where the whole ticks
+    leave no such move (the period is then split at the turn)."""
     T = ticks
     a = int((ve - vs) * (ACC / TICK_HZ) / T)  # towards zero: never more than the plan's acceleration
     if a == 0 or T < 2:
         return None
     q1, q0 = a * T * (T + 1) // 2, a * (T - 1) * T // 2  # C_T, C_T-1 less c0 + t r0
     for c0 in (0, ACC - 1):  # cleared to 2^31 - 1 when the first tick's rate is negative
-        # the last step falls on tick T: C crosses into cell n there, the way the motor ends moving
-        if ve > 0:  # C_T-1 < n 2^31 <= C_T
+        if frac is not None:  # C_T in cell n, where the plan is: (n + 1/2 + frac) 2^31
+            goal = int((n + 0.5 + min(max(frac, -0.45), 0.45)) * ACC)
+            lo = hi = round((goal - c0 - q1) / T)
+        elif ve > 0:  # the last step on tick T: C_T-1 < n 2^31 <= C_T
             lo, hi = -((c0 + q1 - n * ACC) // T), -((c0 + q0 - n * ACC) // (T - 1)) - 1
         else:  # C_T < (n + 1) 2^31 <= C_T-1
             lo, hi = -((c0 + q0 - (n + 1) * ACC) // (T - 1)), -((c0 + q1 - (n + 1) * ACC) // T) - 1
@@ -121,8 +126,10 @@ def turn_params(n: int, vs: float, ve: float, ticks: int) -> tuple[int, int, int
         steps = abs(at[0]) + abs(at[1] - at[0])
         rate = r0 + trunc_half(a)
         params = (-rate, -steps, -a) if c0 else (rate, steps, a)  # Steps' sign: the first direction
-        if params[0] >= 0 and axis_move(*params)[:2] == (T, n):
-            return params
+        if steps and params[0] >= 0:
+            took, pos, _ = axis_move(*params)
+            if pos == n and (took == T if frac is None else took <= T):
+                return params
     return None
 
 
@@ -133,17 +140,23 @@ class _Split(Exception):
         self.period = period
 
 
-def segment(ticks: int, n, vs, ve, turning=(False, False)) -> tuple[str, int]:
+def segment(ticks: int, n, vs, ve, turning=(False, False), frac=(0.0, 0.0)) -> tuple[str, int]:
     """One LM (or a timed wait when neither motor steps) and the ticks it really lasts; an axis in
-    ``turning`` turns back inside it (turn_params; None raises _Split)."""
+    ``turning`` turns back inside it (turn_params; None raises _Split). ``frac``: planned - whole end
+    position of each axis (steps), where a turning axis aims when the other one sets the LM's length."""
     if n[0] == 0 and n[1] == 0 and not any(turning):
         ms = max(1, round(ticks / 25))
         return f"SM,{ms},0,0", ms * 25
     p = []
     for i in range(2):
-        q = turn_params(int(n[i]), vs[i], ve[i], ticks) if turning[i] else None
-        if turning[i] and q is None:
-            raise _Split(-1)
+        q = None
+        if turning[i]:
+            # the other axis keeps its direction and moves: its last step ends the LM on its tick
+            if not turning[1 - i] and n[1 - i] != 0:
+                q = turn_params(int(n[i]), vs[i], ve[i], ticks, float(frac[i]))
+            q = q or turn_params(int(n[i]), vs[i], ve[i], ticks)
+            if q is None:
+                raise _Split(-1)
         p.append(q or axis_params(int(n[i]), vs[i], ve[i], ticks))
     took = max(axis_move(*p[0])[0], axis_move(*p[1])[0])
     return "LM,{},{},{},{},{},{},3".format(*p[0], *p[1]), took
@@ -228,8 +241,8 @@ def _ramp_try(pos0, times, vel, end, out, caps, merge, turn, split) -> tuple[int
         while merge and b < last and b - j < MERGE_MAX and _holds(tick, whole, planned, v, j, b + 1, caps):
             b += 1
         try:
-            line, took = segment(int(tick[b] - tick[j]), whole[b] - whole[j], v[j], v[b], turns[b] if b == j + 1 else
-                                 (False, False))
+            line, took = segment(int(tick[b] - tick[j]), whole[b] - whole[j], v[j], v[b],
+                                 turns[b] if b == j + 1 else (False, False), planned[b] - whole[b])
         except _Split:
             raise _Split(period[b]) from None
         if any(turns[b]) and b == j + 1 and caps is not None and not _within_caps(line, caps):
