@@ -174,7 +174,7 @@ class EbbSender:
             raise LinkError(f"{self.port_name}: EiBotBoard firmware {self.version} cannot run {self.name}, which needs "
                             f"{'.'.join(need.groups())} or newer (its LMs turn a motor back mid-move); update the board "
                             "(the EBB firmware updater on the Evil Mad Scientist wiki) or convert again with "
-                            "--post-opt ebb.firmware=2.7")
+                            "--post-opt ebb.firmware=2.7 (or firmware = \"2.7\" in the profile's [post.ebb])")
         return self.version
 
     def wait_idle(self, limit: float) -> None:
