@@ -13,7 +13,7 @@ within 0.01 mm of them) and its planner (``plan`` of dist/server/planning.js) ti
 saxi is installed only in a benchmark folder, never in doodlecam's environment::
 
     mkdir -p /work/bench-saxi && cd /work/bench-saxi && npm init -y && npm install saxi@0.15
-    nice .venv/bin/python benchmarks/bench_ebb.py --saxi /work/bench-saxi
+    nice .venv/bin/python benchmarks/bench_ebb.py --saxi /work/bench-saxi [--firmware 2.7]
 
 Where the time goes: the pen-down ("draw") time of both, the least pen-down time any plan that keeps
 the pen's acceleration and speed limits needs on these curves (``least_draw_time``), the travel and pen
@@ -67,11 +67,12 @@ def bench_profile(down_accel: float = LIMITS["down_accel"]) -> str:
     return text
 
 
-def doodlecam_job(src: Path, machine, out: Path):
+def doodlecam_job(src: Path, machine, out: Path, firmware: str = "3.0"):
     from doodlecam import pipeline
 
     t0 = time.process_time()
-    r = pipeline.convert(src, out, pipeline.Settings(machine=machine, posts=("ebb",)))
+    r = pipeline.convert(src, out, pipeline.Settings(machine=machine, posts=("ebb",),
+                                                     post_options={"ebb": {"firmware": firmware}}))
     cpu = time.process_time() - t0
     text = r.outputs[0].read_text()
     head = dict(line[2:].split(": ", 1) for line in text.splitlines() if line.startswith("; ") and ": " in line)
@@ -123,6 +124,8 @@ def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--saxi", default="/work/bench-saxi", help="folder where saxi is installed with npm")
     ap.add_argument("--node", default="node")
+    ap.add_argument("--firmware", default="3.0", choices=("3.0", "2.7"),
+                    help="post ebb's firmware option (2.7: a period where a motor reverses is split in two LMs)")
     ap.add_argument("inputs", nargs="*", default=list(INPUTS))
     a = ap.parse_args()
     from doodlecam.machine import parse_machine
@@ -140,7 +143,7 @@ def main() -> int:
     ratios, rates, floors = [], [], []
     with tempfile.TemporaryDirectory() as tmp:
         for src in a.inputs:
-            job, head, cpu = doodlecam_job(ROOT / src, machine, Path(tmp))
+            job, head, cpu = doodlecam_job(ROOT / src, machine, Path(tmp), a.firmware)
             ours = float(head["planned_time"])
             # the least pen-down time any planner keeping the limits needs on these curves (rest to rest per
             # stroke, as both sides draw them: saxi's paths are the same strokes); the travel and the pen moves
@@ -161,7 +164,7 @@ def main() -> int:
             # the same drawing with the acceleration saxi's plan really asks of the pen (over 40 ms windows)
             peak = float(np.floor(sx["accel_per_period"]))
             m2 = parse_machine(tomllib.loads(bench_profile(peak)), "axidraw-v3-saxi-peak")
-            _, head2, _ = doodlecam_job(ROOT / src, m2, Path(tmp))
+            _, head2, _ = doodlecam_job(ROOT / src, m2, Path(tmp), a.firmware)
             ours2 = float(head2["planned_time"])
             floor = least + sx["travel_s"] + sx["pen_s"]
             floors.append(floor / sx["duration"])

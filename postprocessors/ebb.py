@@ -1,7 +1,8 @@
 """EiBotBoard post: the exact command stream an AxiDraw's board receives (``.ebb``).
 
 One ``LM`` (constant acceleration per motor, whole steps) per velocity-sample period
-while drawing, constant-acceleration ``LM`` moves for pen-up travel, ``SP`` with the
+while drawing (a motor that reverses inside a period turns back inside its LM on firmware 3.0;
+``firmware=2.7`` splits such a period in two for older boards), constant-acceleration ``LM`` moves for pen-up travel, ``SP`` with the
 profile's pen delays, ``SC`` for the servo, ``@PAUSE,<pen>`` where the pen is changed.
 The writer lives in ``doodlecam.link.ebb.stream``; docs/ebb.md describes the file.
 """
@@ -25,6 +26,9 @@ class EbbPost(PostProcessor):
         Option("lift_clear", float, 0.0, "s after a lift starts when the pen is off the paper: travel starts then and "
                "overlaps the rest of the lift (SP,1 waits this long; the AxiDraw driver's negative pen_delay_up); "
                "0 = wait the pen's whole up_delay"),
+        Option("firmware", str, "3.0", "oldest EBB firmware the file must run on: 3.0 (a motor reverses inside one LM, "
+               "at most one LM per sample period) or 2.7 (older boards: such a period is split in two LMs)",
+               choices=("3.0", "2.7")),
     )
 
     def write(self, job, options: dict[str, Any]) -> bytes:

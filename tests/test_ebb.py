@@ -41,7 +41,12 @@ def _motor(job, xy):
 
 
 def test_executed_motion_keeps_limits_path_and_paper(converted):
-    job, text = converted
+    check_executed(*converted)
+
+
+def check_executed(job, text):
+    """The .ebb stream run as the board runs it keeps the profile's limits, the path, the plan's instants and
+    the paper, and ends every stroke exactly."""
     m = job.machine
     kin = m.kinematics_params
     k, dt = 80.0, m.delta_time
@@ -138,28 +143,122 @@ def test_planned_time_is_the_executed_time(converted):
 
 
 def test_lm_arithmetic_matches_plotink():
-    """doodlecam's exact LM (board.axis_move) against plotink's ebb_calc.calculate_lm (firmware 3.0)."""
+    """doodlecam's exact LM (board.axis_move) against plotink's ebb_calc.calculate_lm (firmware 3.0), moves whose
+    rate passes through zero (the motor turns back mid-move, Steps counting out and back) included; with
+    turn=False (firmware 2.7/2.8) the moves that keep their rate's sign agree too."""
     from plotink import ebb_calc
 
-    from doodlecam.link.ebb.board import axis_move
+    from doodlecam.link.ebb.board import axis_move, trunc_half
 
     rnd = random.Random(7)
-    checked = 0
-    for _ in range(400):
+    checked = turned = 0
+    for _ in range(1500):
         steps = rnd.choice([1, 2, 7, 40, 300, 2000]) * rnd.choice([1, -1])
-        rate = rnd.randint(1, 2 ** 31 - 1) // rnd.choice([1, 10, 1000, 10 ** 5])
-        rate = max(rate, 1)
+        rate = max(rnd.randint(1, 2 ** 31 - 1) // rnd.choice([1, 10, 1000, 10 ** 5]), 1)
         accel = rnd.randint(-3000, 3000) * rnd.choice([0, 1, 10, 100])
-        if accel < 0 and rate + accel * 50 < 0:
-            accel = 0  # doodlecam never lets a rate turn negative inside an LM
         t_ref, pos_ref, acc_ref = ebb_calc.calculate_lm(steps, rate, accel, "clear")
-        if t_ref == 0 or rate - int(accel / 2) + accel * t_ref <= 0:
-            continue  # the rate turns back inside the move (firmware 3's reversal): doodlecam never sends that
+        r0 = rate - trunc_half(accel)
+        if t_ref == 0 or max(abs(r0 + accel), abs(r0 + accel * t_ref)) >= 2 ** 31:
+            continue  # more than one step per tick: outside what the board runs
         ticks, pos, acc = axis_move(rate, steps, accel)
-        assert (ticks, pos) == (t_ref, pos_ref), (rate, steps, accel)
-        assert acc == acc_ref
+        assert (ticks, pos, acc) == (t_ref, pos_ref, acc_ref), (rate, steps, accel)
+        back = (r0 + accel > 0) != (r0 + accel * t_ref > 0)
+        turned += back and abs(pos) < abs(steps)  # turned back by at least a step
+        if r0 + accel > 0 and r0 + accel * t_ref > 0:  # the rate stays positive: the direction Steps gives
+            assert axis_move(rate, steps, accel, turn=False) == (t_ref, pos_ref, acc_ref)
         checked += 1
-    assert checked > 250
+    assert checked > 1000 and turned > 40, (checked, turned)
+
+
+def test_turn_params_turn_a_motor_back_inside_one_lm():
+    """stream.turn_params: a ramp through zero as one LM, net steps exact, the steps out and back counted, the
+    acceleration never above the plan's; its last step on the period's last tick, or (the other axis setting
+    the LM's length) ending where the plan does, the rates within a step per period of the plan's."""
+    from doodlecam.link.ebb.board import ACC, TICK_HZ, axis_move, trunc_half
+    from doodlecam.link.ebb.stream import turn_params
+
+    rnd = random.Random(5)
+    made = back = free = 0
+    for _ in range(300):
+        vs = rnd.uniform(50, 3000) * rnd.choice([1, -1])
+        ve = -np.sign(vs) * rnd.uniform(50, 3000)
+        T = rnd.choice([250, 1000, 2000])
+        planned = (vs + ve) / 2 * T / TICK_HZ  # steps, from a start on a whole step
+        n = int(round(planned))
+        for frac in (None, planned - n):
+            p = turn_params(n, vs, ve, T, frac)
+            if p is None:
+                continue
+            made += 1
+            ticks, pos, _ = axis_move(*p)
+            assert pos == n and (ticks == T if frac is None else ticks <= T)
+            assert abs(p[1]) >= abs(n)  # out and back (a turn inside one step cell takes no step back)
+            back += abs(p[1]) > abs(n)
+            assert abs(p[2]) <= abs(ve - vs) * ACC / TICK_HZ / T
+            if frac is not None:
+                free += 1
+                sign = -1 if p[1] < 0 else 1
+                r0 = p[0] - trunc_half(p[2])
+                ends = sign * np.array([r0 + p[2], r0 + p[2] * T]) * TICK_HZ / ACC
+                assert (np.abs(ends - [vs, ve]) * T / TICK_HZ <= 1.0).all(), (ends, vs, ve)
+    assert made > 500 and back > 400 and free > 250, (made, back, free)
+
+
+def _circles(path: Path, n: int = 40) -> Path:
+    """Small circles (r 3-7 mm once fitted to the work area): on each, both motors (x + y, x - y) turn back
+    twice per turn of the pen."""
+    rings = "".join(f'<circle cx="{6 + 12 * (i % 10)}" cy="{6 + 12 * (i // 10)}" r="{1.2 + 0.04 * i}" fill="none" '
+                    'stroke="black"/>' for i in range(n))
+    path.write_text(f'<svg xmlns="http://www.w3.org/2000/svg" width="120mm" height="60mm" viewBox="0 0 120 48">{rings}</svg>')
+    return path
+
+
+def test_turning_motors_cost_no_extra_commands(tmp_path):
+    """On circles a motor reverses in about one period in four. Firmware 3.0's LM turns it back inside the
+    period's one LM: at most one command per period in every stroke (<= 1 / delta_time per second of drawing),
+    and the stream, run as the board runs it, still keeps every limit, the path and the plan's instants
+    (check_executed). firmware=2.7 splits those periods: more commands than periods, the same checks pass."""
+    from doodlecam import pipeline
+    from doodlecam.machine import load_machine
+
+    from ebb_reader import execute
+
+    src = _circles(tmp_path / "circles.svg")
+    m = load_machine("axidraw-v3")
+    out = {}
+    for fw in ("3.0", "2.7"):
+        r = pipeline.convert(src, tmp_path / fw, pipeline.Settings(machine=m, posts=("ebb",),
+                                                                   post_options={"ebb": {"firmware": fw}}))
+        out[fw] = (r.job, r.outputs[0].read_text())
+    job, text = out["3.0"]
+    periods = sum(len(s.velocity) for s in job.samples)
+    vel = [np.vstack([np.zeros((1, 2)), s.velocity]) @ np.array([[1.0, -1.0], [1.0, 1.0]]).T for s in job.samples]
+    reversing = sum(int(((v[1:] * v[:-1]) < 0).any(axis=1).sum()) for v in vel)
+    assert reversing > 0.15 * periods, (reversing, periods)
+    head = {fw: dict(l[2:].split(": ", 1) for l in t.splitlines() if l.startswith("; ") and ": " in l)
+            for fw, (_, t) in out.items()}
+    assert head["3.0"]["firmware"].startswith("3.0.0") and head["2.7"]["firmware"].startswith("2.7.0")
+    # per stroke (a pen-down run between SP,0 and SP,1): its LMs and waits against its periods
+    runs, cur = [], None
+    for line in text.splitlines():
+        if line.startswith("SP,0"):
+            cur = 0
+        elif line.startswith("SP,1") and cur is not None:
+            runs.append(cur)
+            cur = None
+        elif cur is not None and line.startswith(("LM", "SM")):
+            cur += 1
+    assert runs == [n for n in runs] and len(runs) == len(job.samples)
+    assert all(n <= len(s.velocity) for n, s in zip(runs, job.samples)), list(zip(runs, [len(s.velocity) for s in job.samples]))
+    assert int(head["3.0"]["draw_commands"]) / float(head["3.0"]["draw_time"]) <= 1 / m.delta_time
+    # the LMs really turn motors back (a rate through zero inside one command)
+    turned = sum(1 for r in execute(text.splitlines()) if r.pen_down and len(r.rate)
+                 and ((r.rate.max(axis=0) > 0) & (r.rate.min(axis=0) < 0)).any())
+    assert turned > 0.1 * periods
+    assert int(head["2.7"]["draw_commands"]) > int(head["3.0"]["draw_commands"]) + turned // 2
+    for fw in ("3.0", "2.7"):
+        check_executed(*out[fw])
+        assert head[fw]["draw_time"] == head["3.0"]["draw_time"]
 
 
 def test_axidraw_kinematics_map_and_profiles():

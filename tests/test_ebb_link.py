@@ -297,6 +297,55 @@ def test_firmware_too_old_for_lm_is_refused(jobs):
         assert emu.received == ["V"] and emu.executed == []
 
 
+def test_lms_turning_a_motor_back_need_firmware_3(tmp_path):
+    """A job whose LMs turn a motor back mid-move (post ebb's default, firmware 3.0) runs on the 3.0 emulator
+    step for step as line_effects predicts, in its planned time; a 2.8.1 board refuses it in one line before
+    anything moves, and the firmware=2.7 conversion of the same drawing runs there."""
+    from test_ebb import _circles
+
+    from doodlecam import pipeline
+    from doodlecam.machine import load_machine
+
+    src = _circles(tmp_path / "circles.svg", n=12)
+    m = load_machine("axidraw-v3")
+    paths = {}
+    for fw in ("3.0", "2.7"):
+        r = pipeline.convert(src, tmp_path / fw, pipeline.Settings(machine=m, posts=("ebb",),
+                                                                   post_options={"ebb": {"firmware": fw}}))
+        paths[fw] = r.outputs[0]
+    job = read_ebb(paths["3.0"].read_bytes())
+    assert sum(_turns(s) for s in job.lines if s.startswith("LM")) > 10
+    with _emulator() as emu:
+        send_ebb(emu.port, paths["3.0"], state_file=None)
+        pos, _ = line_effects(job.lines)
+        motion = [i for i, s in enumerate(job.lines) if not s.startswith("SC")]
+        assert emu.errors == [] and [e["pos"] for e in emu.executed] == [pos[i] for i in motion]
+        assert emu.executed[-1]["t"] == pytest.approx(job.planned_time, abs=0.01)
+    with _emulator(version="2.8.1") as emu:
+        r = _cli("send", str(paths["3.0"]), "--serial", emu.port)
+        lines = r.stderr.strip().splitlines()
+        assert r.returncode != 0 and len(lines) == 1 and "needs 3.0.0 or newer" in lines[0] and "ebb.firmware=2.7" in lines[0]
+        assert emu.received == ["V"] and emu.executed == []
+    with _emulator(version="2.8.1") as emu:
+        send_ebb(emu.port, paths["2.7"], state_file=None)
+        old = read_ebb(paths["2.7"].read_bytes())
+        assert emu.errors == [] and tuple(emu.pos) == (0, 0)
+        assert emu.executed[-1]["t"] == pytest.approx(old.planned_time, abs=0.01)
+
+
+def _turns(line: str) -> bool:
+    """Whether an LM's rate passes through zero on an axis (firmware 3.0 turns that motor back)."""
+    from doodlecam.link.ebb.board import axis_move, trunc_half
+
+    p = [int(v) for v in line.split(",")[1:7]]
+    for rate, steps, accel in (p[0:3], p[3:6]):
+        if steps:
+            r0, t = rate - trunc_half(accel), axis_move(rate, steps, accel)[0]
+            if (r0 + accel > 0) != (r0 + accel * t > 0):
+                return True
+    return False
+
+
 def test_cli_send_inspect_and_machine_controls(jobs, tmp_path):
     job = tmp_path / "badge.ebb"
     job.write_bytes((jobs / "badge.ebb").read_bytes())

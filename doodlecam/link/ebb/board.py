@@ -9,8 +9,17 @@ stays positive the accumulator after t ticks is
 
     C_t = C_0 + t (Rate - trunc(Accel / 2)) + Accel t (t + 1) / 2
 
-so the tick of the last step is found by bisection, exactly. A rate that would go
-negative is rolled over by + 2^31 (as documented); that case is run tick by tick.
+so the tick of the last step is found by bisection, exactly.
+
+A rate that goes negative inside a move: the reference (2.7 and the 3.0 page) rolls it
+over by + 2^31; that case is run tick by tick (``turn=False``). Firmware 2.9 / 3.0 changed
+the ISR ("Get LT and LM commands to allow accelerations through zero (i.e. reverse direction
+mid-move)", ebb.c's version history; plotink's ``ebb_calc.calculate_lm`` models it): the
+rate is signed, the accumulator is cleared to 2^31 - 1 instead of 0 when the first tick's
+rate is negative, and whenever Accumulator + Rate leaves [0, 2^31) the motor steps the way
+the rate points and the accumulator is brought back by 2^31. So the motor's position after
+t ticks is floor(C_t / 2^31) with C_t as above, both ways, and Steps counts every step
+taken (out and back): ``turn=True``, exact in closed form too.
 """
 
 from __future__ import annotations
@@ -30,8 +39,12 @@ def accumulated(c0: int, rate: int, accel: int, t: int) -> int:
     return c0 + t * (rate - trunc_half(accel)) + accel * t * (t + 1) // 2
 
 
-def axis_move(rate: int, steps: int, accel: int, c0: int | None = None, max_ticks: int = 1 << 34) -> tuple[int, int, int]:
+def axis_move(rate: int, steps: int, accel: int, c0: int | None = None, max_ticks: int = 1 << 34,
+              turn: bool = True) -> tuple[int, int, int]:
     """Run one axis of an LM: (ticks until its last step, signed steps taken, final accumulator).
+
+    ``turn``: a rate passing through zero turns the motor back (firmware 2.9+); False: it rolls
+    over (2.7, 2.8). The two agree on every move whose rate keeps its sign.
 
     ``steps`` < 0 with ``rate`` > 0 means the negative direction: the board flips the
     signs of Rate, Steps and Accel, so Accel acts on the speed as for a positive move.
@@ -41,6 +54,8 @@ def axis_move(rate: int, steps: int, accel: int, c0: int | None = None, max_tick
     """
     if steps == 0 or (rate == 0 and accel == 0):
         return 0, 0, (0 if c0 is None else c0)
+    if turn:
+        return _signed(rate, steps, accel, c0, max_ticks)
     sign = 1
     if steps < 0:
         sign, steps = -1, -steps
@@ -50,6 +65,43 @@ def axis_move(rate: int, steps: int, accel: int, c0: int | None = None, max_tick
         sign, rate, accel = -1, -rate, -accel
     t, c = _forward(rate, steps, accel, 0 if c0 is None else (c0 if sign > 0 else ACC - 1 - c0), max_ticks)
     return t, sign * steps, c if sign > 0 else ACC - 1 - c
+
+
+def _signed(rate: int, steps: int, accel: int, c0: int | None, max_ticks: int) -> tuple[int, int, int]:
+    """Firmware 2.9+: the position is floor(C_t / 2^31); the move ends when its steps out and back make Steps."""
+    if steps < 0:
+        if rate < 0:
+            raise ValueError("negative Rate with negative Steps")
+        steps, rate, accel = -steps, -rate, -accel  # the legacy form: the firmware flips all three
+    r0 = rate - trunc_half(accel)
+    r1 = r0 + accel
+    if c0 is None:
+        c0 = ACC - 1 if (r1 < 0 or (r1 == 0 and accel < 0)) else 0
+    # the rate r0 + accel t keeps one sign up to tick ``turn`` (C_t is monotone on each side of it)
+    turn = (-r0) // accel if accel and (r1 > 0) != (accel > 0) and r1 != 0 else None
+
+    def at(t: int) -> int:
+        return (c0 + t * r0 + accel * t * (t + 1) // 2) // ACC
+
+    def taken(t: int) -> int:
+        if turn is None or t <= turn:
+            return abs(at(t))
+        p = at(turn)
+        return abs(p) + abs(at(t) - p)
+
+    lo, hi = 0, 1
+    while taken(hi) < steps:
+        lo, hi = hi, hi * 2
+        if hi > max_ticks:
+            raise ValueError("move does not finish")
+    while hi - lo > 1:
+        mid = (lo + hi) // 2
+        if taken(mid) >= steps:
+            hi = mid
+        else:
+            lo = mid
+    pos = at(hi)
+    return hi, pos, c0 + hi * r0 + accel * hi * (hi + 1) // 2 - pos * ACC
 
 
 def _forward(rate: int, steps: int, accel: int, c0: int, max_ticks: int) -> tuple[int, int]:

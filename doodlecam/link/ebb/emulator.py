@@ -5,7 +5,8 @@ answers as the reference says (``OK\\r\\n``; ``!N Err: ...`` for malformed comma
 parameters out of range), queues motion commands in a FIFO of ``fifo`` commands behind the
 one executing (a command that finds the FIFO full is answered only once it fits, and the
 board reads nothing else meanwhile), and executes LM with the board's integer accumulators on
-its 25 kHz clock (doodlecam.link.ebb.board), SM/XM/HM as straight moves. ``executed`` records the
+its 25 kHz clock (doodlecam.link.ebb.board; a rate through zero turns the motor back from version
+2.9 on, as firmware 3.0 does, and rolls over before), SM/XM/HM as straight moves. ``executed`` records the
 step counters after every motion command, for the tests. Time runs ``speed`` times real time.
 """
 
@@ -216,8 +217,10 @@ class EbbEmulator:
             self.pen_log.append((self.sim_t, mo.pen))
         if mo.lm is not None:
             r1, s1, a1, r2, s2, a2, clear = mo.lm
-            t1, d1, c1 = axis_move(r1, s1, a1, None if clear & 1 else self.accum[0])
-            t2, d2, c2 = axis_move(r2, s2, a2, None if clear & 2 else self.accum[1])
+            # 2.9 / 3.0 turn a motor back where its rate passes through zero; 2.7 / 2.8 roll the rate over
+            turn = tuple(int(v) for v in re.findall(r"\d+", self.cfg.version)[:3]) >= (2, 9, 0)
+            t1, d1, c1 = axis_move(r1, s1, a1, None if clear & 1 else self.accum[0], turn=turn)
+            t2, d2, c2 = axis_move(r2, s2, a2, None if clear & 2 else self.accum[1], turn=turn)
             self.accum = [c1, c2]
             mo.steps = (d1, d2)
             mo.seconds = max(t1, t2) / TICK_HZ

@@ -30,6 +30,7 @@ from doodlecam.link.ebb.jobfile import EbbJob, read_ebb
 from doodlecam.link.session import Interrupts, LinkError, Paused, clear_state, load_state, save_state
 
 MIN_FIRMWARE = (2, 7, 0)  # LM (and LM's Clear, HM to a position)
+_NEEDS = re.compile(r"^(\d+)\.(\d+)\.(\d+)")  # the header's "firmware: 3.0.0 or newer (...)"
 _VERSION = re.compile(r"EBB.*Firmware Version (\d+)\.(\d+)\.(\d+)", re.I)
 HOME_RATE = 4000  # steps/s of the HM move that puts the board back in place to resume
 
@@ -155,7 +156,7 @@ class EbbSender:
                 return "\n".join(got)
 
     def handshake(self) -> str:
-        """Check the board answers V as an EiBotBoard with firmware >= 2.7.0; before anything moves."""
+        """Check the board answers V as an EiBotBoard with firmware >= 2.7.0 and the job's; before anything moves."""
         self._write("V")
         line = self._readline(time.monotonic() + 2.0)
         m = _VERSION.search(line)
@@ -168,6 +169,12 @@ class EbbSender:
         if version < MIN_FIRMWARE:
             raise LinkError(f"{self.port_name}: EiBotBoard firmware {self.version} is too old for LM moves (needs "
                             "2.7.0 or newer); update it (AxiDraw: the EBB firmware updater on the Evil Mad Scientist wiki)")
+        need = _NEEDS.match(self.job.header.get("firmware", ""))
+        if need and version < tuple(int(v) for v in need.groups()):
+            raise LinkError(f"{self.port_name}: EiBotBoard firmware {self.version} cannot run {self.name}, which needs "
+                            f"{'.'.join(need.groups())} or newer (its LMs turn a motor back mid-move); update the board "
+                            "(the EBB firmware updater on the Evil Mad Scientist wiki) or convert again with "
+                            "--post-opt ebb.firmware=2.7 (or firmware = \"2.7\" in the profile's [post.ebb])")
         return self.version
 
     def wait_idle(self, limit: float) -> None:

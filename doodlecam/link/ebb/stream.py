@@ -7,8 +7,10 @@ positions at the sample instants are the planned positions rounded to whole step
 (the running sum, as for the PLC), so nothing drifts and every stroke ends on its
 last step exactly. Rounding moves a period's mean rate by (rounding now - rounding
 before) / dT, at most 1 step / dT: the period's start and end rates are both shifted
-by that, so its acceleration stays the plan's. A period in which a motor reverses is
-split at the reversal (an LM turns each motor one way). Pen-up travel is a straight
+by that, so its acceleration stays the plan's. A period in which a motor reverses is one
+LM whose rate runs through zero: firmware 3.0 turns the motor back mid-move (board.axis_move,
+turn_params); with ``firmware=2.7`` (older boards roll a negative rate over) it is split at the
+reversal. So on 3.0 a stroke never has more commands than periods. Pen-up travel is a straight
 trapezoid (accelerate, cruise, decelerate: three LMs) within the profile's pen-up
 limits. Every LM clears the accumulators (Clear = 3), so each LM ends on the tick its
 last step is due and the stream's time is known exactly (doodlecam.link.ebb.board).
@@ -93,30 +95,101 @@ def axis_params(n: int, vs: float, ve: float, ticks: int) -> tuple[int, int, int
     return rate, sign * m, a
 
 
-def segment(ticks: int, n, vs, ve) -> tuple[str, int]:
-    """One LM (or a timed wait when neither motor steps) and the ticks it really lasts."""
-    if n[0] == 0 and n[1] == 0:
+def turn_params(n: int, vs: float, ve: float, ticks: int, frac: float | None = None) -> tuple[int, int, int] | None:
+    """(Rate, Steps, Accel) for one axis that turns back inside an LM (firmware 2.9+, board.axis_move
+    turn=True): a constant acceleration from about ``vs`` through zero to about ``ve`` steps/s (opposite
+    signs), ``n`` steps net, Steps counting the steps out and back. With ``frac`` None its last step falls
+    on tick ``ticks`` (it sets the LM's length); else the other axis does, and the accumulator ends where
+    the plan does, ``frac`` (planned - whole end position, steps) from the middle of its step, so the rates
+    move by at most about 1 step over the LM, as an LM that keeps its direction. None where the whole ticks
+    leave no such move (the period is then split at the turn)."""
+    T = ticks
+    a = int((ve - vs) * (ACC / TICK_HZ) / T)  # towards zero: never more than the plan's acceleration
+    if a == 0 or T < 2:
+        return None
+    q1, q0 = a * T * (T + 1) // 2, a * (T - 1) * T // 2  # C_T, C_T-1 less c0 + t r0
+    for c0 in (0, ACC - 1):  # cleared to 2^31 - 1 when the first tick's rate is negative
+        if frac is not None:  # C_T in cell n, where the plan is: (n + 1/2 + frac) 2^31
+            goal = int((n + 0.5 + min(max(frac, -0.45), 0.45)) * ACC)
+            lo = hi = round((goal - c0 - q1) / T)
+        elif ve > 0:  # the last step on tick T: C_T-1 < n 2^31 <= C_T
+            lo, hi = -((c0 + q1 - n * ACC) // T), -((c0 + q0 - n * ACC) // (T - 1)) - 1
+        else:  # C_T < (n + 1) 2^31 <= C_T-1
+            lo, hi = -((c0 + q0 - (n + 1) * ACC) // (T - 1)), -((c0 + q1 - (n + 1) * ACC) // T) - 1
+        if lo > hi:
+            continue
+        r0 = (lo + hi) // 2
+        r1, rt = r0 + a, r0 + a * T
+        if (c0 > 0) != (r1 < 0) or (r1 > 0) == (rt > 0) or max(abs(r1), abs(rt)) > MAX_RATE:
+            continue
+        at = [(c0 + t * r0 + a * t * (t + 1) // 2) // ACC for t in (-r0 // a, T)]
+        steps = abs(at[0]) + abs(at[1] - at[0])
+        rate = r0 + trunc_half(a)
+        params = (-rate, -steps, -a) if c0 else (rate, steps, a)  # Steps' sign: the first direction
+        if steps and params[0] >= 0:
+            took, pos, _ = axis_move(*params)
+            if pos == n and (took == T if frac is None else took <= T):
+                return params
+    return None
+
+
+class _Split(Exception):
+    """An LM cannot turn a motor back in this period as planned: split it there."""
+
+    def __init__(self, period: int):
+        self.period = period
+
+
+def segment(ticks: int, n, vs, ve, turning=(False, False), frac=(0.0, 0.0)) -> tuple[str, int]:
+    """One LM (or a timed wait when neither motor steps) and the ticks it really lasts; an axis in
+    ``turning`` turns back inside it (turn_params; None raises _Split). ``frac``: planned - whole end
+    position of each axis (steps), where a turning axis aims when the other one sets the LM's length."""
+    if n[0] == 0 and n[1] == 0 and not any(turning):
         ms = max(1, round(ticks / 25))
         return f"SM,{ms},0,0", ms * 25
-    p1 = axis_params(int(n[0]), vs[0], ve[0], ticks)
-    p2 = axis_params(int(n[1]), vs[1], ve[1], ticks)
-    took = max(axis_move(*p1)[0], axis_move(*p2)[0])
-    return "LM,{},{},{},{},{},{},3".format(*p1, *p2), took
+    p = []
+    for i in range(2):
+        q = None
+        if turning[i]:
+            # the other axis keeps its direction and moves: its last step ends the LM on its tick
+            if not turning[1 - i] and n[1 - i] != 0:
+                q = turn_params(int(n[i]), vs[i], ve[i], ticks, float(frac[i]))
+            q = q or turn_params(int(n[i]), vs[i], ve[i], ticks)
+            if q is None:
+                raise _Split(-1)
+        p.append(q or axis_params(int(n[i]), vs[i], ve[i], ticks))
+    took = max(axis_move(*p[0])[0], axis_move(*p[1])[0])
+    return "LM,{},{},{},{},{},{},3".format(*p[0], *p[1]), took
 
 
 def _ramp_lines(pos0: np.ndarray, times: np.ndarray, vel: np.ndarray, end: np.ndarray | None, out: list[str],
-                c: Counter, caps=None, merge: bool = True) -> int:
+                c: Counter, caps=None, merge: bool = True, turn: bool = False) -> int:
     """LMs for a motion whose motor velocities (steps/s, (N + 1, 2)) ramp linearly between
     instants ``times`` (s, N + 1); ``pos0`` integer start; ``end`` the exact integer end (or None).
-    Periods in which a motor reverses are split there. Returns the ticks executed."""
+    A motor that reverses inside a period turns back inside its LM (``turn``: firmware 2.9+), or the
+    period is split there. Returns the ticks executed."""
+    split: set[int] = set()
+    while True:
+        lines: list[str] = []
+        try:
+            total, c.pos = _ramp_try(pos0, times, vel, end, lines, caps, merge, turn, split)
+        except _Split as e:
+            split.add(e.period)
+            continue
+        out.extend(lines)
+        c.lm += sum(line.startswith("LM") for line in lines)
+        return total
+
+
+def _ramp_try(pos0, times, vel, end, out, caps, merge, turn, split) -> tuple[int, np.ndarray]:
     # split points: where a motor's ramp crosses zero inside a period and it really turns there,
     # a whole step each way (a motor that turns within a step moves one way in whole steps)
     inc = 0.5 * np.diff(times)[:, None] * (vel[1:] + vel[:-1])
     at = pos0[None, :] + np.vstack([np.zeros((1, 2)), np.cumsum(inc, axis=0)])
-    t_all, v_all = [times[0]], [vel[0]]
+    t_all, v_all, turns, period = [times[0]], [vel[0]], [(False, False)], [-1]
     for j in range(1, len(times)):
         t0, t1, v0, v1 = times[j - 1], times[j], vel[j - 1], vel[j]
-        cuts = []
+        cuts, turning = [], [False, False]
         for i in range(2):
             if v0[i] * v1[i] < 0:
                 f = float(v0[i] / (v0[i] - v1[i]))
@@ -124,18 +197,27 @@ def _ramp_lines(pos0: np.ndarray, times: np.ndarray, vel: np.ndarray, end: np.nd
                 peak = at[j - 1, i] + v0[i] * f * h + (v1[i] - v0[i]) * f * f * h / 2
                 # within TURN_STEPS of both ends the motor skips the turn: one way, in whole steps
                 if min(abs(peak - at[j - 1, i]), abs(peak - at[j, i])) > TURN_STEPS and 1e-6 < f < 1 - 1e-6:
-                    cuts.append(f)
+                    if turn and j not in split:
+                        turning[i] = True
+                    else:
+                        cuts.append(f)
         for f in sorted(set(cuts)):
             t_all.append(t0 + f * (t1 - t0))
             v_all.append(v0 + f * (v1 - v0))
+            turns.append((False, False))
+            period.append(j)
         t_all.append(t1)
         v_all.append(v1)
+        turns.append(tuple(turning))
+        period.append(j)
     # integer ticks for every instant (shared by both motors); the velocities at a split's whole tick are
     # the period's ramp there, so every piece keeps the period's acceleration
     tick = np.round(np.asarray(t_all) * TICK_HZ).astype(np.int64)
     keep = np.concatenate([[True], np.diff(tick) > 0])
     keep[-1] = True
     tick = tick[keep]
+    turns = [x for x, k in zip(turns, keep) if k]
+    period = [x for x, k in zip(period, keep) if k]
     if len(tick) > 1 and tick[-1] <= tick[-2]:
         tick[-1] = tick[-2] + 1
     t = tick / TICK_HZ
@@ -158,13 +240,34 @@ def _ramp_lines(pos0: np.ndarray, times: np.ndarray, vel: np.ndarray, end: np.nd
         b = j + 1
         while merge and b < last and b - j < MERGE_MAX and _holds(tick, whole, planned, v, j, b + 1, caps):
             b += 1
-        line, took = segment(int(tick[b] - tick[j]), whole[b] - whole[j], v[j], v[b])
+        try:
+            line, took = segment(int(tick[b] - tick[j]), whole[b] - whole[j], v[j], v[b],
+                                 turns[b] if b == j + 1 else (False, False), planned[b] - whole[b])
+        except _Split:
+            raise _Split(period[b]) from None
+        if any(turns[b]) and b == j + 1 and caps is not None and not _within_caps(line, caps):
+            raise _Split(period[b])
         out.append(line)
         total += took
-        c.lm += line.startswith("LM")
         j = b
-    c.pos = whole[-1].copy()
-    return total
+    return total, whole[-1].copy()
+
+
+def _within_caps(line: str, caps) -> bool:
+    """Whether an LM's rates on its first and last ticks keep the motors' and the pen's caps (steps/s);
+    its rates are linear in between, so it keeps them throughout."""
+    p = [int(x) for x in line.split(",")[1:7]]
+    ends = np.zeros((2, 2))
+    for i, (rate, steps, accel) in enumerate((p[0:3], p[3:6])):
+        if steps:
+            t = axis_move(rate, steps, accel)[0]
+            sign = -1 if steps < 0 else 1  # the legacy form: the firmware flips Rate and Accel
+            r0 = rate - trunc_half(accel)
+            ends[:, i] = [sign * (r0 + accel) * TICK_HZ / ACC, sign * (r0 + accel * t) * TICK_HZ / ACC]
+    for end in ends:
+        if (np.abs(end) > caps[1]).any() or (caps[0] is not None and np.hypot(*(TO_PEN @ end)) > caps[0]):
+            return False
+    return True
 
 
 def _holds(tick, whole, planned, v, a: int, b: int, caps=None) -> bool:
@@ -204,8 +307,10 @@ def _holds(tick, whole, planned, v, a: int, b: int, caps=None) -> bool:
 class EbbWriter:
     """Builds the command lines of a job for an axidraw-kinematics machine."""
 
-    def __init__(self, machine, kinematics, servo_up: int, servo_down: int, rate_up: int = 0, rate_down: int = 0):
+    def __init__(self, machine, kinematics, servo_up: int, servo_down: int, rate_up: int = 0, rate_down: int = 0,
+                 turn: bool = True):
         self.m = machine
+        self.turn = turn  # firmware 3.0: a motor turns back inside an LM
         self.kin = kinematics
         self.k = float(kinematics.steps_per_mm)
         self.M = np.asarray(kinematics.linear_map, float)[:2]  # the motors' rows (more may bound the pen)
@@ -271,7 +376,7 @@ class EbbWriter:
         # merged periods may shift their rates as much as one period may: 1 step / delta_time
         allow = 1.0 / samples.delta_time
         cap = None if self.pen_cap is None else self.pen_cap * k + allow
-        ticks = _ramp_lines(start, times, vel, end, self.lines, self.c, (cap, self.kin.vmax * k))
+        ticks = _ramp_lines(start, times, vel, end, self.lines, self.c, (cap, self.kin.vmax * k), turn=self.turn)
         self.c.draw_lm += self.c.lm - before
         self.c.draw_s += ticks / TICK_HZ
 
@@ -285,7 +390,7 @@ def job_lines(job, kinematics, options: dict) -> tuple[list[str], Counter]:
         raise OutputError(f"the ebb post needs a machine with axidraw kinematics; '{m.name}' uses "
                           f"'{m.kinematics}' (use -m axidraw-v3 or axidraw-se-a3)")
     w = EbbWriter(m, kinematics, options["servo_up"], options["servo_down"], options["servo_rate_up"],
-                  options["servo_rate_down"])
+                  options["servo_rate_down"], turn=options.get("firmware", "3.0") != "2.7")
     L = w.lines
     L.append("EM,1,1")  # both motors on, 16x microstepping; zeroes the step counters here, at home
     L.append(f"SC,4,{options['servo_up']}")
@@ -328,7 +433,8 @@ def header(job, kinematics, c: Counter, options: dict, body: list[str]) -> list[
     return [
         f"; doodlecam EBB job, format {FORMAT} (docs/ebb.md): one command per line, '@PAUSE,<pen>' is a pen change",
         f"; machine: {m.name}",
-        "; firmware: 2.7.0 or newer (LM)",
+        "; firmware: " + ("2.7.0 or newer (LM)" if options.get("firmware") == "2.7"
+                          else "3.0.0 or newer (LM turning a motor back inside a move)"),
         f"; steps_per_mm: {kinematics.steps_per_mm:g}",
         f"; delta_time: {m.delta_time:g}",
         f"; motor_velocity: {vmax[0]:g} {vmax[1]:g}",
