@@ -162,6 +162,7 @@ def plan_job(drawing: Drawing, machine: Machine, solver: str = "reach", plugin_d
             for spline, err in fit_pieces(piece, machine.degree, machine.tolerance, corner=corner):
                 strokes.append(Stroke(spline=spline, source_index=i, fit_error=err, layer=layer))
     timings["fit"] = time.perf_counter() - t0
+    ordered = None  # the fitted strokes replace the ordered polylines (memory at 10^5 paths)
 
     # Between sample instants the PLC's ramps stray from the curve where its turning
     # changes fast (docs/sampling.md): with a path tolerance the planner bounds the
@@ -433,6 +434,8 @@ def convert(path: str | Path, outdir: str | Path, settings: Settings, progress: 
     drawing = trace(path, settings)
     timings["trace"] = time.perf_counter() - t0
     drawing_mm = select_layer(fit_to_work_area(drawing, settings.machine, settings.layout), settings.layer)
+    units_in, traced = drawing.units, len(drawing.polylines)
+    del drawing  # the picture's own units are not needed again: 10^5 paths hold hundreds of MB
     machine = settings.machine
     if settings.path_tolerance is not None:
         machine = replace(machine, path_tolerance=float(settings.path_tolerance))
@@ -440,6 +443,8 @@ def convert(path: str | Path, outdir: str | Path, settings: Settings, progress: 
                    smoothing=settings.smoothing, order=settings.order, workers=settings.workers,
                    progress=progress)
     timings.update(job.meta["timings"])
+    meta = dict(drawing_mm.meta, units_in=units_in, strokes_traced=traced)
+    del drawing_mm  # planned: only the job is written from here
     over = over_bounds(job)
     if over and not settings.allow_deviation:  # before any file is written
         raise PlanError(f"{path}: " + "; ".join(over) + "; nothing written (lower the speed or the tolerance "
@@ -450,7 +455,6 @@ def convert(path: str | Path, outdir: str | Path, settings: Settings, progress: 
     outputs = run_posts(job, settings)
     timings["post"] = time.perf_counter() - t0
     written = write_outputs(Path(outdir), path.stem, outputs)
-    meta = dict(drawing_mm.meta, units_in=drawing.units, strokes_traced=len(drawing.polylines))
     return Result(job=job, outputs=written, timings=timings, drawing_meta=meta)
 
 
