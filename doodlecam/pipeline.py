@@ -26,6 +26,7 @@ from doodlecam.errors import (
     interrupted,
 )
 from doodlecam.machine import Machine
+from doodlecam.memory import memory_mb
 from doodlecam.model import Drawing, Job, Stroke
 from doodlecam.options import ConvertOptions
 from doodlecam.trace.raster import IMAGE_EXTENSIONS
@@ -400,6 +401,7 @@ class Result:
             "outputs": [str(p) for p in self.outputs],
             "grbl_estimate_s": self.grbl_estimate(),
             "timings_s": {k: round(v, 3) for k, v in self.timings.items()},
+            "peak_memory_mb": memory_mb()[1],  # the process's peak so far (in the studio: the server's)
             "layers": [n for n in j.layers if n] or [],
             "pen_changes": len(j.pen_changes),
             "layer_order": j.meta.get("layer_order", "file"),

@@ -40,7 +40,9 @@ def test_verbose_times_each_stage_without_a_status_line():
         st("planning", 0, 5)
     lines = out.getvalue().splitlines()
     assert [ln.split()[1] for ln in lines] == ["tracing", "planning", "total"]
-    assert all(re.fullmatch(r"doodlecam: \w+ +\d+\.\d\d s", ln) for ln in lines)
+    assert all(re.fullmatch(r"doodlecam: \w+ +\d+\.\d\d s", ln) for ln in lines[:-1])
+    peak = re.fullmatch(r"doodlecam: total +\d+\.\d\d s, peak memory (\d+) MB", lines[-1])
+    assert peak and 20 < int(peak.group(1)) < 100_000  # this process's own peak, in MB
     out = io.StringIO()
     with pytest.raises(KeyboardInterrupt):
         with Stages("a.png", verbose=1, line=True, stream=out) as st:
@@ -54,7 +56,8 @@ def test_cli_verbose_prints_every_stage_time(tmp_path):
                        capture_output=True, text=True, env=ENV, timeout=300)
     assert r.returncode == 0, r.stderr
     assert "\r" not in r.stderr  # stderr is no terminal here: no status line
-    names = [m.group(1) for m in re.finditer(r"^doodlecam: (\w+) +\d+\.\d\d s$", r.stderr, re.M)]
+    names = [m.group(1) for m in re.finditer(r"^doodlecam: (\w+) +\d+\.\d\d s(?:, peak memory \d+ MB)?$",
+                                             r.stderr, re.M)]
     assert names == STAGES + ["total"], r.stderr
     assert "camera.png ->" in r.stdout
 

@@ -148,6 +148,7 @@ def test_ends_merged_a_hair_apart_at_a_corner_leave_no_stroke_of_no_length(tmp_p
                                                    posts=("plc",)))
     s = res.summary()
     assert (s["strokes"], s["pen_lifts"]) == (2, 1)  # the two segments, drawn without lifting
+    assert 20 < s["peak_memory_mb"] < 100_000  # reported: the process's own peak resident memory
     assert abs(s["pen_down_mm"] - 40.0) <= 1e-3
 
 

@@ -6,7 +6,6 @@ from __future__ import annotations
 import os
 import shutil
 import socket
-import sys
 import tempfile
 import time
 from pathlib import Path
@@ -15,6 +14,7 @@ from typing import Any
 from doodlecam.batch.manifest import STAGING_NAME
 from doodlecam.batch.options import BatchOptions
 from doodlecam.errors import DoodleError, OutputError
+from doodlecam.memory import memory_mb
 
 # ---------------------------------------------------------------- the worker side
 
@@ -70,24 +70,6 @@ def _one_line(text: str) -> str:
     return " ".join(str(text).split())
 
 
-def _memory_mb() -> tuple[float | None, float | None]:
-    """(current, peak) resident memory of this process in MB. /proc's VmHWM is this
-    process's own peak; ru_maxrss (the fallback) also counts the parent's memory at fork."""
-    try:
-        with open("/proc/self/status") as f:
-            kb = {k: int(v.split()[0]) for k, _, v in (line.partition(":") for line in f) if k in ("VmRSS", "VmHWM")}
-        return round(kb["VmRSS"] / 1024, 1), round(kb["VmHWM"] / 1024, 1)
-    except (OSError, KeyError, ValueError, IndexError):
-        pass
-    try:
-        import resource
-
-        kb = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
-        return None, round(kb / (1024 * 1024 if sys.platform == "darwin" else 1024), 1)
-    except Exception:  # pragma: no cover - not on POSIX
-        return None, None
-
-
 def convert_one(options: BatchOptions, key: str, in_dir: str, out_dir: str, rel: str, stem: str) -> dict[str, Any]:
     """Convert one input; never raises. Returns a result record for the coordinator."""
     from doodlecam.pipeline import convert
@@ -128,6 +110,6 @@ def convert_one(options: BatchOptions, key: str, in_dir: str, out_dir: str, rel:
         if staging is not None:
             shutil.rmtree(staging, ignore_errors=True)
     rec["seconds"] = round(time.perf_counter() - t0, 3)
-    rec["rss_mb"], rec["peak_rss_mb"] = _memory_mb()
+    rec["rss_mb"], rec["peak_rss_mb"] = memory_mb()
     rec["worker"] = [socket.gethostname(), os.getpid()]
     return rec

@@ -16,6 +16,8 @@ import time
 
 import click
 
+from doodlecam.memory import memory_mb
+
 PERIOD = 0.1  # s between redraws of the status line: updates per stroke would cost more than the work
 
 WORDS = {"tracing": "tracing {name}", "ordering": "ordering {total} strokes", "fitting": "fitting B-splines",
@@ -82,6 +84,8 @@ class Stages:
         if kind is None:  # a stage cut short by an error or Ctrl-C has no time worth printing
             self._finish(now)
             if self.verbose:
-                self.stream.write(f"doodlecam: {'total':<9} {now - self.t_start:7.2f} s\n")
+                peak = memory_mb()[1]
+                self.stream.write(f"doodlecam: {'total':<9} {now - self.t_start:7.2f} s"
+                                  + (f", peak memory {peak:.0f} MB" if peak else "") + "\n")
         self._erase()
         self.stream.flush()
