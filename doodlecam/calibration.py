@@ -23,7 +23,7 @@ import numpy as np
 from doodlecam.errors import MachineError, PlanError
 from doodlecam.machine import Axis, Machine
 from doodlecam.model import Drawing, Job
-from doodlecam.plan.travel import make_travel, travel_time_by_law
+from doodlecam.plan.travel import make_travels, travel_time_by_law
 
 FACTORS = (0.5, 0.75, 1.0, 1.25, 1.5)
 RULER_GAP = 15.0  # mm between the rulers and the rows
@@ -97,7 +97,7 @@ def _join(jobs: list[Job], machine: Machine) -> Job:
     for s in strokes:
         points += [s.spline.start, s.spline.end]
     points.append(np.asarray(machine.home, float))
-    travels = tuple(make_travel(points[2 * i], points[2 * i + 1], machine) for i in range(len(strokes) + 1))
+    travels = make_travels(points, machine)
     meta = dict(jobs[0].meta)
     for key in ("worst_acceleration_ratio", "worst_velocity_ratio", "max_fit_error_mm", "max_between_samples_mm"):
         meta[key] = max(j.meta[key] for j in jobs)

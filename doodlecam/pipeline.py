@@ -114,7 +114,7 @@ def plan_job(drawing: Drawing, machine: Machine, solver: str = "reach", plugin_d
     from doodlecam.plan.planner import check_solver
     from doodlecam.plan.sample import whole_step_limits
     from doodlecam.plan.stroke import Context, plan_strokes
-    from doodlecam.plan.travel import machine_law, make_travel, travel_time_by_law
+    from doodlecam.plan.travel import machine_law, make_travels, travel_time_by_law
     from doodlecam.options import order_options
 
     check_solver(solver)  # before the fitting, not after it
@@ -200,7 +200,7 @@ def plan_job(drawing: Drawing, machine: Machine, solver: str = "reach", plugin_d
     for s in planned:
         points += [s.spline.start, s.spline.end]
     points.append(np.asarray(machine.home, float))
-    travels = tuple(make_travel(points[2 * i], points[2 * i + 1], machine) for i in range(len(planned) + 1))
+    travels = make_travels(points, machine)
     meta = {
         "travel_law": machine_law(machine),
         "travel_time_by_law": travel_time_by_law(travels, machine),

@@ -92,14 +92,26 @@ def machine_law(machine) -> str:
     return travel_law_name(getattr(machine, "travel_law", "trapezoid"))
 
 
+def travel_times(starts, ends, machine, law: str | None = None) -> np.ndarray:
+    """Durations (s) of the pen-up moves from each start to each end ((n, 2) mm), all at once:
+    each axis on its own profile with the machine's travel law (or ``law``), the slower one sets it."""
+    law = travel_law_name(law) if law else machine_law(machine)
+    d = np.asarray(ends, float).reshape(-1, 2) - np.asarray(starts, float).reshape(-1, 2)
+    vx, vy = machine.move_speed
+    return np.maximum(axis_move_time(d[:, 0], vx, machine.x.max_acceleration, law),
+                      axis_move_time(d[:, 1], vy, machine.y.max_acceleration, law))
+
+
 def make_travel(start, end, machine, law: str | None = None) -> Travel:
     """The pen-up move from start to end (mm) with the machine's travel law (or ``law``)."""
-    law = travel_law_name(law) if law else machine_law(machine)
-    d = np.asarray(end, float) - np.asarray(start, float)
-    vx, vy = machine.move_speed
-    t = max(float(axis_move_time(d[0], vx, machine.x.max_acceleration, law)),
-            float(axis_move_time(d[1], vy, machine.y.max_acceleration, law)))
-    return Travel(start=start, end=end, duration=t)
+    return Travel(start=start, end=end, duration=float(travel_times(start, end, machine, law)[0]))
+
+
+def make_travels(points, machine) -> tuple[Travel, ...]:
+    """The moves points[0] -> points[1], points[2] -> points[3], ... ((2n, 2) mm) with the machine's law."""
+    p = np.asarray(points, float).reshape(-1, 2)
+    t = travel_times(p[0::2], p[1::2], machine).tolist()
+    return tuple(Travel(start=p[2 * i], end=p[2 * i + 1], duration=t[i]) for i in range(len(t)))
 
 
 def travel_state(travel: Travel, machine, t, law: str | None = None) -> np.ndarray:
@@ -118,4 +130,7 @@ def travel_state(travel: Travel, machine, t, law: str | None = None) -> np.ndarr
 def travel_time_by_law(travels, machine) -> dict[str, float]:
     """Total pen-up time (s) of these moves under every travel law: the
     job-time cost of smoothness is the difference to ``trapezoid``."""
-    return {law: sum(make_travel(tr.start, tr.end, machine, law).duration for tr in travels) for law in TRAVEL_LAWS}
+    starts = np.array([tr.start for tr in travels], float).reshape(-1, 2)
+    ends = np.array([tr.end for tr in travels], float).reshape(-1, 2)
+    # summed in order, one move after another (as the job's own time is)
+    return {law: sum(travel_times(starts, ends, machine, law).tolist()) for law in TRAVEL_LAWS}
