@@ -15,10 +15,12 @@ def knot(j, p, nseg):  # pragma: no cover - compiled
 
 
 @numba.njit(cache=True, nogil=True, inline="always")
-def basis_at(x, p, nseg, N, left, right):  # pragma: no cover - compiled
+def basis_at(x, p, nseg, N, left, right, kn=None):  # pragma: no cover - compiled
     """The p + 1 basis functions that do not vanish at x, into N; returns the
     index of the first (= the knot span). Cox-de Boor as in the NURBS book's
-    A2.2, or the closed form of a cubic where the knots are evenly spaced."""
+    A2.2, or the closed form of a cubic where the knots are evenly spaced.
+    ``kn``: the knots (``knot`` of 0 ... nseg + 2p), where many points are
+    evaluated on one knot vector (the same numbers, without a division each)."""
     s = min(max(int(x * nseg), 0), nseg - 1)  # knot span [s, s + 1] / nseg
     step = 1.0 / nseg  # knot j is j * step, as numpy.linspace makes Spline.knots
     if s + 1 < nseg and x >= (s + 1) * step:  # x * nseg rounded across a knot:
@@ -37,8 +39,12 @@ def basis_at(x, p, nseg, N, left, right):  # pragma: no cover - compiled
     k = s + p
     N[0] = 1.0
     for j in range(1, p + 1):
-        left[j] = x - knot(k + 1 - j, p, nseg)
-        right[j] = knot(k + j, p, nseg) - x
+        if kn is None:
+            left[j] = x - knot(k + 1 - j, p, nseg)
+            right[j] = knot(k + j, p, nseg) - x
+        else:
+            left[j] = x - kn[k + 1 - j]
+            right[j] = kn[k + j] - x
         saved = 0.0
         for r in range(j):
             t = N[r] / (right[r + 1] + left[j - r])
