@@ -41,6 +41,52 @@ def densify(p: np.ndarray, spacing: float) -> np.ndarray:
 
 # ---------------------------------------------------------------- compiled kernels
 
+@numba.njit(cache=True, nogil=True, inline="always")
+def _span3(P, B, F, i, A, rx, ry):  # pragma: no cover - compiled
+    """``_lsq``'s sums over the data points from i on in i's knot span, for a cubic
+    whose four unknowns there are all free: the same additions in the same order,
+    in registers rather than in memory (each sum starts from its entry and goes
+    back to it). Returns the first data point after the span."""
+    f = F[i]
+    c = f - 1
+    a00, a01, a02, a03 = A[c, 0], A[c, 1], A[c, 2], A[c, 3]
+    a11, a12, a13 = A[c + 1, 0], A[c + 1, 1], A[c + 1, 2]
+    a22, a23 = A[c + 2, 0], A[c + 2, 1]
+    a33 = A[c + 3, 0]
+    x0, x1, x2, x3 = rx[c], rx[c + 1], rx[c + 2], rx[c + 3]
+    y0, y1, y2, y3 = ry[c], ry[c + 1], ry[c + 2], ry[c + 3]
+    m = P.shape[0]
+    while i < m and F[i] == f:
+        dx, dy = P[i, 0], P[i, 1]
+        n0, n1, n2, n3 = B[i, 0], B[i, 1], B[i, 2], B[i, 3]
+        x0 += n0 * dx
+        y0 += n0 * dy
+        a00 += n0 * n0
+        a01 += n0 * n1
+        a02 += n0 * n2
+        a03 += n0 * n3
+        x1 += n1 * dx
+        y1 += n1 * dy
+        a11 += n1 * n1
+        a12 += n1 * n2
+        a13 += n1 * n3
+        x2 += n2 * dx
+        y2 += n2 * dy
+        a22 += n2 * n2
+        a23 += n2 * n3
+        x3 += n3 * dx
+        y3 += n3 * dy
+        a33 += n3 * n3
+        i += 2
+    A[c, 0], A[c, 1], A[c, 2], A[c, 3] = a00, a01, a02, a03
+    A[c + 1, 0], A[c + 1, 1], A[c + 1, 2] = a11, a12, a13
+    A[c + 2, 0], A[c + 2, 1] = a22, a23
+    A[c + 3, 0] = a33
+    rx[c], rx[c + 1], rx[c + 2], rx[c + 3] = x0, x1, x2, x3
+    ry[c], ry[c + 1], ry[c + 2], ry[c + 3] = y0, y1, y2, y3
+    return i
+
+
 @numba.njit(cache=True, nogil=True)
 def _lsq(P, B, F, n, p, lam, ctrl):  # pragma: no cover - compiled
     """Least-squares control points for the data P[0::2] (basis functions
@@ -57,8 +103,12 @@ def _lsq(P, B, F, n, p, lam, ctrl):  # pragma: no cover - compiled
     A = np.zeros((q, w + 1))  # A[a, d] = N[a, a + d]; unknown a is control point a + 1
     rx = np.zeros(q)
     ry = np.zeros(q)
-    for i in range(0, m, 2):
+    i = 0
+    while i < m:
         f = F[i]
+        if p == 3 and 1 <= f <= q - 3:  # a cubic's span with four unknowns and no pinned end
+            i = _span3(P, B, F, i, A, rx, ry)
+            continue
         dx, dy = P[i, 0], P[i, 1]  # the data minus the pinned ends' share
         if f == 0:
             dx -= B[i, 0] * ctrl[0, 0]
@@ -78,6 +128,7 @@ def _lsq(P, B, F, n, p, lam, ctrl):  # pragma: no cover - compiled
                 if cb >= q:
                     break
                 A[ca, cb - ca] += va * B[i, b]
+        i += 2
     coef = np.array([1.0, -2.0, 1.0])
     for k in range(n - 2):  # row k of the second differences: control points k, k + 1, k + 2
         for a in range(3):
@@ -179,7 +230,15 @@ def _tighten(k, P, Q, cum, ta, tb, done):  # pragma: no cover - compiled
         done[k] = True
 
 
-QUICK_TRIES = 4  # stretches tried first, worst first, when an attempt is likely to fail
+QUICK_TRIES = 4  # stretches tried first when an attempt is likely to fail (the first nearly always tells)
+
+
+@numba.njit(cache=True, nogil=True, inline="always")
+def _across(P, Q, i):  # pragma: no cover - compiled
+    """How far the curve sample Q_i is off P_i across the polyline's direction there."""
+    j = min(i, P.shape[0] - 2)
+    ex, ey = P[j + 1, 0] - P[j, 0], P[j + 1, 1] - P[j, 1]
+    return abs((Q[i, 0] - P[i, 0]) * ey - (Q[i, 1] - P[i, 1]) * ex) / np.sqrt(ex * ex + ey * ey)
 
 
 @numba.njit(cache=True, nogil=True)
@@ -201,11 +260,13 @@ def _bound(P, u, cum, ctrl, p, tol, give_up, quick, w):  # pragma: no cover - co
 
     A sample's tightened values do not depend on when it is tightened
     (``_tighten``), so the attempt fails exactly when some stretch stays over
-    ``tol`` with both its ends tightened, wherever it is: with ``quick`` the
-    worst stretches are tried first, and a failing attempt (most of a search's)
-    is known after a few tightenings instead of every one before its failure.
-    Only the value returned for a failure differs (still an upper bound, over
-    ``tol``); a success is measured exactly as without it.
+    ``tol`` with both its ends tightened, wherever it is. With ``quick`` the
+    stretches over ``tol`` where the curve strays farthest across the polyline
+    (not along it, as a drifting parameter does) are tried first: a failing
+    attempt is nearly always known at the first, instead of after every
+    tightening before its failure. Only the value returned for a failure
+    differs (still an upper bound, over ``tol``); a success is measured exactly
+    as without it.
     w: work arrays Q, a, b, arc, ta, tb, done, worst of each stretch (m, m, m,
     m - 1, m, m, m, m - 1 entries), the basis functions at u and their spans
     (``_basis_table``, filled by the caller).
@@ -245,6 +306,13 @@ def _bound(P, u, cum, ctrl, p, tol, give_up, quick, w):  # pragma: no cover - co
     if worst <= tol:
         return worst
     if give_up and quick:
+        # where the curve strays across the polyline, not along it (the parameter drifting),
+        # is where it fails: the stretches over tol in the order of that offset
+        e_prev = _across(P, Q, 0)
+        for i in range(m - 1):
+            e = _across(P, Q, i + 1)
+            c0[i] = max(e_prev, e) if c0[i] > tol else -1.0
+            e_prev = e
         for _ in range(QUICK_TRIES):
             i = np.argmax(c0)
             if not c0[i] > tol:
