@@ -130,20 +130,43 @@ def _lsq(P, B, F, n, p, lam, ctrl):  # pragma: no cover - compiled
                 A[ca, cb - ca] += va * B[i, b]
         i += 2
     coef = np.array([1.0, -2.0, 1.0])
+    v = np.empty((3, 3))
+    for a in range(3):
+        for b in range(3):
+            v[a, b] = lam * coef[a] * coef[b]
     for k in range(n - 2):  # row k of the second differences: control points k, k + 1, k + 2
+        if 1 <= k <= n - 4:  # all three free: what the loops below add, without their tests
+            A[k - 1, 0] += v[0, 0]
+            A[k - 1, 1] += v[0, 1]
+            A[k - 1, 2] += v[0, 2]
+            A[k, 0] += v[1, 1]
+            A[k, 1] += v[1, 2]
+            A[k + 1, 0] += v[2, 2]
+            continue
         for a in range(3):
             ca = k + a - 1
             if ca < 0 or ca >= q:
                 continue
             for b in range(3):
                 c = k + b
-                v = lam * coef[a] * coef[b]
                 if c == 0 or c == n - 1:
-                    rx[ca] -= v * ctrl[c, 0]
-                    ry[ca] -= v * ctrl[c, 1]
+                    rx[ca] -= v[a, b] * ctrl[c, 0]
+                    ry[ca] -= v[a, b] * ctrl[c, 1]
                 elif c - 1 >= ca:
-                    A[ca, c - 1 - ca] += v
+                    A[ca, c - 1 - ca] += v[a, b]
     for j in range(q):  # A = U^T U, U upper banded, in place
+        if w == 3 and 3 <= j < q - 3:  # the loops below for a full row of a cubic's band, unrolled
+            s = A[j, 0] - A[j - 3, 3] * A[j - 3, 3]
+            s -= A[j - 2, 2] * A[j - 2, 2]
+            s -= A[j - 1, 1] * A[j - 1, 1]
+            if not s > 0.0:
+                return False
+            d = np.sqrt(s)
+            A[j, 0] = d
+            A[j, 1] = (A[j, 1] - A[j - 2, 2] * A[j - 2, 3] - A[j - 1, 1] * A[j - 1, 2]) / d
+            A[j, 2] = (A[j, 2] - A[j - 1, 1] * A[j - 1, 3]) / d
+            A[j, 3] = A[j, 3] / d
+            continue
         s = A[j, 0]
         for k in range(max(0, j - w), j):
             s -= A[k, j - k] * A[k, j - k]
@@ -157,12 +180,20 @@ def _lsq(P, B, F, n, p, lam, ctrl):  # pragma: no cover - compiled
                 s -= A[k, j - k] * A[k, col - k]
             A[j, col - j] = s / d
     for j in range(q):  # U^T y = r
+        if w == 3 and j >= 3:  # unrolled, as above
+            rx[j] = (rx[j] - A[j - 3, 3] * rx[j - 3] - A[j - 2, 2] * rx[j - 2] - A[j - 1, 1] * rx[j - 1]) / A[j, 0]
+            ry[j] = (ry[j] - A[j - 3, 3] * ry[j - 3] - A[j - 2, 2] * ry[j - 2] - A[j - 1, 1] * ry[j - 1]) / A[j, 0]
+            continue
         for k in range(max(0, j - w), j):
             rx[j] -= A[k, j - k] * rx[k]
             ry[j] -= A[k, j - k] * ry[k]
         rx[j] /= A[j, 0]
         ry[j] /= A[j, 0]
     for j in range(q - 1, -1, -1):  # U x = y
+        if w == 3 and j < q - 3:
+            rx[j] = (rx[j] - A[j, 1] * rx[j + 1] - A[j, 2] * rx[j + 2] - A[j, 3] * rx[j + 3]) / A[j, 0]
+            ry[j] = (ry[j] - A[j, 1] * ry[j + 1] - A[j, 2] * ry[j + 2] - A[j, 3] * ry[j + 3]) / A[j, 0]
+            continue
         for col in range(j + 1, min(q, j + w + 1)):
             rx[j] -= A[j, col - j] * rx[col]
             ry[j] -= A[j, col - j] * ry[col]
