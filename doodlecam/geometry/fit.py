@@ -18,8 +18,9 @@ from __future__ import annotations
 import numba
 import numpy as np
 
-from doodlecam.geometry.kernels import basis_at as _basis_at
+from doodlecam.geometry.kernels import cubic_inner as _cubic_inner
 from doodlecam.geometry.kernels import knot as _knot
+from doodlecam.geometry.kernels import span_at as _span_at
 from doodlecam.model import Spline
 
 
@@ -300,9 +301,9 @@ def _bound(P, u, cum, ctrl, p, tol, give_up, quick, w):  # pragma: no cover - co
     as without it.
     w: work arrays Q, a, b, arc, ta, tb, done, worst of each stretch (m, m, m,
     m - 1, m, m, m, m - 1 entries), the basis functions at u and their spans
-    (``_basis_table``, filled by the caller).
+    (``_basis_table``, filled by the caller), and its own work arrays.
     """
-    Q, a, b, arc, ta, tb, done, c0, B, F = w
+    Q, a, b, arc, ta, tb, done, c0, B, F, _, _ = w
     m = P.shape[0]
     n = ctrl.shape[0]
     nseg = n - p
@@ -313,29 +314,32 @@ def _bound(P, u, cum, ctrl, p, tol, give_up, quick, w):  # pragma: no cover - co
         for s in range(max(0, j - p + 1), min(nseg, j + 1)):
             speed[s] = max(speed[s], d)
     s_prev = 0
+    worst = 0.0
     for i in range(m):
         f = F[i]
-        x = 0.0
-        y = 0.0
-        for k in range(p + 1):
-            x += B[i, k] * ctrl[f + k, 0]
-            y += B[i, k] * ctrl[f + k, 1]
+        if p == 3:  # the loop below, unrolled: the same sums in the same order
+            x = 0.0 + B[i, 0] * ctrl[f, 0] + B[i, 1] * ctrl[f + 1, 0] + B[i, 2] * ctrl[f + 2, 0] + B[i, 3] * ctrl[f + 3, 0]
+            y = 0.0 + B[i, 0] * ctrl[f, 1] + B[i, 1] * ctrl[f + 1, 1] + B[i, 2] * ctrl[f + 2, 1] + B[i, 3] * ctrl[f + 3, 1]
+        else:
+            x = 0.0
+            y = 0.0
+            for k in range(p + 1):
+                x += B[i, k] * ctrl[f + k, 0]
+                y += B[i, k] * ctrl[f + k, 1]
         Q[i, 0], Q[i, 1] = x, y
+        # a: curve sample i to the polyline; b: polyline sample i to the curve
         a[i] = b[i] = np.sqrt((x - P[i, 0]) ** 2 + (y - P[i, 1]) ** 2)
-        done[i] = False
         if i:  # run along the curve since sample i - 1
             v = 0.0
             for s in range(s_prev, f + 1):
                 v = max(v, speed[s])
             arc[i - 1] = (u[i] - u[i - 1]) * v
+            c0[i - 1] = max(_pair(a[i - 1], a[i], arc[i - 1]), _pair(b[i - 1], b[i], cum[i] - cum[i - 1]))
+            worst = max(worst, c0[i - 1])
         s_prev = f
-    # a: curve sample i to the polyline; b: polyline sample i to the curve
-    worst = 0.0
-    for i in range(m - 1):
-        c0[i] = max(_pair(a[i], a[i + 1], arc[i]), _pair(b[i], b[i + 1], cum[i + 1] - cum[i]))
-        worst = max(worst, c0[i])
     if worst <= tol:
         return worst
+    done[:] = False
     if give_up and quick:
         # where the curve strays across the polyline, not along it (the parameter drifting),
         # is where it fails: the stretches over tol in the order of that offset
@@ -373,25 +377,47 @@ def _bound(P, u, cum, ctrl, p, tol, give_up, quick, w):  # pragma: no cover - co
 def _work(m, p):  # pragma: no cover - compiled
     """``_bound``'s work arrays for m samples and degree p."""
     return (np.empty((m, 2)), np.empty(m), np.empty(m), np.empty(m - 1), np.empty(m), np.empty(m),
-            np.empty(m, np.bool_), np.empty(m - 1), np.empty((m, p + 1)), np.empty(m, np.int64))
+            np.empty(m, np.bool_), np.empty(m - 1), np.empty((m, p + 1)), np.empty(m, np.int64),
+            np.empty((m, p + 1)), np.empty((m, p + 1)))
 
 
 @numba.njit(cache=True, nogil=True)
 def _basis_table(u, n, p, w):  # pragma: no cover - compiled
-    """The basis functions of n control points at every u[i] into the work
-    arrays B[i], their span into F[i]: evaluated once for the fit and its bound."""
-    B, F = w[8], w[9]
+    """``basis_at`` (the same numbers) for n control points at every u[i]: the
+    basis functions into the work arrays B[i], their span into F[i], evaluated
+    once for the fit and its bound. Span by span, each step of the recurrence
+    for all the span's points before the next: the points' divisions overlap."""
+    B, F, left, right = w[8], w[9], w[10], w[11]
     nseg = n - p
-    kn = np.empty(nseg + 2 * p + 1)
-    for j in range(kn.size):
-        kn[j] = _knot(j, p, nseg)
-    N = np.empty(p + 1)
-    left = np.empty(p + 1)
-    right = np.empty(p + 1)
-    for i in range(u.size):
-        F[i] = _basis_at(u[i], p, nseg, N, left, right, kn)
-        for k in range(p + 1):
-            B[i, k] = N[k]
+    m = u.size
+    for i in range(m):
+        F[i] = _span_at(u[i], nseg)
+    i0 = 0
+    while i0 < m:
+        s = F[i0]
+        i1 = i0
+        while i1 < m and F[i1] == s:
+            i1 += 1
+        if p == 3 and p <= s < nseg - p:
+            for i in range(i0, i1):
+                B[i, 0], B[i, 1], B[i, 2], B[i, 3] = _cubic_inner(u[i], nseg, s)
+            i0 = i1
+            continue
+        k = s + p  # Cox-de Boor as basis_at
+        for i in range(i0, i1):
+            B[i, 0] = 1.0
+        for j in range(1, p + 1):
+            kl, kr = _knot(k + 1 - j, p, nseg), _knot(k + j, p, nseg)
+            for i in range(i0, i1):
+                left[i, j] = u[i] - kl
+                right[i, j] = kr - u[i]
+                saved = 0.0
+                for r in range(j):
+                    t = B[i, r] / (right[i, r + 1] + left[i, j - r])
+                    B[i, r] = saved + right[i, r + 1] * t
+                    saved = left[i, j - r] * t
+                B[i, j] = saved
+        i0 = i1
 
 
 @numba.njit(cache=True, nogil=True)
