@@ -43,23 +43,41 @@ def densify(p: np.ndarray, spacing: float) -> np.ndarray:
 # ---------------------------------------------------------------- compiled kernels
 
 @numba.njit(cache=True, nogil=True, inline="always")
-def _span3(P, B, F, i, A, rx, ry):  # pragma: no cover - compiled
-    """``_lsq``'s sums over the data points from i on in i's knot span, for a cubic
-    whose four unknowns there are all free: the same additions in the same order,
-    in registers rather than in memory (each sum starts from its entry and goes
-    back to it). Returns the first data point after the span."""
+def _span3(P, B, F, i, A, rx, ry, ctrl):  # pragma: no cover - compiled
+    """``_lsq``'s sums over the data points from i on in i's knot span, for a
+    cubic: the same additions in the same order, in registers rather than in
+    memory (each sum starts from its entry and goes back to it; a sum for an
+    unknown that is not one, a pinned end's, is made and dropped). Returns the
+    first data point after the span."""
     f = F[i]
-    c = f - 1
-    a00, a01, a02, a03 = A[c, 0], A[c, 1], A[c, 2], A[c, 3]
-    a11, a12, a13 = A[c + 1, 0], A[c + 1, 1], A[c + 1, 2]
-    a22, a23 = A[c + 2, 0], A[c + 2, 1]
-    a33 = A[c + 3, 0]
-    x0, x1, x2, x3 = rx[c], rx[c + 1], rx[c + 2], rx[c + 3]
-    y0, y1, y2, y3 = ry[c], ry[c + 1], ry[c + 2], ry[c + 3]
+    c = f - 1  # the span's first unknown (control point f)
+    q, n = A.shape[0], ctrl.shape[0]
+    ok0, ok1, ok2, ok3 = 0 <= c < q, 0 <= c + 1 < q, c + 2 < q, c + 3 < q
+    a00 = A[c, 0] if ok0 else 0.0
+    a01 = A[c, 1] if ok0 and ok1 else 0.0
+    a02 = A[c, 2] if ok0 and ok2 else 0.0
+    a03 = A[c, 3] if ok0 and ok3 else 0.0
+    a11 = A[c + 1, 0] if ok1 else 0.0
+    a12 = A[c + 1, 1] if ok1 and ok2 else 0.0
+    a13 = A[c + 1, 2] if ok1 and ok3 else 0.0
+    a22 = A[c + 2, 0] if ok2 else 0.0
+    a23 = A[c + 2, 1] if ok2 and ok3 else 0.0
+    a33 = A[c + 3, 0] if ok3 else 0.0
+    x0, y0 = (rx[c], ry[c]) if ok0 else (0.0, 0.0)
+    x1, y1 = (rx[c + 1], ry[c + 1]) if ok1 else (0.0, 0.0)
+    x2, y2 = (rx[c + 2], ry[c + 2]) if ok2 else (0.0, 0.0)
+    x3, y3 = (rx[c + 3], ry[c + 3]) if ok3 else (0.0, 0.0)
+    first, last = f == 0, f + 3 == n - 1  # the span of a pinned end
     m = P.shape[0]
     while i < m and F[i] == f:
-        dx, dy = P[i, 0], P[i, 1]
         n0, n1, n2, n3 = B[i, 0], B[i, 1], B[i, 2], B[i, 3]
+        dx, dy = P[i, 0], P[i, 1]  # the data minus the pinned ends' share
+        if first:
+            dx -= n0 * ctrl[0, 0]
+            dy -= n0 * ctrl[0, 1]
+        if last:
+            dx -= n3 * ctrl[n - 1, 0]
+            dy -= n3 * ctrl[n - 1, 1]
         x0 += n0 * dx
         y0 += n0 * dy
         a00 += n0 * n0
@@ -79,12 +97,30 @@ def _span3(P, B, F, i, A, rx, ry):  # pragma: no cover - compiled
         y3 += n3 * dy
         a33 += n3 * n3
         i += 2
-    A[c, 0], A[c, 1], A[c, 2], A[c, 3] = a00, a01, a02, a03
-    A[c + 1, 0], A[c + 1, 1], A[c + 1, 2] = a11, a12, a13
-    A[c + 2, 0], A[c + 2, 1] = a22, a23
-    A[c + 3, 0] = a33
-    rx[c], rx[c + 1], rx[c + 2], rx[c + 3] = x0, x1, x2, x3
-    ry[c], ry[c + 1], ry[c + 2], ry[c + 3] = y0, y1, y2, y3
+    if ok0:
+        A[c, 0] = a00
+        rx[c], ry[c] = x0, y0
+        if ok1:
+            A[c, 1] = a01
+        if ok2:
+            A[c, 2] = a02
+        if ok3:
+            A[c, 3] = a03
+    if ok1:
+        A[c + 1, 0] = a11
+        rx[c + 1], ry[c + 1] = x1, y1
+        if ok2:
+            A[c + 1, 1] = a12
+        if ok3:
+            A[c + 1, 2] = a13
+    if ok2:
+        A[c + 2, 0] = a22
+        rx[c + 2], ry[c + 2] = x2, y2
+        if ok3:
+            A[c + 2, 1] = a23
+    if ok3:
+        A[c + 3, 0] = a33
+        rx[c + 3], ry[c + 3] = x3, y3
     return i
 
 
@@ -107,8 +143,8 @@ def _lsq(P, B, F, n, p, lam, ctrl):  # pragma: no cover - compiled
     i = 0
     while i < m:
         f = F[i]
-        if p == 3 and 1 <= f <= q - 3:  # a cubic's span with four unknowns and no pinned end
-            i = _span3(P, B, F, i, A, rx, ry)
+        if p == 3:
+            i = _span3(P, B, F, i, A, rx, ry, ctrl)
             continue
         dx, dy = P[i, 0], P[i, 1]  # the data minus the pinned ends' share
         if f == 0:
