@@ -43,30 +43,25 @@ def densify(p: np.ndarray, spacing: float) -> np.ndarray:
 # ---------------------------------------------------------------- compiled kernels
 
 @numba.njit(cache=True, nogil=True, inline="always")
-def _span3(P, B, F, i, A, rx, ry, ctrl):  # pragma: no cover - compiled
+def _span3(P, B, F, i, A, rx, ry, ctrl, S):  # pragma: no cover - compiled
     """``_lsq``'s sums over the data points from i on in i's knot span, for a
     cubic: the same additions in the same order, in registers rather than in
     memory (each sum starts from its entry and goes back to it; a sum for an
-    unknown that is not one, a pinned end's, is made and dropped). Returns the
+    unknown that is not one, a pinned end's, is made and dropped). S: 4 x 6
+    scratch (the span's entries of A by control point, then rx, ry). Returns the
     first data point after the span."""
     f = F[i]
     c = f - 1  # the span's first unknown (control point f)
     q, n = A.shape[0], ctrl.shape[0]
-    ok0, ok1, ok2, ok3 = 0 <= c < q, 0 <= c + 1 < q, c + 2 < q, c + 3 < q
-    a00 = A[c, 0] if ok0 else 0.0
-    a01 = A[c, 1] if ok0 and ok1 else 0.0
-    a02 = A[c, 2] if ok0 and ok2 else 0.0
-    a03 = A[c, 3] if ok0 and ok3 else 0.0
-    a11 = A[c + 1, 0] if ok1 else 0.0
-    a12 = A[c + 1, 1] if ok1 and ok2 else 0.0
-    a13 = A[c + 1, 2] if ok1 and ok3 else 0.0
-    a22 = A[c + 2, 0] if ok2 else 0.0
-    a23 = A[c + 2, 1] if ok2 and ok3 else 0.0
-    a33 = A[c + 3, 0] if ok3 else 0.0
-    x0, y0 = (rx[c], ry[c]) if ok0 else (0.0, 0.0)
-    x1, y1 = (rx[c + 1], ry[c + 1]) if ok1 else (0.0, 0.0)
-    x2, y2 = (rx[c + 2], ry[c + 2]) if ok2 else (0.0, 0.0)
-    x3, y3 = (rx[c + 3], ry[c + 3]) if ok3 else (0.0, 0.0)
+    for a in range(4):
+        free = 0 <= c + a < q
+        for b in range(a, 4):
+            S[a, b] = A[c + a, b - a] if free and c + b < q else 0.0
+        S[a, 4], S[a, 5] = (rx[c + a], ry[c + a]) if free else (0.0, 0.0)
+    a00, a01, a02, a03, x0, y0 = S[0, 0], S[0, 1], S[0, 2], S[0, 3], S[0, 4], S[0, 5]
+    a11, a12, a13, x1, y1 = S[1, 1], S[1, 2], S[1, 3], S[1, 4], S[1, 5]
+    a22, a23, x2, y2 = S[2, 2], S[2, 3], S[2, 4], S[2, 5]
+    a33, x3, y3 = S[3, 3], S[3, 4], S[3, 5]
     first, last = f == 0, f + 3 == n - 1  # the span of a pinned end
     m = P.shape[0]
     while i < m and F[i] == f:
@@ -97,30 +92,16 @@ def _span3(P, B, F, i, A, rx, ry, ctrl):  # pragma: no cover - compiled
         y3 += n3 * dy
         a33 += n3 * n3
         i += 2
-    if ok0:
-        A[c, 0] = a00
-        rx[c], ry[c] = x0, y0
-        if ok1:
-            A[c, 1] = a01
-        if ok2:
-            A[c, 2] = a02
-        if ok3:
-            A[c, 3] = a03
-    if ok1:
-        A[c + 1, 0] = a11
-        rx[c + 1], ry[c + 1] = x1, y1
-        if ok2:
-            A[c + 1, 1] = a12
-        if ok3:
-            A[c + 1, 2] = a13
-    if ok2:
-        A[c + 2, 0] = a22
-        rx[c + 2], ry[c + 2] = x2, y2
-        if ok3:
-            A[c + 2, 1] = a23
-    if ok3:
-        A[c + 3, 0] = a33
-        rx[c + 3], ry[c + 3] = x3, y3
+    S[0, 0], S[0, 1], S[0, 2], S[0, 3], S[0, 4], S[0, 5] = a00, a01, a02, a03, x0, y0
+    S[1, 1], S[1, 2], S[1, 3], S[1, 4], S[1, 5] = a11, a12, a13, x1, y1
+    S[2, 2], S[2, 3], S[2, 4], S[2, 5] = a22, a23, x2, y2
+    S[3, 3], S[3, 4], S[3, 5] = a33, x3, y3
+    for a in range(4):
+        if 0 <= c + a < q:
+            for b in range(a, 4):
+                if c + b < q:
+                    A[c + a, b - a] = S[a, b]
+            rx[c + a], ry[c + a] = S[a, 4], S[a, 5]
     return i
 
 
@@ -140,11 +121,12 @@ def _lsq(P, B, F, n, p, lam, ctrl):  # pragma: no cover - compiled
     A = np.zeros((q, w + 1))  # A[a, d] = N[a, a + d]; unknown a is control point a + 1
     rx = np.zeros(q)
     ry = np.zeros(q)
+    S = np.empty((4, 6))
     i = 0
     while i < m:
         f = F[i]
         if p == 3:
-            i = _span3(P, B, F, i, A, rx, ry, ctrl)
+            i = _span3(P, B, F, i, A, rx, ry, ctrl, S)
             continue
         dx, dy = P[i, 0], P[i, 1]  # the data minus the pinned ends' share
         if f == 0:
