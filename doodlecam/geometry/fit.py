@@ -350,18 +350,20 @@ def _bound(P, u, cum, ctrl, p, tol, give_up, quick, w):  # pragma: no cover - co
                 x += B[i, k] * ctrl[f + k, 0]
                 y += B[i, k] * ctrl[f + k, 1]
         Q[i, 0], Q[i, 1] = x, y
-        # a: curve sample i to the polyline; b: polyline sample i to the curve
-        a[i] = b[i] = np.sqrt((x - P[i, 0]) ** 2 + (y - P[i, 1]) ** 2)
+        # a: curve sample i to the polyline; b (the same until tightened): polyline sample i to the curve
+        a[i] = np.sqrt((x - P[i, 0]) ** 2 + (y - P[i, 1]) ** 2)
         if i:  # run along the curve since sample i - 1
             v = 0.0
             for s in range(s_prev, f + 1):
                 v = max(v, speed[s])
             arc[i - 1] = (u[i] - u[i - 1]) * v
-            c0[i - 1] = max(_pair(a[i - 1], a[i], arc[i - 1]), _pair(b[i - 1], b[i], cum[i] - cum[i - 1]))
+            # both ways' bounds at once (_pair grows with the run)
+            c0[i - 1] = _pair(a[i - 1], a[i], max(arc[i - 1], cum[i] - cum[i - 1]))
             worst = max(worst, c0[i - 1])
         s_prev = f
     if worst <= tol:
         return worst
+    b[:] = a
     done[:] = False
     if give_up and quick:
         # where the curve strays across the polyline, not along it (the parameter drifting),
