@@ -31,6 +31,8 @@ from doodlecam.model import Drawing, Job, Stroke
 from doodlecam.options import ConvertOptions
 from doodlecam.trace.raster import IMAGE_EXTENSIONS
 
+FIT_BATCH = 500  # strokes fitted per compiled call: a progress report and a chance for Ctrl-C between
+
 
 @dataclass(frozen=True, kw_only=True)
 class Settings(ConvertOptions):
@@ -108,7 +110,7 @@ def plan_job(drawing: Drawing, machine: Machine, solver: str = "reach", plugin_d
     same with any number).
     """
     from doodlecam.geometry.corners import split_traced
-    from doodlecam.geometry.fit import fit_pieces
+    from doodlecam.geometry.fit import fit_many
     from doodlecam.geometry.order import order_strokes
     from doodlecam.plan.follow import JerkBound, jerk_limit
     from doodlecam.plan.planner import check_solver
@@ -157,11 +159,16 @@ def plan_job(drawing: Drawing, machine: Machine, solver: str = "reach", plugin_d
     # A line traced from pixels turns at every step of its staircase: its corners are found over
     # a support of a few pixels of the grid traced, at least a few pen widths (geometry.corners).
     traced, support, smooth, arms = traced_corner_rule(drawing, machine)
-    for k, (i, p, layer) in enumerate(ordered if fitted is None else ()):
-        progress("fitting", k, len(ordered))
-        for piece in split_traced(p, support, traced, smooth, arms) if traced > 0 else (p,):
-            for spline, err in fit_pieces(piece, machine.degree, machine.tolerance, corner=corner):
-                strokes.append(Stroke(spline=spline, source_index=i, fit_error=err, layer=layer))
+    # FIT_BATCH strokes at a time in one compiled call (a generated drawing has thousands of
+    # short paths), progress told between batches
+    todo = ordered if fitted is None else []
+    for k in range(0, len(todo), FIT_BATCH):
+        progress("fitting", k, len(todo))
+        batch = [(i, piece, layer) for i, p, layer in todo[k:k + FIT_BATCH]
+                 for piece in (split_traced(p, support, traced, smooth, arms) if traced > 0 else (p,))]
+        fits = fit_many([piece for _, piece, _ in batch], machine.degree, machine.tolerance, corner=corner)
+        for (i, _, layer), pieces in zip(batch, fits):
+            strokes += [Stroke(spline=spline, source_index=i, fit_error=err, layer=layer) for spline, err in pieces]
     timings["fit"] = time.perf_counter() - t0
     ordered = None  # the fitted strokes replace the ordered polylines (memory at 10^5 paths)
 

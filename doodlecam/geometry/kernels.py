@@ -15,24 +15,35 @@ def knot(j, p, nseg):  # pragma: no cover - compiled
 
 
 @numba.njit(cache=True, nogil=True, inline="always")
-def basis_at(x, p, nseg, N, left, right):  # pragma: no cover - compiled
-    """The p + 1 basis functions that do not vanish at x, into N; returns the
-    index of the first (= the knot span). Cox-de Boor as in the NURBS book's
-    A2.2, or the closed form of a cubic where the knots are evenly spaced."""
-    s = min(max(int(x * nseg), 0), nseg - 1)  # knot span [s, s + 1] / nseg
+def span_at(x, nseg):  # pragma: no cover - compiled
+    """The knot span [s, s + 1] / nseg of x in [0, 1]."""
+    s = min(max(int(x * nseg), 0), nseg - 1)
     step = 1.0 / nseg  # knot j is j * step, as numpy.linspace makes Spline.knots
     if s + 1 < nseg and x >= (s + 1) * step:  # x * nseg rounded across a knot:
         s += 1  # right-continuous at knots, as scipy (it matters for the top derivative)
     elif s > 0 and x < s * step:
         s -= 1
+    return s
+
+
+@numba.njit(cache=True, nogil=True, inline="always")
+def cubic_inner(x, nseg, s):  # pragma: no cover - compiled
+    """The four cubic basis functions at x in the inner span s (evenly spaced knots all round)."""
+    t = x * nseg - s
+    t2 = t * t
+    t3 = t2 * t
+    return ((1.0 - t) ** 3 / 6.0, (3.0 * t3 - 6.0 * t2 + 4.0) / 6.0, (-3.0 * t3 + 3.0 * t2 + 3.0 * t + 1.0) / 6.0,
+            t3 / 6.0)
+
+
+@numba.njit(cache=True, nogil=True, inline="always")
+def basis_at(x, p, nseg, N, left, right):  # pragma: no cover - compiled
+    """The p + 1 basis functions that do not vanish at x, into N; returns the
+    index of the first (= the knot span). Cox-de Boor as in the NURBS book's
+    A2.2, or the closed form of a cubic where the knots are evenly spaced."""
+    s = span_at(x, nseg)
     if p == 3 and p <= s < nseg - p:
-        t = x * nseg - s
-        t2 = t * t
-        t3 = t2 * t
-        N[0] = (1.0 - t) ** 3 / 6.0
-        N[1] = (3.0 * t3 - 6.0 * t2 + 4.0) / 6.0
-        N[2] = (-3.0 * t3 + 3.0 * t2 + 3.0 * t + 1.0) / 6.0
-        N[3] = t3 / 6.0
+        N[0], N[1], N[2], N[3] = cubic_inner(x, nseg, s)
         return s
     k = s + p
     N[0] = 1.0
