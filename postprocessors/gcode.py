@@ -273,6 +273,23 @@ def _offsets(arrays) -> np.ndarray:
     return np.concatenate([[0], np.cumsum([len(a) for a in arrays], dtype=np.int64)]).astype(np.int64)
 
 
+def _pass_through(strokes, which, lifts) -> tuple[np.ndarray, np.ndarray]:
+    """For strokes[which[s]]: the unit direction in which the pen arrives at its start / leaves its end without
+    stopping (the neighbouring stroke's tangent at the point they share, where Job.lifts says the pen stays
+    down), (0, 0) where it stops."""
+    t_in, t_out = np.zeros((len(which), 2)), np.zeros((len(which), 2))
+    for s, i in enumerate(which):
+        if lifts is None:
+            continue
+        for t, k, u in ((t_in, i - 1, 1.0), (t_out, i + 1, 0.0)):
+            if 0 <= k < len(strokes) and not lifts[max(i, k)]:
+                d = strokes[k].spline(np.array([u]), 1)[0]
+                n = float(np.hypot(*d))
+                if n > 0:
+                    t[s] = d / n
+    return t_in, t_out
+
+
 class _CapWalk:
     """One stroke's walk over the chord levels (GcodePost._cap_levels): told each asked level's time on GRBL
     (inf when a serial line cannot feed it), it says the next level to try, or None when done. From the start
@@ -480,11 +497,13 @@ class GcodePost(PostProcessor):
         # never above the pen-speed cap (a very short last segment has a tiny planned time)
         return p, np.clip(feed, min_feed, max(cap, min_feed)), {}
 
-    def _cap_paths(self, strokes, feeds, tol: float, machine, grbl, baud: int):
+    def _cap_paths(self, strokes, feeds, tol: float, machine, grbl, baud: int, lifts=None):
         """feeds = cap without arcs for every stroke, as _stroke_points chooses them: each round, every stroke
         still searching gets its next level's chords from one compiled call over all of them
         (doodlecam.geometry.chord_batch), and all of them are timed with GRBL's model in one call (one call per
-        stroke and level cost more than the work on drawings of 10^4 strokes)."""
+        stroke and level cost more than the work on drawings of 10^4 strokes). ``lifts`` (Job.lifts): where the
+        pen goes on from one stroke into the next (a kept corner), the end chords are snapped to turn towards
+        the neighbour's tangent (_pass_through)."""
         from doodlecam.link.grbl.timing import _segment_time
 
         spm = np.array([machine.x.steps_per_mm, machine.y.steps_per_mm])
@@ -504,6 +523,7 @@ class GcodePost(PostProcessor):
         rooms, r0, start = self._cap_levels(tol, spm)
         v = np.array([feeds[i] / 60.0 for i in curved])
         acc = np.asarray(grbl.acceleration, float)
+        t_in, t_out = _pass_through(strokes, curved, lifts)
         walks = {s: _CapWalk(start, len(rooms)) for s in range(len(curved))}  # by position in curved
         best: dict[int, tuple] = {}  # position -> (points, key) of its best level so far
         asked = {s: start for s in walks}
@@ -511,7 +531,7 @@ class GcodePost(PostProcessor):
             which = np.fromiter(asked, np.int64, len(asked))
             pts, off = cap_candidates(q, qoff, which, np.fromiter(asked.values(), np.int64, len(asked)), rooms, r0,
                                       float(spm[0]), float(spm[1]), v[which], float(acc[0]), float(acc[1]),
-                                      float(grbl.junction_deviation), SNAP)
+                                      float(grbl.junction_deviation), SNAP, t_in, t_out)
             n = np.diff(off)
             # one program of all candidates, each from rest to rest (the pen commands empty GRBL's
             # planner): the block joining two candidates starts from rest and its time is dropped;
@@ -566,7 +586,7 @@ class GcodePost(PostProcessor):
         caps = {k: _pen_cap(m, k, float(options["max_feed"])) for k in set(pen_no)}
         if options["feeds"] == "cap" and not options["arcs"]:  # the default: every stroke's chords at once
             paths = self._cap_paths(job.strokes, [max(caps[k], min_feed) for k in pen_no], tol, m, grbl,
-                                    int(options["baud"]))
+                                    int(options["baud"]), job.lifts)
         else:
             paths = [self._stroke_points(s, dts[i] if dts else m.delta_time, tol, min_feed, options["feeds"],
                                          caps[pen_no[i]], m, grbl, int(options["baud"]), bool(options["arcs"]))

@@ -34,7 +34,8 @@ def reference_search(stroke, tol, feed, grbl):
         near = np.round(q[idx], 3)
         if (np.round(near * SPM) == np.round(near[0] * SPM)).all():
             return near
-        p, found = snap_chords(q, idx, r0, SPM[0], SPM[1], feed / 60.0, acc[0], acc[1], grbl.junction_deviation)
+        p, found = snap_chords(q, idx, r0, SPM[0], SPM[1], feed / 60.0, acc[0], acc[1], grbl.junction_deviation,
+                               np.zeros(2), np.zeros(2))
         return p if found else near
 
     best = yield candidate(start)
@@ -127,34 +128,43 @@ def _dist_to_segment(p, a, b):
     return np.linalg.norm(p - (a + s[:, None] * d), axis=1)
 
 
-def path_cost(pts, v, acc, dev):
+def path_cost(pts, v, acc, dev, t_in=(0.0, 0.0), t_out=(0.0, 0.0)):
     """The snapping's objective for chosen points (printed, as snap_chords returns them): the sum of the
-    junction costs of GRBL's step-rounded chords."""
+    junction costs of GRBL's step-rounded chords, and of the junctions into and out of them where the pen
+    arrives or leaves moving (t_in, t_out non-zero)."""
     x = np.sign(pts * SPM) * np.floor(np.abs(pts * SPM) + 0.5) / SPM
     d = np.diff(x, axis=0)
-    u = d / np.linalg.norm(d, axis=1)[:, None]
+    u = list(d / np.linalg.norm(d, axis=1)[:, None])
+    u = ([np.asarray(t_in)] if any(t_in) else []) + u + ([np.asarray(t_out)] if any(t_out) else [])
     v2 = _sqrt_reaches(v)
     return sum(_junction_cost(a[0], a[1], b[0], b[1], v, v2, acc, acc, dev) for a, b in zip(u[:-1], u[1:]))
 
 
-@pytest.mark.parametrize("seed", range(6))
-def test_snapping_finds_the_cheapest_choice_of_steps(seed):
-    """The dynamic programme (which skips predecessors that cannot win) against every choice of the 3 x 3 step
-    positions of the inner vertices of a short curve: the same least cost."""
+@pytest.mark.parametrize("seed, t_in, t_out", [(s, (0.0, 0.0), (0.0, 0.0)) for s in range(4)]
+                         + [(4, (0.6, 0.8), (0.0, 0.0)), (5, (0.0, 0.0), (-0.28, 0.96)), (6, (0.8, -0.6), (0.0, 1.0))])
+def test_snapping_finds_the_cheapest_choice_of_steps(seed, t_in, t_out):
+    """The dynamic programme (which skips predecessors that cannot win) against every choice of the step
+    positions of the inner vertices of a short curve: the same least cost, with the junctions into and out of
+    the piece where the pen passes its ends without stopping (a kept corner: there the vertex next to the end
+    chooses among positions 2 steps apart)."""
     rng = np.random.default_rng(seed)
     t = np.linspace(0, 1, 400)
     bend = rng.uniform(0.5, 3.0)
     q = np.ascontiguousarray(np.c_[50 + 3 * t, 50 + bend * np.sin(2.5 * t) + 0.002 * rng.standard_normal(len(t))])
     idx = greedy_chords(q, 0.01)[:5]  # 3 inner vertices: 9^3 choices
     room, v, acc, dev = 0.045, 150.0, 2000.0, 0.01
-    pts, found = snap_chords(q, idx, room, SPM[0], SPM[1], v, acc, acc, dev)
+    pts, found = snap_chords(q, idx, room, SPM[0], SPM[1], v, acc, acc, dev, np.array(t_in), np.array(t_out))
     assert found
+    assert np.array_equal(pts[[0, -1]], np.round(np.floor(q[idx[[0, -1]]] * SPM + 0.5) / SPM, 3))  # ends: nearest
+    stride = np.ones(len(idx), int)
+    stride[1] = 2 if any(t_in) else 1
+    stride[-2] = 2 if any(t_out) else 1
     best = np.inf
     near = np.floor(q[idx] * SPM + 0.5)
     for choice in itertools.product(range(9), repeat=len(idx) - 2):
         steps = near.copy()
         for k, c in enumerate(choice, 1):
-            steps[k] += (c // 3 - 1, c % 3 - 1)
+            steps[k] += (stride[k] * (c // 3 - 1), stride[k] * (c % 3 - 1))
         cand = np.round(steps / SPM, 3)
         x = np.floor(cand * SPM + 0.5) / SPM
         if (np.linalg.norm(x - q[idx], axis=1) > room).any() or (np.diff(x, axis=0) == 0).all(1).any():
@@ -162,5 +172,5 @@ def test_snapping_finds_the_cheapest_choice_of_steps(seed):
         covered = all(_dist_to_segment(q[idx[k]:idx[k + 1] + 1], x[k], x[k + 1]).max() <= room
                       for k in range(len(idx) - 1))
         if covered:
-            best = min(best, path_cost(cand, v, acc, dev))
-    assert path_cost(pts, v, acc, dev) == pytest.approx(best, rel=1e-12, abs=0.0)
+            best = min(best, path_cost(cand, v, acc, dev, t_in, t_out))
+    assert path_cost(pts, v, acc, dev, t_in, t_out) == pytest.approx(best, rel=1e-12, abs=0.0)

@@ -119,11 +119,13 @@ def _drop_unmoved(p, sx, sy):  # pragma: no cover - compiled
 
 
 @numba.njit(cache=True, nogil=True)
-def cap_candidates(q, qoff, which, level, rooms, r0, sx, sy, v, acc_x, acc_y, dev, snap):  # pragma: no cover
+def cap_candidates(q, qoff, which, level, rooms, r0, sx, sy, v, acc_x, acc_y, dev, snap, t_in,
+                   t_out):  # pragma: no cover - compiled
     """Candidate c: stroke which[c]'s longest chords within rooms[level[c]] of its dense points, their vertices
     on GRBL's steps (snap_chords, within r0; rounded to 3 decimals where that fails or ``snap`` is False),
-    without the blocks GRBL drops (feed v[c] mm/s). (points, offsets) as postprocessors.gcode's search made
-    them one stroke at a time."""
+    without the blocks GRBL drops (feed v[c] mm/s). t_in[s] / t_out[s]: the direction the pen arrives / leaves
+    stroke s in without stopping, (0, 0) where it stops (snap_chords). (points, offsets) as
+    postprocessors.gcode's search made them one stroke at a time."""
     nc = which.shape[0]
     out = np.empty((max(4 * nc, 1), 2))
     off = np.zeros(nc + 1, np.int64)
@@ -139,7 +141,7 @@ def cap_candidates(q, qoff, which, level, rooms, r0, sx, sy, v, acc_x, acc_y, de
                 np.rint(near[r, 1] * sy) == np.rint(near[0, 1] * sy)
         p = near
         if not dot and snap:
-            snapped, found = snap_chords(qs, idx, r0, sx, sy, v[c], acc_x, acc_y, dev)
+            snapped, found = snap_chords(qs, idx, r0, sx, sy, v[c], acc_x, acc_y, dev, t_in[s], t_out[s])
             if found:
                 p = snapped
         p = _drop_unmoved(p, sx, sy)

@@ -170,7 +170,7 @@ def _junction_cost(ux, uy, wx, wy, v, v2, acc_x, acc_y, dev):  # pragma: no cove
 
 
 @numba.njit(cache=True, nogil=True, error_model="numpy")  # no division can be by zero (see below)
-def snap_chords(q, idx, room, sx, sy, v, acc_x, acc_y, dev):  # pragma: no cover - compiled
+def snap_chords(q, idx, room, sx, sy, v, acc_x, acc_y, dev, t_in, t_out):  # pragma: no cover - compiled
     """Vertices for the chords q[idx[k]] -> q[idx[k+1]] among GRBL's step positions: (points (m, 2) as
     printed to 3 decimals, found).
 
@@ -180,6 +180,9 @@ def snap_chords(q, idx, room, sx, sy, v, acc_x, acc_y, dev):  # pragma: no cover
     ``room`` of every q between its ends, and moves at least one step. Among those, a dynamic programme
     over consecutive vertex pairs picks the one whose junctions cost least for GRBL's planner (feed ``v``
     mm/s, accelerations, junction deviation ``dev``). ``found`` is False when no choice keeps ``room``.
+    ``t_in`` / ``t_out``: the unit direction in which the pen arrives at the first vertex / leaves the last one
+    without stopping (a kept corner: the neighbouring piece's tangent there), (0, 0) where it stops; the
+    junctions there are costed too, so the end chords turn towards the neighbour as far as ``room`` allows.
     Every divisor is non-zero (distinct vertices, a junction that is not straight on, v > 0), so the
     kernel skips Python's zero-division checks.
     """
@@ -189,12 +192,19 @@ def snap_chords(q, idx, room, sx, sy, v, acc_x, acc_y, dev):  # pragma: no cover
     X = np.empty((m, C, 2))  # where GRBL goes: the printed value rounded to whole steps
     ok = np.zeros((m, C), np.bool_)
     room2 = room * room
+    # next to an end the pen passes without stopping, candidates WIDE steps apart: the end chord can lean
+    # towards the neighbour by up to ``room``, splitting the corner's turn over three junctions
+    wide = max(int(0.8 * room * min(sx, sy)), 1)
     for k in range(m):
         qx, qy = q[idx[k], 0], q[idx[k], 1]
         nx, ny = _lround(qx * sx), _lround(qy * sy)
+        stride = 1
+        if (k == 1 and k < m - 1 and (t_in[0] != 0.0 or t_in[1] != 0.0)) or \
+                (k == m - 2 and k > 0 and (t_out[0] != 0.0 or t_out[1] != 0.0)):
+            stride = wide
         c = 0
-        for di in range(-1, 2):
-            for dj in range(-1, 2):
+        for di in range(-stride, stride + 1, stride):
+            for dj in range(-stride, stride + 1, stride):
                 px, py = np.round((nx + di) / sx, 3), np.round((ny + dj) / sy, 3)
                 ex, ey = _lround(px * sx) / sx, _lround(py * sy) / sy
                 P[k, c, 0], P[k, c, 1], X[k, c, 0], X[k, c, 1] = px, py, ex, ey
@@ -252,8 +262,11 @@ def snap_chords(q, idx, room, sx, sy, v, acc_x, acc_y, dev):  # pragma: no cover
                 W[j, n, 0], W[j, n, 1] = dx / d, dy / d
                 valid[nv] = n
                 nv += 1
-                if k == 0:  # the first chord: no junction yet
+                if k == 0:  # the first chord: a junction only where the pen arrives moving
                     new[j, n] = 0.0
+                    if t_in[0] != 0.0 or t_in[1] != 0.0:
+                        new[j, n] = _junction_cost(t_in[0], t_in[1], W[j, n, 0], W[j, n, 1], v, v2, acc_x, acc_y,
+                                                   dev)
             if k == 0 or no == 0:
                 continue
             # every n costs the cheapest i's junction: all of them in one loop of independent work
@@ -283,10 +296,14 @@ def snap_chords(q, idx, room, sx, sy, v, acc_x, acc_y, dev):  # pragma: no cover
         cost[:, :] = new
         U[:, :, :] = W
     best, bj, bn = INF, 0, 0
+    moving = t_out[0] != 0.0 or t_out[1] != 0.0  # the last chord's junction into the next piece
     for j in range(C):
         for n in range(C):
-            if cost[j, n] < best:
-                best, bj, bn = cost[j, n], j, n
+            c = cost[j, n]
+            if moving and c < INF:
+                c += _junction_cost(U[j, n, 0], U[j, n, 1], t_out[0], t_out[1], v, v2, acc_x, acc_y, dev)
+            if c < best:
+                best, bj, bn = c, j, n
     if best >= INF:
         return out, False
     ch = np.empty(m, np.int64)
