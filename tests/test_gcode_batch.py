@@ -21,7 +21,12 @@ M = parse_machine(MACHINE, "test.toml")
 SPM = np.array([M.x.steps_per_mm, M.y.steps_per_mm])
 
 
-def reference_search(stroke, tol, feed, grbl):
+def tangent(stroke, u):
+    d = stroke.spline(np.array([u]), 1)[0]
+    return d / np.hypot(*d)
+
+
+def reference_search(stroke, tol, feed, grbl, t_in=np.zeros(2), t_out=np.zeros(2)):
     """One stroke's search as a generator: yields candidates, is sent each one's time (inf: unusable)."""
     u = post._refine(stroke.spline, np.linspace(0.0, 1.0, max(int(np.ceil(stroke.spline.length / 0.5)) + 1, 9)),
                      0.02 * tol)
@@ -35,7 +40,7 @@ def reference_search(stroke, tol, feed, grbl):
         if (np.round(near * SPM) == np.round(near[0] * SPM)).all():
             return near
         p, found = snap_chords(q, idx, r0, SPM[0], SPM[1], feed / 60.0, acc[0], acc[1], grbl.junction_deviation,
-                               np.zeros(2), np.zeros(2))
+                               t_in, t_out)
         return p if found else near
 
     best = yield candidate(start)
@@ -53,10 +58,15 @@ def reference_search(stroke, tol, feed, grbl):
             best, k = t, k - 1
 
 
-def reference_paths(strokes, feeds, tol, grbl, baud):
+def reference_paths(strokes, feeds, tol, grbl, baud, lifts):
     """Every curved stroke's chosen points: each round, every search's next candidate, made one stroke at a time,
-    all timed in one call of GRBL's model (each from rest to rest, as the pen commands make them)."""
-    searches = {i: reference_search(st, tol, feeds[i], grbl) for i, st in enumerate(strokes) if not st.spline.straight}
+    all timed in one call of GRBL's model (each from rest to rest, as the pen commands make them); where the pen
+    goes on into the next stroke or comes from the last one, the ends snapped towards its tangent."""
+    n = len(strokes)
+    searches = {i: reference_search(st, tol, feeds[i], grbl,
+                                    tangent(strokes[i - 1], 1.0) if i > 0 and not lifts[i] else np.zeros(2),
+                                    tangent(strokes[i + 1], 0.0) if i + 1 < n and not lifts[i + 1] else np.zeros(2))
+                for i, st in enumerate(strokes) if not st.spline.straight}
     sent, best = dict.fromkeys(searches), {}
     while sent:
         cand = []
@@ -109,13 +119,16 @@ def random_strokes(n, seed):
     return out
 
 
-@pytest.mark.parametrize("tol, baud, seed", [(0.05, 115200, 1), (0.02, 115200, 2), (0.2, 9600, 3), (0.05, 0, 4)])
-def test_batched_chord_search_writes_what_the_per_stroke_search_wrote(tol, baud, seed):
+@pytest.mark.parametrize("tol, baud, seed, joined", [(0.05, 115200, 1, False), (0.02, 115200, 2, False),
+                                                     (0.2, 9600, 3, False), (0.05, 0, 4, False), (0.05, 115200, 5, True)])
+def test_batched_chord_search_writes_what_the_per_stroke_search_wrote(tol, baud, seed, joined):
     strokes = random_strokes(60, seed)
     feeds = [3000.0 if i % 3 else 1200.0 for i in range(len(strokes))]  # two pens: two feeds
     grbl = GrblSettings.from_machine(M, 0.01, 25)
-    batched = post.GcodePost()._cap_paths(strokes, feeds, tol, M, grbl, baud)
-    reference = reference_paths(strokes, feeds, tol, grbl, baud)
+    # joined: the pen goes on without lifting from some strokes into the next (the hints need only the tangents)
+    lifts = tuple(i == 0 or not joined or bool(np.random.default_rng(seed + i).integers(2)) for i in range(60))
+    batched = post.GcodePost()._cap_paths(strokes, feeds, tol, M, grbl, baud, lifts)
+    reference = reference_paths(strokes, feeds, tol, grbl, baud, lifts)
     assert len(reference) > 30  # most are curves
     for i, p in reference.items():
         assert np.array_equal(batched[i][0], p), i
