@@ -41,7 +41,8 @@ import numpy as np
 
 from doodlecam.api import Option, PostProcessor
 from doodlecam.errors import OutputError, PluginError
-from doodlecam.geometry.chords import chord_ok, greedy_chords, one_step_apart, snap_chords
+from doodlecam.geometry.chord_batch import cap_candidates, dense_points, serial_keeps_up
+from doodlecam.geometry.chords import chord_ok, greedy_chords, one_step_apart
 
 CAP_LEVELS = 24  # chord tolerances for feeds = cap: tol, tol/2^(1/4), ... (down to MIN_LEVEL_STEPS)
 CHORD_LEVEL = 2 ** -0.25
@@ -264,6 +265,67 @@ def _serial_keeps_up(p: np.ndarray, block_times: np.ndarray, baud: int, window: 
     return bool((slack[window:] - slack[:-window]).min() >= 0.0)
 
 
+SNAP = True  # feeds = cap: vertices on GRBL's steps (tests turn it off to compare with rounded vertices)
+
+
+def _offsets(arrays) -> np.ndarray:
+    """Row offsets of the arrays concatenated: array s is rows off[s]:off[s + 1]."""
+    return np.concatenate([[0], np.cumsum([len(a) for a in arrays], dtype=np.int64)]).astype(np.int64)
+
+
+def _pass_through(strokes, which, lifts) -> tuple[np.ndarray, np.ndarray]:
+    """For strokes[which[s]]: the unit direction in which the pen arrives at its start / leaves its end without
+    stopping (the neighbouring stroke's tangent at the point they share, where Job.lifts says the pen stays
+    down), (0, 0) where it stops."""
+    t_in, t_out = np.zeros((len(which), 2)), np.zeros((len(which), 2))
+    for s, i in enumerate(which):
+        if lifts is None:
+            continue
+        for t, k, u in ((t_in, i - 1, 1.0), (t_out, i + 1, 0.0)):
+            if 0 <= k < len(strokes) and not lifts[max(i, k)]:
+                d = strokes[k].spline(np.array([u]), 1)[0]
+                n = float(np.hypot(*d))
+                if n > 0:
+                    t[s] = d / n
+    return t_in, t_out
+
+
+class _CapWalk:
+    """One stroke's walk over the chord levels (GcodePost._cap_levels): told each asked level's time on GRBL
+    (inf when a serial line cannot feed it), it says the next level to try, or None when done. From the start
+    level it goes finer while that pays; if the first finer level does not, coarser while that pays or until a
+    serial line can feed it."""
+
+    def __init__(self, start: int, levels: int):
+        self.k, self.levels, self.start = start, levels, start
+        self.best = None  # the time of level k, once known
+        self.phase = "start"
+
+    def send(self, t: float) -> int | None:
+        if self.phase == "start":
+            self.best = t
+        elif self.phase == "finer":
+            if t < self.best:
+                self.best, self.k = t, self.k + 1
+            else:
+                return self._coarser()
+        else:  # coarser
+            if self.best < np.inf and not t < self.best:
+                return None
+            self.best, self.k = t, self.k - 1
+            return self.k - 1 if self.k > 0 else None
+        if self.best < np.inf and self.k + 1 < self.levels:
+            self.phase = "finer"
+            return self.k + 1
+        return self._coarser()
+
+    def _coarser(self) -> int | None:
+        if self.k != self.start or self.k == 0:
+            return None
+        self.phase = "coarser"
+        return self.k - 1
+
+
 class GcodePost(PostProcessor):
     name = "gcode"
     summary = "G-code (GRBL, Marlin, LinuxCNC): G0 travels, G1 strokes at the pen-speed cap or the planned feeds"
@@ -354,17 +416,23 @@ class GcodePost(PostProcessor):
         return u
 
     @staticmethod
-    def _dense(stroke, tol: float):
-        """Dense points (u, q) whose own chords stray at most ``fine`` from the spline: a chord within
-        e - fine - 0.0007 of them (rounding to 3 decimals) is within e of the spline."""
+    def _dense(strokes, tol: float):
+        """Dense points of every stroke whose own chords stray at most ``fine`` from its spline: a chord within
+        e - fine - 0.0007 of them (rounding to 3 decimals) is within e of the spline. (points, offsets, fine):
+        stroke s is points[offsets[s]:offsets[s + 1]] (doodlecam.geometry.chord_batch.dense_points, as _refine
+        does it)."""
         fine = 0.02 * tol
-        n0 = max(int(np.ceil(stroke.spline.length / 0.5)) + 1, 9)  # _refine adds points where the curve bends
-        u = _refine(stroke.spline, np.linspace(0.0, 1.0, n0), fine)
-        return u, stroke.spline(u), fine
+        # _refine adds points where the curve bends
+        u0 = [np.linspace(0.0, 1.0, max(int(np.ceil(st.spline.length / 0.5)) + 1, 9)) for st in strokes]
+        ctrl = [np.ascontiguousarray(st.spline.control, dtype=float) for st in strokes]
+        q, off = dense_points(np.concatenate(ctrl) if ctrl else np.zeros((0, 2)), _offsets(ctrl),
+                              np.array([st.spline.degree for st in strokes], np.int64),
+                              np.concatenate(u0) if u0 else np.zeros(0), _offsets(u0), fine, 30)
+        return q, off, fine
 
     def _arc_candidate(self, stroke, tol: float, spm: np.ndarray):
         """feeds = cap, arcs: vertices (rounded) and {segment: (I, J, clockwise)}, or None."""
-        u, q, fine = self._dense(stroke, tol)
+        q, _, fine = self._dense([stroke], tol)
         # GRBL cuts an arc into chords $12 = 0.002 mm inside it; centre and ends are rounded to 0.001
         idx, arcs = _greedy_arcs(q, tol - fine - 0.004)
         if not arcs:
@@ -375,9 +443,8 @@ class GcodePost(PostProcessor):
         return p, {k: (np.round(c - p[k], 3), cw) for k, (c, cw) in arcs.items()}
 
     @staticmethod
-    def _cap_search(stroke, tol: float, spm: np.ndarray, feed: float, grbl):
-        """feeds = cap: a search over chord lengths for one stroke (a generator: it yields candidate polylines,
-        rounded as printed, and is sent back each one's time on GRBL, inf when unusable).
+    def _cap_levels(tol: float, spm: np.ndarray):
+        """feeds = cap: the chord levels (mm), the snapping room r0 (mm) and the level the search starts from.
 
         Longer chords turn more at each junction, and GRBL's junction speed falls
         as the turn grows, while shorter ones starve its 15-block look-ahead and
@@ -389,39 +456,12 @@ class GcodePost(PostProcessor):
         tolerance of it), so that GRBL's rounded chords turn smoothly
         (``doodlecam.geometry.chords.snap_chords``). The search starts near a
         third of a step (where traced curves run fastest) and walks to finer or
-        coarser levels while they pay.
+        coarser levels while they pay (_CapWalk).
         """
-        _, q, fine = GcodePost._dense(stroke, tol)
-        q = np.ascontiguousarray(q)
-        r0 = tol - fine - 7.1e-4  # unsnapped vertices are rounded to 3 decimals
+        r0 = tol - 0.02 * tol - 7.1e-4  # unsnapped vertices are rounded to 3 decimals
         rooms = r0 * CHORD_LEVEL ** np.arange(CAP_LEVELS)
         rooms = rooms[(rooms >= MIN_LEVEL_STEPS / spm.max()) | (np.arange(CAP_LEVELS) == 0)]
-        acc = np.asarray(grbl.acceleration, float)
-
-        def candidate(k: int) -> np.ndarray:
-            idx = _greedy_chords(q, rooms[k])
-            near = np.round(q[idx], 3)
-            if (np.round(near * spm) == np.round(near[0] * spm)).all():
-                return near  # the stroke is within one step: a dot, no move
-            # GRBL's rounded chords within r0 of q, so the printed ones (7.1e-4 away) are within tol - fine
-            p, found = snap_chords(q, idx, r0, float(spm[0]), float(spm[1]), feed / 60.0,
-                                   float(acc[0]), float(acc[1]), float(grbl.junction_deviation))
-            return p if found else near
-
-        start = int(np.argmin(np.abs(np.log(rooms * spm.max() / START_LEVEL_STEPS))))
-        best = yield candidate(start)
-        k = start
-        while best < np.inf and k + 1 < len(rooms):  # finer while it pays
-            t = yield candidate(k + 1)
-            if not t < best:
-                break
-            best, k = t, k + 1
-        if k == start:
-            while k > 0:  # else coarser while it pays, or until a serial line can feed it (inf: it cannot)
-                t = yield candidate(k - 1)
-                if best < np.inf and not t < best:
-                    break
-                best, k = t, k - 1
+        return rooms, r0, int(np.argmin(np.abs(np.log(rooms * spm.max() / START_LEVEL_STEPS))))
 
     def _stroke_points(self, stroke, dt: float, tol: float, min_feed: float, mode: str, cap: float, machine,
                        grbl, baud: int, arcs: bool = False):
@@ -457,16 +497,18 @@ class GcodePost(PostProcessor):
         # never above the pen-speed cap (a very short last segment has a tiny planned time)
         return p, np.clip(feed, min_feed, max(cap, min_feed)), {}
 
-    def _cap_paths(self, strokes, feeds, tol: float, machine, grbl, baud: int):
-        """feeds = cap without arcs for every stroke, as _stroke_points chooses them, but each level
-        of chords of all strokes still refining is timed with GRBL's model in one call (one call
-        per stroke and level cost more than the model on drawings of 10^4 strokes)."""
+    def _cap_paths(self, strokes, feeds, tol: float, machine, grbl, baud: int, lifts=None):
+        """feeds = cap without arcs for every stroke, as _stroke_points chooses them: each round, every stroke
+        still searching gets its next level's chords from one compiled call over all of them
+        (doodlecam.geometry.chord_batch), and all of them are timed with GRBL's model in one call (one call per
+        stroke and level cost more than the work on drawings of 10^4 strokes). ``lifts`` (Job.lifts): where the
+        pen goes on from one stroke into the next (a kept corner), the end chords are snapped to turn towards
+        the neighbour's tangent (_pass_through)."""
         from doodlecam.link.grbl.timing import _segment_time
 
         spm = np.array([machine.x.steps_per_mm, machine.y.steps_per_mm])
         out: list = [None] * len(strokes)
-        best: dict[int, tuple] = {}  # stroke -> (points, key) of its best level so far
-        searches = {}
+        curved = []
         for i, st in enumerate(strokes):
             if st.profile is None:
                 raise OutputError("job is not planned (a stroke has no feed profile); plan it before writing G-code")
@@ -474,46 +516,55 @@ class GcodePost(PostProcessor):
                 p = np.round(st.spline(np.array([0.0, 1.0])), 3)
                 out[i] = p[_one_step_apart(p, spm)]
             else:
-                searches[i] = self._cap_search(st, tol, spm, feeds[i], grbl)
-        sent: dict[int, float | None] = dict.fromkeys(searches)  # the time to send each search next
-        while sent:
-            cand = []
-            for i, t in sent.items():
-                try:
-                    p = searches[i].send(t)
-                except StopIteration:
-                    continue
-                cand.append((i, p[_one_step_apart(p, spm)]))
-            if not cand:
-                break
+                curved.append(i)
+        if not curved:
+            return [(p, np.full(len(p) - 1, feeds[i]), {}) for i, p in enumerate(out)]
+        q, qoff, _ = self._dense([strokes[i] for i in curved], tol)
+        rooms, r0, start = self._cap_levels(tol, spm)
+        v = np.array([feeds[i] / 60.0 for i in curved])
+        acc = np.asarray(grbl.acceleration, float)
+        t_in, t_out = _pass_through(strokes, curved, lifts)
+        walks = {s: _CapWalk(start, len(rooms)) for s in range(len(curved))}  # by position in curved
+        best: dict[int, tuple] = {}  # position -> (points, key) of its best level so far
+        asked = {s: start for s in walks}
+        while asked:
+            which = np.fromiter(asked, np.int64, len(asked))
+            pts, off = cap_candidates(q, qoff, which, np.fromiter(asked.values(), np.int64, len(asked)), rooms, r0,
+                                      float(spm[0]), float(spm[1]), v[which], float(acc[0]), float(acc[1]),
+                                      float(grbl.junction_deviation), SNAP, t_in, t_out)
+            n = np.diff(off)
             # one program of all candidates, each from rest to rest (the pen commands empty GRBL's
             # planner): the block joining two candidates starts from rest and its time is dropped;
             # a candidate of one point (the stroke within one step) has no block
-            moving = [(i, p) for i, p in cand if len(p) > 1]
+            moving = n > 1
+            first = np.zeros(len(n), np.int64)
             bt = np.zeros(0)
-            first = np.zeros(0, int)
-            if moving:
-                pts = np.concatenate([p for _, p in moving])
-                n = np.array([len(p) for _, p in moving])
-                first = np.concatenate([[0], np.cumsum(n)[:-1]])  # index of each candidate's first point
-                rest = np.zeros(len(pts) - 1, bool)
-                rest[first] = True  # its first block
-                rest[first[1:] - 1] = True  # the joining block
-                feed = np.repeat([feeds[i] / 60.0 for i, _ in moving], n)[:-1]
-                bt = _segment_time(np.c_[pts, np.zeros(len(pts))], feed, grbl, rest)
-            start = dict(zip((i for i, _ in moving), first))
-            sent = {}
-            for i, p in cand:
-                times = bt[start[i]:start[i] + len(p) - 1] if i in start else np.zeros(0)
+            if moving.any():
+                mpts = pts[np.repeat(moving, n)]
+                nm = n[moving]
+                first[moving] = np.concatenate([[0], np.cumsum(nm)[:-1]])  # each candidate's first point
+                fm = first[moving]
+                rest = np.zeros(len(mpts) - 1, bool)
+                rest[fm] = True  # its first block
+                rest[fm[1:] - 1] = True  # the joining block
+                feed = np.repeat([feeds[curved[s]] / 60.0 for s in which[moving]], nm)[:-1]
+                bt = _segment_time(np.c_[mpts, np.zeros(len(mpts))], feed, grbl, rest)
+            usable = serial_keeps_up(pts, off, bt, first, int(baud), 15)
+            asked = {}
+            for c, s in enumerate(which.tolist()):
+                p = pts[off[c]:off[c + 1]]
+                times = bt[first[c]:first[c] + n[c] - 1] if moving[c] else np.zeros(0)
                 t = float(times.sum())
-                usable = _serial_keeps_up(p, times, baud)
+                ok = usable[c] > 0 if usable[c] >= 0 else _serial_keeps_up(p, times, baud)
                 # the fastest candidate a serial line can feed; if none can, the one of fewest lines
-                key = (0, t) if usable else (1, len(p))
-                if i not in best or key < best[i][1]:
-                    best[i] = (p, key)
-                sent[i] = t if usable else np.inf
-        for i, (p, _) in best.items():
-            out[i] = p
+                key = (0, t) if ok else (1, len(p))
+                if s not in best or key < best[s][1]:
+                    best[s] = (p, key)
+                k = walks[s].send(t if ok else np.inf)
+                if k is not None:
+                    asked[s] = k
+        for s, (p, _) in best.items():
+            out[curved[s]] = p
         return [(p, np.full(len(p) - 1, feeds[i]), {}) for i, p in enumerate(out)]
 
     def write(self, job, options: dict[str, Any]) -> bytes:
@@ -535,15 +586,20 @@ class GcodePost(PostProcessor):
         caps = {k: _pen_cap(m, k, float(options["max_feed"])) for k in set(pen_no)}
         if options["feeds"] == "cap" and not options["arcs"]:  # the default: every stroke's chords at once
             paths = self._cap_paths(job.strokes, [max(caps[k], min_feed) for k in pen_no], tol, m, grbl,
-                                    int(options["baud"]))
+                                    int(options["baud"]), job.lifts)
         else:
             paths = [self._stroke_points(s, dts[i] if dts else m.delta_time, tol, min_feed, options["feeds"],
                                          caps[pen_no[i]], m, grbl, int(options["baud"]), bool(options["arcs"]))
                      for i, s in enumerate(job.strokes)]
         home = job.travels[-1].end if job.travels else np.asarray(m.home, float)
 
+        from functools import lru_cache
+
         from doodlecam.link.grbl.timing import parse_gcode
 
+        # a drawing's coordinates lie on the motor steps and its pen lines repeat: each is formatted or
+        # parsed once (10^5 calls cost more than the rest of the writing)
+        num, parse = lru_cache(maxsize=None)(_num), lru_cache(maxsize=None)(parse_gcode)
         body: list[str] = []
         # The same moves for the GRBL estimate, built here rather than parsed back
         # from the text (the coordinates are already rounded as printed).
@@ -553,7 +609,7 @@ class GcodePost(PostProcessor):
         def line(text: str) -> None:  # a user- or dialect-defined line: parse it for the estimate
             body.append(text)
             if estimate:
-                program.extend(parse_gcode(text))
+                program.extend(parse(text))
 
         def pen(cmd: str, delay: float) -> None:
             line(cmd)
@@ -568,26 +624,26 @@ class GcodePost(PostProcessor):
                 for text in pause_lines(d, f"{'change to' if n else 'fit'} {tool.describe(pen_no[n])}"):
                     line(text)
             if lifts[n]:
-                body.append(f"G0 X{_num(p[0, 0])} Y{_num(p[0, 1])}")
+                body.append(f"G0 X{num(p[0, 0])} Y{num(p[0, 1])}")
                 program.append(("G0", p[0, 0], p[0, 1], None, None))
                 pen(options["pen_down"], tool.down_delay)
-            elif n and len(p) and len(paths[n - 1][0]) and (_num(p[0, 0]), _num(p[0, 1])) != \
-                    (_num(paths[n - 1][0][-1, 0]), _num(paths[n - 1][0][-1, 1])):
+            elif n and len(p) and len(paths[n - 1][0]) and (num(p[0, 0]), num(p[0, 1])) != \
+                    (num(paths[n - 1][0][-1, 0]), num(paths[n - 1][0][-1, 1])):
                 # pen down from the last stroke's end, which the two strokes' vertices may place on different
                 # steps (each within the tolerance of the point they share)
                 fs = _num(max(feed[0] if len(feed) else caps[pen_no[n]], 0.1), 1)
-                body.append(f"G1 X{_num(p[0, 0])} Y{_num(p[0, 1])} F{fs}")
+                body.append(f"G1 X{num(p[0, 0])} Y{num(p[0, 1])} F{fs}")
                 program.append(("G1", p[0, 0], p[0, 1], None, float(fs)))
             last_f = ""
             for k, ((x, y), f) in enumerate(zip(p[1:].tolist(), feed.tolist())):
-                fs = _num(max(f, 0.1), 1)  # never print F0
+                fs = num(max(f, 0.1), 1)  # never print F0
                 fword = f" F{fs}" if fs != last_f else ""
                 if k in arc:
                     (i, j), cw = arc[k]
-                    body.append(f"G{2 if cw else 3} X{_num(x)} Y{_num(y)} I{_num(i)} J{_num(j)}" + fword)
+                    body.append(f"G{2 if cw else 3} X{num(x)} Y{num(y)} I{_num(i)} J{_num(j)}" + fword)
                     program.append((f"G{2 if cw else 3}", x, y, None, float(i), float(j), float(fs) if fword else None))
                 else:
-                    body.append(f"G1 X{_num(x)} Y{_num(y)}" + fword)
+                    body.append(f"G1 X{num(x)} Y{num(y)}" + fword)
                     program.append(("G1", x, y, None, float(fs) if fword else None))
                 last_f = fs
             if lifts[n + 1]:

@@ -146,3 +146,42 @@ def test_strokes_that_meet_are_drawn_through_their_shared_point_within_the_toler
     assert _dist_to_polyline(along.reshape(-1, 2), dense).max() <= 0.05 + 1e-6
     # the shared point: a vertex on its nearest step, where one stroke ends and the other starts
     assert np.abs(poly - np.round(a.end * 80.0) / 80.0).max(1).min() <= 1e-3
+
+
+def test_chords_at_a_kept_corner_lean_towards_the_next_piece_and_grbl_passes_it_faster(monkeypatch):
+    """Where the pen passes a corner without lifting (two pieces of one traced line), each piece's end chords are
+    snapped with the junction into the other piece costed: GRBL's model runs the job faster than with the
+    corner treated as a stop, the pen still passes the corner's step and every chord stays within the tolerance
+    of the curves."""
+    import doodlecam.postprocessors.gcode as post
+    from doodlecam.link.grbl.timing import GrblSettings, estimate_gcode
+
+    jobs = []
+    for turn in (25.0, 40.0, 70.0):
+        t = np.linspace(0.0, 20.0, 41)
+        a = Spline(3, np.c_[60.0 + t, 80.0 + 2.0 * np.sin(t / 5.0)])
+        h = np.radians(turn) + np.arctan2(*a(np.array([1.0]), 1)[0][::-1])
+        b = Spline(3, a.end + np.c_[np.cos(h) * t, np.sin(h) * t] + np.c_[np.zeros_like(t), 0.3 * np.sin(t / 4.0)])
+        pa, pb = trapezoid_profile(a), trapezoid_profile(b)
+        travels = (Travel(start=np.zeros(2), end=a.start, duration=1.0), Travel(start=a.end, end=b.start, duration=0.0),
+                   Travel(start=b.end, end=np.zeros(2), duration=1.0))
+        jobs.append(Job(machine=M, strokes=(Stroke(spline=a, profile=pa), Stroke(spline=b, profile=pb)),
+                        travels=travels, samples=(samples_for(a, pa, M.delta_time), samples_for(b, pb, M.delta_time)),
+                        source="corner"))
+    settings = GrblSettings.from_machine(M, 0.01, 25)
+    leaning = [write(job) for job in jobs]
+    with monkeypatch.context() as mp:
+        mp.setattr(post, "_pass_through", lambda strokes, which, lifts: (np.zeros((len(which), 2)),) * 2)
+        stopping = [write(job) for job in jobs]
+    lean_t = sum(estimate_gcode(text, settings).total for text in leaning)
+    stop_t = sum(estimate_gcode(text, settings).total for text in stopping)
+    assert leaning != stopping and lean_t < stop_t, (lean_t, stop_t)
+    for job, text in zip(jobs, leaning):
+        a, b = (s.spline for s in job.strokes)
+        moves = [x.split() for x in text.splitlines() if x.startswith(("G0 X", "G1 X"))][:-1]
+        poly = np.array([[float(w[1][1:]), float(w[2][1:])] for w in moves])
+        dense = np.vstack([a(np.linspace(0.0, 1.0, 4001)), b(np.linspace(0.0, 1.0, 4001))])
+        along = poly[:-1, None] + np.linspace(0.0, 1.0, 20)[:, None] * np.diff(poly, axis=0)[:, None]
+        assert _dist_to_polyline(along.reshape(-1, 2), dense).max() <= 0.05 + 1e-6
+        assert _dist_to_polyline(dense, poly).max() <= 0.05 + 1e-6
+        assert np.abs(poly - np.round(a.end * 80.0) / 80.0).max(1).min() <= 1e-3  # through the corner's step

@@ -78,7 +78,7 @@ def test_default_chords_on_grbls_steps_run_faster_on_the_firmware_within_the_tol
     assert _dist_to_polyline(executed, dense).max() <= 0.05 + 0.5 * np.sqrt(2) / 80.0
     assert _dist_to_polyline(dense[::10], executed).max() <= 0.05 + 0.5 * np.sqrt(2) / 80.0
     # the same search with every vertex where rounding the curve's point puts it
-    monkeypatch.setattr(post, "snap_chords", lambda q, idx, *a: (q[idx], False))
+    monkeypatch.setattr(post, "SNAP", False)
     rounded = write(job, chord_tolerance=0.05)
     assert rounded != snapped
     fw_rounded, _ = run(rounded)
