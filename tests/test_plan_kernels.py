@@ -208,3 +208,57 @@ def test_compiled_check_is_the_spline_evaluated_point_by_point(degree, extra):
     ref = interval_worst(b, h, d1 @ M.T, d2 @ M.T, np.linalg.norm(d1, axis=1), lim.amax, lim.vmax, 150.0, 20)
     for g, r in zip(got, ref):
         assert np.allclose(g, r, rtol=1e-9, atol=1e-12 * r.max())
+
+
+@pytest.mark.parametrize("degree", [1, 2, 3, 4, 5])
+@pytest.mark.parametrize("nseg", [1, 2, 3, 7, 12])
+def test_written_out_basis_gives_the_same_bits_as_de_boor(degree, nseg):
+    # the planner's kernels evaluate degrees 1-3 with the basis written out on scalars and the
+    # knots from a table; the files must not change by one byte, so the values must be the
+    # same bits as geometry.kernels' Cox-de Boor (bspline_eval), knots and span ends included
+    import numba
+
+    from doodlecam.geometry.kernels import bspline_eval
+    from doodlecam.plan.kernels import knot_table, spline_point
+
+    @numba.njit
+    def evaluate(c, k, nseg, x, P, out):
+        N, left, right = np.empty(P + 1), np.empty(P + 1), np.empty(P + 1)
+        kt = knot_table(P, nseg)
+        for j in range(x.shape[0]):
+            out[j, 0], out[j, 1] = spline_point(c, k, nseg, x[j], kt, P, N, left, right)
+
+    rng = np.random.default_rng(degree * 100 + nseg)
+    c = rng.normal(0.0, 30.0, (nseg + degree, 2))
+    knots = np.linspace(0.0, 1.0, nseg + 1)
+    x = np.concatenate([rng.uniform(0, 1, 2000), knots, np.nextafter(knots, -np.inf)[1:],
+                        np.nextafter(knots, np.inf)[:-1]])
+    ref, got = np.empty((len(x), 2)), np.empty((len(x), 2))
+    bspline_eval(c, degree, nseg, x, ref)
+    for P in {degree, 5}:  # the table of the spline's own degree, or of a higher one (its derivatives)
+        evaluate(c, degree, nseg, x, P, got)
+        assert np.array_equal(got.view(np.int64), ref.view(np.int64))
+
+
+@pytest.mark.parametrize("nseg", [1, 3, 9])
+def test_cubic_distance_loop_gives_the_generic_loops_bits(nseg):
+    # follow.distance_to_stretch runs a cubic through its own loop; it must measure exactly
+    # what the loop for any degree (spline_point, the same bits as de Boor) measures
+    import numba
+
+    from doodlecam.plan.kernels import _distance_loop, distance_to_stretch
+
+    @numba.njit
+    def generic(c0, c1, c2, k, nseg, x, lo, hi, candidates, iterations, out):
+        _distance_loop(c0, c1, c2, k, nseg, x, lo, hi, candidates, iterations, out)
+
+    rng = np.random.default_rng(nseg)
+    s = Spline(3, rng.normal(0.0, 20.0, (nseg + 3, 2)))
+    c = s.derivative_controls
+    lo = np.sort(rng.uniform(0, 1, (2, 500)), axis=0)
+    x = s(rng.uniform(lo[0], lo[1])) + rng.normal(0.0, 0.5, (500, 2))
+    for iterations in (0, 4):
+        got, ref = np.empty(500), np.empty(500)
+        distance_to_stretch(c[0], c[1], c[2], 3, nseg, x, lo[0], lo[1], 8, iterations, got)
+        generic(c[0], c[1], c[2], 3, nseg, x, lo[0], lo[1], 8, iterations, ref)
+        assert np.array_equal(got, ref) and np.all(got >= 0)

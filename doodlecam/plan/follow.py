@@ -70,8 +70,8 @@ def distance_to_stretch(spline: Spline, x: np.ndarray, lo: np.ndarray, hi: np.nd
     """Distance (mm) from each point x (n, 2) to the spline's stretch u in [lo, hi]
     (per point): the nearest of ``candidates`` evenly spread parameters, then
     Newton steps on (q(u) - x) . q'(u) = 0 kept within one spacing of it
-    (compiled: kernels.distance_to_stretch)."""
-    from doodlecam.geometry import kernels
+    (compiled: plan.kernels.distance_to_stretch)."""
+    from doodlecam.plan import kernels
 
     c = spline.derivative_controls
     out = np.empty(len(x))

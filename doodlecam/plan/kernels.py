@@ -9,7 +9,7 @@ planned (numba's import costs ~0.3 s).
 import numba
 import numpy as np
 
-from doodlecam.geometry.kernels import _point
+from doodlecam.geometry.kernels import _point, span_of
 
 _EPS = 1e-12
 
@@ -360,6 +360,7 @@ def spline_interval_worst(c1, c2, k, nseg, u, ends, tau, b, M, amax, vmax, pen):
     wa = np.zeros(K)
     wv = np.zeros(K)
     wp = np.zeros(K)
+    kt = knot_table(k, nseg)
     for i in range(K):
         h = u[i + 1] - u[i]
         a = (b[i + 1] - b[i]) / (2.0 * h)
@@ -377,9 +378,15 @@ def spline_interval_worst(c1, c2, k, nseg, u, ends, tau, b, M, amax, vmax, pen):
                 d1y = n0 * c1[sp, 1] + n1 * c1[sp + 1, 1] + n2 * c1[sp + 2, 1]
                 d2x = (1.0 - t) * c2[sp, 0] + t * c2[sp + 1, 0]
                 d2y = (1.0 - t) * c2[sp, 1] + t * c2[sp + 1, 1]
+            elif k == 3:  # _point's values: the basis written out for the degrees (constants), the knots from a table
+                s = span_of(x, nseg)
+                n0, n1, n2, _, _, _, _ = _basis2(x, kt, s + 3)
+                d1x, d1y = _sum3(c1, s, n0, n1, n2)
+                n0, n1, _, _ = _basis1(x, kt, s + 3)
+                d2x, d2y = _sum2(c2, s, n0, n1)
             else:
-                d1x, d1y = _point(c1, k - 1, nseg, x, N, left, right)
-                d2x, d2y = _point(c2, k - 2, nseg, x, N, left, right)
+                d1x, d1y = spline_point(c1, k - 1, nseg, x, kt, k, N, left, right)
+                d2x, d2y = spline_point(c2, k - 2, nseg, x, kt, k, N, left, right)
             tt = r / refine
             bb = b[i] * (1.0 - tt) + b[i + 1] * tt
             sb = np.sqrt(max(bb, 0.0))
@@ -397,3 +404,194 @@ def spline_interval_worst(c1, c2, k, nseg, u, ends, tau, b, M, amax, vmax, pen):
                 if p > wp[i]:
                     wp[i] = p
     return wa, wv, wp
+
+
+@numba.njit(cache=True, nogil=True)
+def knot_table(p, nseg):  # pragma: no cover - compiled
+    """kt[j] = geometry.kernels.knot(j, p, nseg) for j = 0 .. nseg + 2 p: the same
+    divisions done once per spline instead of twice per basis step."""
+    kt = np.empty(nseg + 2 * p + 1)
+    for j in range(kt.shape[0]):
+        kt[j] = min(max(j - p, 0), nseg) / nseg
+    return kt
+
+
+@numba.njit(cache=True, nogil=True, inline="always")
+def _split(n, r, l):  # pragma: no cover - compiled
+    """One term of a Cox-de Boor step: n shared out in proportion to r and l."""
+    t = n / (r + l)
+    return r * t, l * t
+
+
+@numba.njit(cache=True, nogil=True, inline="always")
+def _basis1(x, kt, ks):  # pragma: no cover - compiled
+    """geometry.kernels.basis_at's Cox-de Boor basis of degree 1 on scalars, the knots from
+    kt = knot_table(P, nseg) (ks = s + P): its operations in its order, so the same bits."""
+    l1 = x - kt[ks]
+    r1 = kt[ks + 1] - x
+    a, b = _split(1.0, r1, l1)
+    return 0.0 + a, b, l1, r1
+
+
+@numba.njit(cache=True, nogil=True, inline="always")
+def _basis2(x, kt, ks):  # pragma: no cover - compiled
+    """... of degree 2: one more step on _basis1."""
+    n0, n1, l1, r1 = _basis1(x, kt, ks)
+    l2 = x - kt[ks - 1]
+    r2 = kt[ks + 2] - x
+    a0, b0 = _split(n0, r1, l2)
+    a1, b1 = _split(n1, r2, l1)
+    return 0.0 + a0, b0 + a1, b1, l1, l2, r1, r2
+
+
+@numba.njit(cache=True, nogil=True, inline="always")
+def _basis3(x, kt, ks):  # pragma: no cover - compiled
+    """... of degree 3: one more step on _basis2."""
+    n0, n1, n2, l1, l2, r1, r2 = _basis2(x, kt, ks)
+    l3 = x - kt[ks - 2]
+    r3 = kt[ks + 3] - x
+    a0, b0 = _split(n0, r1, l3)
+    a1, b1 = _split(n1, r2, l2)
+    a2, b2 = _split(n2, r3, l1)
+    return 0.0 + a0, b0 + a1, b1 + a2, b2
+
+
+@numba.njit(cache=True, nogil=True, inline="always")
+def _cubic(x, kt, nseg, s, P):  # pragma: no cover - compiled
+    """The four cubic basis values of span s at x as geometry.kernels.basis_at makes them:
+    its closed form on an inner span, else Cox-de Boor (_basis3)."""
+    if 3 <= s < nseg - 3:
+        t = x * nseg - s
+        t2 = t * t
+        t3 = t2 * t
+        return (1.0 - t) ** 3 / 6.0, (3.0 * t3 - 6.0 * t2 + 4.0) / 6.0, (-3.0 * t3 + 3.0 * t2 + 3.0 * t + 1.0) / 6.0, t3 / 6.0
+    return _basis3(x, kt, s + P)
+
+
+@numba.njit(cache=True, nogil=True, inline="always")
+def _sum4(c, s, n0, n1, n2, n3):  # pragma: no cover - compiled
+    """The point from its basis values, summed as geometry.kernels._point sums them."""
+    sx, sy = _sum3(c, s, n0, n1, n2)
+    return sx + n3 * c[s + 3, 0], sy + n3 * c[s + 3, 1]
+
+
+@numba.njit(cache=True, nogil=True, inline="always")
+def _sum3(c, s, n0, n1, n2):  # pragma: no cover - compiled
+    sx = 0.0 + n0 * c[s, 0]
+    sy = 0.0 + n0 * c[s, 1]
+    sx += n1 * c[s + 1, 0]
+    sy += n1 * c[s + 1, 1]
+    sx += n2 * c[s + 2, 0]
+    sy += n2 * c[s + 2, 1]
+    return sx, sy
+
+
+@numba.njit(cache=True, nogil=True, inline="always")
+def _sum2(c, s, n0, n1):  # pragma: no cover - compiled
+    return (0.0 + n0 * c[s, 0]) + n1 * c[s + 1, 0], (0.0 + n0 * c[s, 1]) + n1 * c[s + 1, 1]
+
+
+@numba.njit(cache=True, nogil=True, inline="always")
+def spline_point(c, k, nseg, x, kt, P, N, left, right):  # pragma: no cover - compiled
+    """geometry.kernels._point (the same bits), its basis written out on scalars for
+    degrees 1 to 3 and the knots read from kt = knot_table(P, nseg), P >= k."""
+    return value_in_span(c, k, nseg, span_of(x, nseg), x, kt, P, N, left, right)
+
+
+@numba.njit(cache=True, nogil=True, inline="always")
+def value_in_span(c, k, nseg, s, x, kt, P, N, left, right):  # pragma: no cover - compiled
+    """spline_point with the knot span s of x known (other degrees: _point itself)."""
+    if k == 3:
+        n0, n1, n2, n3 = _cubic(x, kt, nseg, s, P)
+        return _sum4(c, s, n0, n1, n2, n3)
+    if k == 2:
+        n0, n1, n2, _, _, _, _ = _basis2(x, kt, s + P)
+        return _sum3(c, s, n0, n1, n2)
+    if k == 1:
+        n0, n1, _, _ = _basis1(x, kt, s + P)
+        return _sum2(c, s, n0, n1)
+    return _point(c, k, nseg, x, N, left, right)
+
+
+@numba.njit(cache=True, nogil=True)
+def distance_to_stretch(c0, c1, c2, k, nseg, x, lo, hi, candidates, iterations, out):  # pragma: no cover - compiled
+    """out[i] = distance from x[i] to the spline (control points c0, its first and
+    second derivatives' c1, c2; degree k, nseg spans) on u in [lo[i], hi[i]]: the
+    nearest of ``candidates`` evenly spread parameters, then Newton steps on
+    (q(u) - x) . q'(u) = 0 kept within one spacing of it (follow.distance_to_stretch).
+    The fitted cubic has its own loop (4x faster on a generated drawing's strokes)."""
+    if k == 3:
+        _distance_cubic(c0, c1, c2, nseg, x, lo, hi, candidates, iterations, out)
+    else:
+        _distance_loop(c0, c1, c2, k, nseg, x, lo, hi, candidates, iterations, out)
+
+
+@numba.njit(cache=True, nogil=True, inline="always")
+def _distance_cubic(c0, c1, c2, nseg, x, lo, hi, candidates, iterations, out):  # pragma: no cover - compiled
+    """_distance_loop of a cubic with the degrees written in: the same values, without
+    spline_point's dispatch on a degree known only at run time (which cost more than
+    the arithmetic), and q, q', q'' of a Newton step share one knot span."""
+    kt = knot_table(3, nseg)
+    for i in range(x.shape[0]):
+        px, py = x[i, 0], x[i, 1]
+        step = (hi[i] - lo[i]) / (candidates - 1)
+        best, ub = np.inf, lo[i]
+        for j in range(candidates):
+            u = lo[i] + step * j
+            s = span_of(u, nseg)
+            n0, n1, n2, n3 = _cubic(u, kt, nseg, s, 3)
+            qx, qy = _sum4(c0, s, n0, n1, n2, n3)
+            d = np.sqrt((qx - px) ** 2 + (qy - py) ** 2)
+            if d < best:
+                best, ub = d, u
+        a, b = max(ub - step, 0.0), min(ub + step, 1.0)
+        u = ub
+        for it in range(iterations + 1):  # the last pass only evaluates q at the final u
+            s = span_of(u, nseg)
+            n0, n1, n2, n3 = _cubic(u, kt, nseg, s, 3)
+            qx, qy = _sum4(c0, s, n0, n1, n2, n3)
+            if it == iterations:
+                break
+            n0, n1, n2, _, _, _, _ = _basis2(u, kt, s + 3)
+            d1x, d1y = _sum3(c1, s, n0, n1, n2)
+            n0, n1, _, _ = _basis1(u, kt, s + 3)
+            d2x, d2y = _sum2(c2, s, n0, n1)
+            rx, ry = qx - px, qy - py
+            g = d1x * rx + d1y * ry
+            h = d1x * d1x + d1y * d1y + d2x * rx + d2y * ry
+            if h > 1e-12:
+                u -= g / h
+            u = min(max(u, a), b)
+        out[i] = min(np.sqrt((qx - px) ** 2 + (qy - py) ** 2), best)
+
+
+@numba.njit(cache=True, nogil=True, inline="always")
+def _distance_loop(c0, c1, c2, k, nseg, x, lo, hi, candidates, iterations, out):  # pragma: no cover - compiled
+    N = np.empty(k + 1)
+    left = np.empty(k + 1)
+    right = np.empty(k + 1)
+    kt = knot_table(k, nseg)
+    for i in range(x.shape[0]):
+        px, py = x[i, 0], x[i, 1]
+        step = (hi[i] - lo[i]) / (candidates - 1)
+        best, ub = np.inf, lo[i]
+        for j in range(candidates):
+            u = lo[i] + step * j
+            qx, qy = spline_point(c0, k, nseg, u, kt, k, N, left, right)
+            d = np.sqrt((qx - px) ** 2 + (qy - py) ** 2)
+            if d < best:
+                best, ub = d, u
+        a, b = max(ub - step, 0.0), min(ub + step, 1.0)
+        u = ub
+        for _ in range(iterations):
+            qx, qy = spline_point(c0, k, nseg, u, kt, k, N, left, right)
+            d1x, d1y = spline_point(c1, k - 1, nseg, u, kt, k, N, left, right)
+            d2x, d2y = (0.0, 0.0) if k < 2 else spline_point(c2, k - 2, nseg, u, kt, k, N, left, right)
+            rx, ry = qx - px, qy - py
+            g = d1x * rx + d1y * ry
+            h = d1x * d1x + d1y * d1y + d2x * rx + d2y * ry
+            if h > 1e-12:
+                u -= g / h
+            u = min(max(u, a), b)
+        qx, qy = spline_point(c0, k, nseg, u, kt, k, N, left, right)
+        out[i] = min(np.sqrt((qx - px) ** 2 + (qy - py) ** 2), best)
