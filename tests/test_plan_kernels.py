@@ -262,3 +262,45 @@ def test_cubic_distance_loop_gives_the_generic_loops_bits(nseg):
         distance_to_stretch(c[0], c[1], c[2], 3, nseg, x, lo[0], lo[1], 8, iterations, got)
         generic(c[0], c[1], c[2], 3, nseg, x, lo[0], lo[1], 8, iterations, ref)
         assert np.array_equal(got, ref) and np.all(got >= 0)
+
+
+@pytest.mark.parametrize("degree", [2, 3, 4])
+def test_compiled_jerk_rows_are_the_numpy_formulas_bit_for_bit(degree):
+    # the jerk rows are built in compiled loops; the plans (and so the files) stay the same
+    # only if every coefficient is the same double as the array formulas give
+    from doodlecam.plan import constraints
+    from doodlecam.plan.follow import JerkBound
+
+    rng = np.random.default_rng(degree)
+    s = Spline(degree, rng.normal(0.0, 20.0, (degree + 6, 2)))
+    u = make_grid(s, 0.5)
+    taus, uu, c1, c2 = constraints.jerk_coefficients(s, u)
+    d1, d2, d3 = s(uu, 1), s(uu, 2), s(uu, 3)
+    sp = np.maximum(np.linalg.norm(d1, axis=-1), 1e-12)
+    c12 = d1[..., 0] * d2[..., 1] - d1[..., 1] * d2[..., 0]
+    c13 = d1[..., 0] * d3[..., 1] - d1[..., 1] * d3[..., 0]
+    dot12 = (d1 * d2).sum(axis=-1)
+    kappa = c12 / sp ** 3
+    kappa_s = (c13 * sp ** 2 - 3 * c12 * dot12) / sp ** 6
+    assert np.array_equal(c1, 3 * kappa * sp ** 2) and np.array_equal(c2, 3 * kappa * dot12 + sp ** 3 * kappa_s)
+
+    base = constraints.bernstein_rows(s, u, np.eye(2), np.array([150.0, 150.0]), np.array([2000.0, 2000.0]))
+    b_hat = rng.uniform(1e-6, 1e-3, len(u))
+    bound = JerkBound(3e4, ((0.2, 0.4, 0.5),))
+    rows = constraints.with_jerk(base, (taus, uu, c1, c2), u, b_hat, constraints.jerk_bound((taus, uu, c1, c2), bound))
+    tau = taus[:, None]
+    bh = b_hat[None, :-1] * (1 - tau) + b_hat[None, 1:] * tau
+    g = bound(uu) / np.sqrt(np.maximum(bh, 1e-300))
+    beta = c2 * tau + c1 / (2 * np.diff(u))[None, :]
+
+    def columns(x):
+        return np.stack([x, -x], axis=-1).transpose(1, 0, 2).reshape(x.shape[1], -1)
+
+    R = base.tot.shape[1]
+    assert np.array_equal(rows.tot, np.concatenate([base.tot, columns(c2)], 1))
+    assert np.array_equal(rows.beta, np.concatenate([base.beta, columns(beta)], 1))
+    assert np.array_equal(rows.gamma, np.concatenate([base.gamma, np.abs(columns(g))], 1))
+    assert np.array_equal(rows.ub, np.minimum(base.ub, b_hat))
+    b = rng.uniform(0.0, 2e-3, len(u))
+    assert np.array_equal(constraints.worst_ratios(rows, b), rows.ratios(b).max(axis=1))
+    assert np.array_equal(constraints.worst_ratios(rows, b, R), rows.ratios(b)[:, R:].max(axis=1))

@@ -595,3 +595,97 @@ def _distance_loop(c0, c1, c2, k, nseg, x, lo, hi, candidates, iterations, out):
             u = min(max(u, a), b)
         qx, qy = spline_point(c0, k, nseg, u, kt, k, N, left, right)
         out[i] = min(np.sqrt((qx - px) ** 2 + (qy - py) ** 2), best)
+
+
+@numba.njit(cache=True, nogil=True)
+def jerk_terms(c1, c2, c3, k, nseg, uu, sp, c12, c13, dot12):  # pragma: no cover - compiled
+    """At every point uu (clipped to [0, 1]) of constraints.jerk_coefficients: |q'| (at
+    least 1e-12), q' x q'', q' x q''' and q'.q'' from the control points c1, c2, c3 of
+    q', q'', q''' (degree k, nseg spans; a derivative above k is 0), the same bits as
+    Spline.__call__ and numpy's products give (one pass instead of three evaluations
+    and a dozen array operations)."""
+    T, K = uu.shape
+    N = np.empty(k + 1)
+    left = np.empty(k + 1)
+    right = np.empty(k + 1)
+    kt = knot_table(k, nseg)
+    for t in range(T):
+        for i in range(K):
+            x = min(max(uu[t, i], 0.0), 1.0)
+            if k == 3:
+                s = span_of(x, nseg)
+                n0, n1, n2, _, _, _, _ = _basis2(x, kt, s + 3)
+                d1x, d1y = _sum3(c1, s, n0, n1, n2)
+                n0, n1, _, _ = _basis1(x, kt, s + 3)
+                d2x, d2y = _sum2(c2, s, n0, n1)
+                d3x, d3y = 0.0 + 1.0 * c3[s, 0], 0.0 + 1.0 * c3[s, 1]  # degree 0: _point's sum
+            else:
+                d1x, d1y = spline_point(c1, k - 1, nseg, x, kt, k, N, left, right)
+                d2x, d2y = (0.0, 0.0) if k < 2 else spline_point(c2, k - 2, nseg, x, kt, k, N, left, right)
+                d3x, d3y = (0.0, 0.0) if k < 3 else spline_point(c3, k - 3, nseg, x, kt, k, N, left, right)
+            n = np.sqrt(d1x * d1x + d1y * d1y)
+            sp[t, i] = n if (n >= 1e-12 or n != n) else 1e-12  # np.maximum (NaN kept)
+            c12[t, i] = d1x * d2y - d1y * d2x
+            c13[t, i] = d1x * d3y - d1y * d3x
+            dot12[t, i] = d1x * d2x + d1y * d2y
+
+
+@numba.njit(cache=True, nogil=True)
+def jerk_finish(sp, sp3, sp6, c12, c13, dot12, c1, c2):  # pragma: no cover - compiled
+    """c1 = 3 kappa |q'|^2, c2 = 3 kappa q'.q'' + |q'|^3 dkappa/ds (constraints.jerk_coefficients),
+    with numpy's |q'|^3 and |q'|^6 (sp3, sp6: its power is not the compiled one)."""
+    T, K = sp.shape
+    for t in range(T):
+        for i in range(K):
+            sp2 = sp[t, i] * sp[t, i]
+            kappa = c12[t, i] / sp3[t, i]
+            kappa_s = (c13[t, i] * sp2 - 3 * c12[t, i] * dot12[t, i]) / sp6[t, i]
+            c1[t, i] = 3 * kappa * sp2
+            c2[t, i] = 3 * kappa * dot12[t, i] + sp3[t, i] * kappa_s
+
+
+@numba.njit(cache=True, nogil=True)
+def with_jerk_rows(tot0, beta0, gamma0, c1, c2, taus, u, b_hat, jm, tot, beta, gamma):  # pragma: no cover - compiled
+    """tot, beta, gamma (K, R0 + 2T) = the rows tot0, beta0, gamma0 (K, R0), then per
+    interval the jerk rows of constraints.with_jerk: for each tau, +-(c2, c2 tau + c1 / 2h)
+    <= jm / sqrt(b_hat(tau)), the operations of the numpy version in its order."""
+    K, R0 = tot0.shape
+    T = taus.shape[0]
+    for k in range(K):
+        for r in range(R0):
+            tot[k, r] = tot0[k, r]
+            beta[k, r] = beta0[k, r]
+            gamma[k, r] = gamma0[k, r]
+        h2 = 2 * (u[k + 1] - u[k])
+        for t in range(T):
+            tau = taus[t]
+            bh = b_hat[k] * (1 - tau) + b_hat[k + 1] * tau
+            g = jm[t, k] / np.sqrt(bh if (bh >= 1e-300 or bh != bh) else 1e-300)
+            be = c2[t, k] * tau + c1[t, k] / h2
+            r = R0 + 2 * t
+            tot[k, r] = c2[t, k]
+            beta[k, r] = be
+            gamma[k, r] = g
+            tot[k, r + 1] = -c2[t, k]
+            beta[k, r + 1] = -be
+            gamma[k, r + 1] = g
+
+
+@numba.njit(cache=True, nogil=True)
+def row_ratios(tot, beta, gamma, b, first, out):  # pragma: no cover - compiled
+    """out[k] = max over the rows r >= first of interval k of (tot b_k + beta (b_k+1 - b_k)) /
+    gamma (0 where gamma is not finite): constraints.Rows.ratios(b)[:, first:].max(axis=1),
+    NaN kept as numpy keeps it."""
+    K, R = tot.shape
+    for k in range(K):
+        d = b[k + 1] - b[k]
+        worst = -np.inf
+        for r in range(first, R):
+            g = gamma[k, r]
+            v = tot[k, r] * b[k] + beta[k, r] * d
+            v = v / g if np.isfinite(g) else 0.0
+            if v > worst or v != v:
+                worst = v
+                if v != v:
+                    break
+        out[k] = worst

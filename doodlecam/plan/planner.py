@@ -289,7 +289,7 @@ def plan_stroke(spline: Spline, limits: Limits, solver: str = "reach", spacing: 
 
     ``jerk_max`` (mm/s^3, a number or a function of u such as
     follow.JerkBound): also bound the pen's jerk across the path
-    (constraints.jerk_rows), which slows it where the curve's turning changes
+    (constraints.with_jerk), which slows it where the curve's turning changes
     fast; two more solves on the final grid (``JERK_GROW``).
     ``grid``: plan on these u instead of making (and refining) a grid, e.g. the
     grid of an earlier plan of the same stroke.
@@ -336,7 +336,7 @@ def plan_stroke(spline: Spline, limits: Limits, solver: str = "reach", spacing: 
         if nonlinear:
             split = worst > 1 + 1e-9  # sampled rows missed a peak: refine there
         else:
-            used = rows.ratios(b).max(axis=1)
+            used = constraints.worst_ratios(rows, b)
             t = profile_times(u, b)[-1]
             if not np.isfinite(t) or t > best_t * (1 - 1e-4):
                 break  # refinement no longer pays
@@ -348,13 +348,14 @@ def plan_stroke(spline: Spline, limits: Limits, solver: str = "reach", spacing: 
     if jerk_max:
         base_rows = rows
         coefficients = constraints.jerk_coefficients(spline, u)
+        jm = constraints.jerk_bound(coefficients, jerk_max)
         b_free = b
         for grow in JERK_GROW:
             # b <= b_hat keeps sqrt(b) below the sqrt(b_hat) the rows were made with
             b_hat = np.minimum(b_free, grow * b) * (1 + 1e-12)
-            jr = constraints.jerk_rows(coefficients, u, b_hat, jerk_max)
-            rows = constraints.stack(base_rows, constraints.Rows(jr.tot, jr.beta, jr.gamma, b_hat))
-            if grow == JERK_GROW[0] and jr.ratios(b_free).max(initial=0.0) <= 1.0:
+            rows = constraints.with_jerk(base_rows, coefficients, u, b_hat, jm)
+            first = base_rows.tot.shape[1]  # the jerk rows
+            if grow == JERK_GROW[0] and constraints.worst_ratios(rows, b_free, first).max(initial=0.0) <= 1.0:
                 break  # the plan already keeps the bound (a straight stroke, say): it is the answer
             b = _solve(rows, u, base, b0, bN)
     if solver.startswith("qp"):
