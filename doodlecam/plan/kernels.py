@@ -689,3 +689,108 @@ def row_ratios(tot, beta, gamma, b, first, out):  # pragma: no cover - compiled
                 if v != v:
                     break
         out[k] = worst
+
+
+@numba.njit(cache=True, nogil=True)
+def qp_fill(tang, tagged, signs, inst, axes, adata, pind, pdata, dx, dy, cross, nrm, w, lam, v_plan, shifted,
+            p, tol, L, end, amax, vmax, dt, trust, cap, q, b):  # pragma: no cover - compiled
+    """The sampler's QP data in one pass (sample._qp, whose array steps these are in the
+    same order): the tracking rows' tangent entries of A, the objective's values (its
+    diagonal, and with normals nrm (n, 2) the penalty across the curve), q and the
+    right-hand side b. Empty amax: no actuator rows; empty trust: no trust rows;
+    cap < 0: no pen-speed cones."""
+    m = p.shape[0]
+    n = m - 1
+    nv = 2 * n
+    nx = 2 * m
+    for j in range(tagged.shape[0]):
+        adata[tagged[j]] = -signs[j] * tang[inst[j], axes[j]]
+    for j in range(pdata.shape[0]):
+        c = pind[j]
+        pdata[j] = (lam if c < nv else (0.0 if c < nv + nx else 1.0)) + 1e-12
+    for j in range(n):
+        pdata[cross[j]] = 0.0
+    if nrm.shape[0] > 0:
+        for j in range(n):
+            pdata[dx[j]] += w * nrm[j, 0] * nrm[j, 0]
+            pdata[dy[j]] += w * nrm[j, 1] * nrm[j, 1]
+            pdata[cross[j]] = w * nrm[j, 0] * nrm[j, 1]
+    for j in range(n):
+        q[j] = -lam * v_plan[j, 0]
+        q[n + j] = -lam * v_plan[j, 1]
+    for j in range(nx):
+        q[nv + j] = 0.0
+    for j in range(m):
+        q[nv + nx + j] = shifted[j]
+    o = 0
+    for j in range(2 * m):
+        b[o + j] = 0.0
+    o += 2 * m
+    b[o] = end[0]
+    b[o + 1] = end[1]
+    o += 2
+    for sign in (1.0, -1.0):
+        for a in range(2):
+            for j in range(m - 1):
+                b[o + j] = sign * p[j, a] + tol
+            o += m - 1
+    for j in range(m - 1):
+        b[o + j] = L * (p[j + 1, 2] - p[j, 2])
+    o += m - 1
+    for _ in range(2):
+        for i in range(amax.shape[0]):
+            ab = amax[i] * dt * (1 - 1e-6)
+            vb = vmax[i] * (1 - 1e-6)
+            for j in range(m):
+                b[o + j] = ab
+            o += m
+            for j in range(n):
+                b[o + j] = vb
+            o += n
+    if trust.shape[0] > 0:
+        for _ in range(2):
+            for j in range(m):
+                b[o + j] = trust[j]
+            o += m
+    if cap >= 0.0:
+        cb = cap * (1 - 1e-6)
+        for j in range(n):
+            b[o] = cb
+            b[o + 1] = 0.0
+            b[o + 2] = 0.0
+            o += 3
+
+
+@numba.njit(cache=True, nogil=True)
+def curve_frame(c0, c1, k, nseg, u, start, L, pu, tang, nrm, trust, trust_mm):  # pragma: no cover - compiled
+    """What the sampler linearises at the parameters u (clipped to [0, 1] as Spline.__call__
+    clips them), in one pass with the same bits as its array steps: pu = (q(u) - start, u),
+    tang = q'(u) / L and, where nrm has rows, the unit normal q'^perp / |q'| (|q'| at least
+    1e-12) and trust = trust_mm L / |q'|. c0, c1: the control points of q and q' (degree k)."""
+    N = np.empty(k + 1)
+    left = np.empty(k + 1)
+    right = np.empty(k + 1)
+    kt = knot_table(k, nseg)
+    follow = nrm.shape[0] > 0
+    for j in range(u.shape[0]):
+        x = min(max(u[j], 0.0), 1.0)
+        if k == 3:
+            s = span_of(x, nseg)
+            n0, n1, n2, n3 = _cubic(x, kt, nseg, s, 3)
+            qx, qy = _sum4(c0, s, n0, n1, n2, n3)
+            n0, n1, n2, _, _, _, _ = _basis2(x, kt, s + 3)
+            d1x, d1y = _sum3(c1, s, n0, n1, n2)
+        else:
+            qx, qy = spline_point(c0, k, nseg, x, kt, k, N, left, right)
+            d1x, d1y = spline_point(c1, k - 1, nseg, x, kt, k, N, left, right)
+        pu[j, 0] = qx - start[0]
+        pu[j, 1] = qy - start[1]
+        pu[j, 2] = u[j]
+        tang[j, 0] = d1x / L
+        tang[j, 1] = d1y / L
+        if follow:
+            sp = np.sqrt(d1x * d1x + d1y * d1y)
+            sp = sp if (sp >= 1e-12 or sp != sp) else 1e-12
+            nrm[j, 0] = -d1y / sp
+            nrm[j, 1] = d1x / sp
+            trust[j] = trust_mm * L / sp
