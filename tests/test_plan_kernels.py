@@ -241,27 +241,45 @@ def test_written_out_basis_gives_the_same_bits_as_de_boor(degree, nseg):
 
 
 @pytest.mark.parametrize("nseg", [1, 3, 9])
-def test_cubic_distance_loop_gives_the_generic_loops_bits(nseg):
-    # follow.distance_to_stretch runs a cubic through its own loop; it must measure exactly
-    # what the loop for any degree (spline_point, the same bits as de Boor) measures
-    import numba
-
-    from doodlecam.plan.kernels import _distance_loop, distance_to_stretch
-
-    @numba.njit
-    def generic(c0, c1, c2, k, nseg, x, lo, hi, candidates, iterations, out):
-        _distance_loop(c0, c1, c2, k, nseg, x, lo, hi, candidates, iterations, out)
+def test_cubic_distance_gives_the_generic_bits(nseg):
+    # follow measures a cubic through its own compiled copy; it must measure exactly what
+    # the copy for any degree (spline_point, the same bits as de Boor) measures, and the
+    # fused per-period pass (period_deviation) exactly what the array version does
+    from doodlecam.model import StrokeSamples
+    from doodlecam.plan.follow import CANDIDATES, SUB, executed_points, path_deviation
+    from doodlecam.plan.kernels import _any_distance, distance_to_stretch, knot_table
 
     rng = np.random.default_rng(nseg)
     s = Spline(3, rng.normal(0.0, 20.0, (nseg + 3, 2)))
     c = s.derivative_controls
     lo = np.sort(rng.uniform(0, 1, (2, 500)), axis=0)
     x = s(rng.uniform(lo[0], lo[1])) + rng.normal(0.0, 0.5, (500, 2))
+    kt, work = knot_table(3, nseg), np.empty(4)
     for iterations in (0, 4):
-        got, ref = np.empty(500), np.empty(500)
-        distance_to_stretch(c[0], c[1], c[2], 3, nseg, x, lo[0], lo[1], 8, iterations, got)
-        generic(c[0], c[1], c[2], 3, nseg, x, lo[0], lo[1], 8, iterations, ref)
+        got = np.empty(500)
+        distance_to_stretch(c[0], c[1], c[2], 3, nseg, x, lo[0], lo[1], CANDIDATES, iterations, got)
+        ref = [_any_distance(c[0], c[1], c[2], 3, nseg, kt, work, work.copy(), work.copy(), p[0], p[1], a, b,
+                             CANDIDATES, iterations) for p, a, b in zip(x, lo[0], lo[1])]
         assert np.array_equal(got, ref) and np.all(got >= 0)
+
+    # samples wobbling along the curve: the deviation per period, fused, against the arrays
+    m = 40
+    su = np.sort(np.concatenate([[0.0, 1.0], rng.uniform(0, 1, m - 1)]))
+    pos = s(su)
+    smp = StrokeSamples(start=pos[0], velocity=np.vstack([np.diff(pos, axis=0)[:-1] / 0.04, np.zeros((1, 2))])
+                        + np.vstack([rng.normal(0, 2.0, (m - 1, 2)), np.zeros((1, 2))]), delta_time=0.04,
+                        time_scale=1.0, sample_u=su)
+    pts = executed_points(smp).reshape(-1, 2)
+    span = np.maximum(np.diff(su), 1e-9)
+    dist = np.empty(len(pts))
+    distance_to_stretch(c[0], c[1], c[2], 3, nseg, pts, np.repeat(np.maximum(su[:-1] - span / 2, 0.0), SUB + 1),
+                        np.repeat(np.minimum(su[1:] + span / 2, 1.0), SUB + 1), CANDIDATES, 4, dist)
+    dist = dist.reshape(m, SUB + 1)
+    k = np.clip(dist.argmax(axis=1), 1, SUB - 1)
+    fm, f0, fp = (dist[np.arange(m), k + j] for j in (-1, 0, 1))
+    curv = 2 * f0 - fm - fp
+    peak = f0 + np.where(curv > 1e-15, (fp - fm) ** 2 / (8 * np.maximum(curv, 1e-15)), 0.0)
+    assert np.array_equal(path_deviation(s, smp), np.maximum(dist.max(axis=1), np.minimum(peak, f0 + np.abs(fp - fm))))
 
 
 @pytest.mark.parametrize("degree", [2, 3, 4])

@@ -344,10 +344,10 @@ def times(u, b, t):  # pragma: no cover - compiled
 
 
 @numba.njit(cache=True, nogil=True)
-def spline_interval_worst(c1, c2, k, nseg, u, ends, tau, b, M, amax, vmax, pen):  # pragma: no cover - compiled
+def spline_interval_worst(c1, c2, k, nseg, u, tau, b, M, amax, vmax, pen):  # pragma: no cover - compiled
     """interval_worst for linear kinematics (theta = M q) straight from the spline: q' and
     q'' (control points c1, c2 of degrees k - 1, k - 2 over nseg spans) evaluated at
-    u_k + tau h_k (the last point: ends[k]) inside the loop, so the 20x check grid is never
+    u_k + tau h_k (the last point: the float below u_k+1, the interval's side of a knot) inside the loop, so the 20x check grid is never
     stored (its arrays cost more than the arithmetic). The same points as the numpy version
     (tests/test_plan_kernels.py compares them)."""
     K = u.shape[0] - 1
@@ -365,7 +365,7 @@ def spline_interval_worst(c1, c2, k, nseg, u, ends, tau, b, M, amax, vmax, pen):
         h = u[i + 1] - u[i]
         a = (b[i + 1] - b[i]) / (2.0 * h)
         for r in range(R):
-            x = ends[i] if r == refine else u[i] + tau[r] * h
+            x = np.nextafter(u[i + 1], -np.inf) if r == refine else u[i] + tau[r] * h
             x = min(max(x, 0.0), 1.0)
             sp = min(max(int(x * nseg), 0), nseg - 1)
             if k == 3 and 2 <= sp < nseg - 2:
@@ -491,7 +491,7 @@ def _sum2(c, s, n0, n1):  # pragma: no cover - compiled
     return (0.0 + n0 * c[s, 0]) + n1 * c[s + 1, 0], (0.0 + n0 * c[s, 1]) + n1 * c[s + 1, 1]
 
 
-@numba.njit(cache=True, nogil=True, inline="always")
+@numba.njit(cache=True, nogil=True)
 def spline_point(c, k, nseg, x, kt, P, N, left, right):  # pragma: no cover - compiled
     """geometry.kernels._point (the same bits), its basis written out on scalars for
     degrees 1 to 3 and the knots read from kt = knot_table(P, nseg), P >= k."""
@@ -518,83 +518,124 @@ def distance_to_stretch(c0, c1, c2, k, nseg, x, lo, hi, candidates, iterations, 
     """out[i] = distance from x[i] to the spline (control points c0, its first and
     second derivatives' c1, c2; degree k, nseg spans) on u in [lo[i], hi[i]]: the
     nearest of ``candidates`` evenly spread parameters, then Newton steps on
-    (q(u) - x) . q'(u) = 0 kept within one spacing of it (follow.distance_to_stretch).
-    The fitted cubic has its own loop (4x faster on a generated drawing's strokes)."""
-    if k == 3:
-        _distance_cubic(c0, c1, c2, nseg, x, lo, hi, candidates, iterations, out)
-    else:
-        _distance_loop(c0, c1, c2, k, nseg, x, lo, hi, candidates, iterations, out)
-
-
-@numba.njit(cache=True, nogil=True, inline="always")
-def _distance_cubic(c0, c1, c2, nseg, x, lo, hi, candidates, iterations, out):  # pragma: no cover - compiled
-    """_distance_loop of a cubic with the degrees written in: the same values, without
-    spline_point's dispatch on a degree known only at run time (which cost more than
-    the arithmetic), and q, q', q'' of a Newton step share one knot span."""
-    kt = knot_table(3, nseg)
-    for i in range(x.shape[0]):
-        px, py = x[i, 0], x[i, 1]
-        step = (hi[i] - lo[i]) / (candidates - 1)
-        best, ub = np.inf, lo[i]
-        for j in range(candidates):
-            u = lo[i] + step * j
-            s = span_of(u, nseg)
-            n0, n1, n2, n3 = _cubic(u, kt, nseg, s, 3)
-            qx, qy = _sum4(c0, s, n0, n1, n2, n3)
-            d = np.sqrt((qx - px) ** 2 + (qy - py) ** 2)
-            if d < best:
-                best, ub = d, u
-        a, b = max(ub - step, 0.0), min(ub + step, 1.0)
-        u = ub
-        for it in range(iterations + 1):  # the last pass only evaluates q at the final u
-            s = span_of(u, nseg)
-            n0, n1, n2, n3 = _cubic(u, kt, nseg, s, 3)
-            qx, qy = _sum4(c0, s, n0, n1, n2, n3)
-            if it == iterations:
-                break
-            n0, n1, n2, _, _, _, _ = _basis2(u, kt, s + 3)
-            d1x, d1y = _sum3(c1, s, n0, n1, n2)
-            n0, n1, _, _ = _basis1(u, kt, s + 3)
-            d2x, d2y = _sum2(c2, s, n0, n1)
-            rx, ry = qx - px, qy - py
-            g = d1x * rx + d1y * ry
-            h = d1x * d1x + d1y * d1y + d2x * rx + d2y * ry
-            if h > 1e-12:
-                u -= g / h
-            u = min(max(u, a), b)
-        out[i] = min(np.sqrt((qx - px) ** 2 + (qy - py) ** 2), best)
-
-
-@numba.njit(cache=True, nogil=True, inline="always")
-def _distance_loop(c0, c1, c2, k, nseg, x, lo, hi, candidates, iterations, out):  # pragma: no cover - compiled
+    (q(u) - x) . q'(u) = 0 kept within one spacing of it (follow.distance_to_stretch)."""
     N = np.empty(k + 1)
     left = np.empty(k + 1)
     right = np.empty(k + 1)
     kt = knot_table(k, nseg)
     for i in range(x.shape[0]):
-        px, py = x[i, 0], x[i, 1]
-        step = (hi[i] - lo[i]) / (candidates - 1)
-        best, ub = np.inf, lo[i]
-        for j in range(candidates):
-            u = lo[i] + step * j
-            qx, qy = spline_point(c0, k, nseg, u, kt, k, N, left, right)
-            d = np.sqrt((qx - px) ** 2 + (qy - py) ** 2)
-            if d < best:
-                best, ub = d, u
-        a, b = max(ub - step, 0.0), min(ub + step, 1.0)
-        u = ub
-        for _ in range(iterations):
-            qx, qy = spline_point(c0, k, nseg, u, kt, k, N, left, right)
-            d1x, d1y = spline_point(c1, k - 1, nseg, u, kt, k, N, left, right)
-            d2x, d2y = (0.0, 0.0) if k < 2 else spline_point(c2, k - 2, nseg, u, kt, k, N, left, right)
-            rx, ry = qx - px, qy - py
-            g = d1x * rx + d1y * ry
-            h = d1x * d1x + d1y * d1y + d2x * rx + d2y * ry
-            if h > 1e-12:
-                u -= g / h
-            u = min(max(u, a), b)
+        out[i] = _distance(c0, c1, c2, k, nseg, kt, N, left, right, x[i, 0], x[i, 1], lo[i], hi[i],
+                           candidates, iterations)
+
+
+@numba.njit(cache=True, nogil=True)
+def _distance(c0, c1, c2, k, nseg, kt, N, left, right, px, py, lo, hi, candidates, iterations):  # pragma: no cover - compiled
+    """distance_to_stretch of one point; the fitted cubic through its own copy with the degrees
+    written in (4x faster: spline_point's dispatch on a degree known only at run time cost
+    more than the arithmetic), the same values."""
+    if k == 3:
+        return _cubic_distance(c0, c1, c2, nseg, kt, px, py, lo, hi, candidates, iterations)
+    return _any_distance(c0, c1, c2, k, nseg, kt, N, left, right, px, py, lo, hi, candidates, iterations)
+
+
+@numba.njit(cache=True, nogil=True, inline="always")
+def _newton(u, rx, ry, d1x, d1y, d2x, d2y, a, b):  # pragma: no cover - compiled
+    """One Newton step on (q(u) - x) . q'(u) = 0 (r = q(u) - x), kept in [a, b]."""
+    g = d1x * rx + d1y * ry
+    h = d1x * d1x + d1y * d1y + d2x * rx + d2y * ry
+    if h > 1e-12:
+        u -= g / h
+    return min(max(u, a), b)
+
+
+@numba.njit(cache=True, nogil=True, inline="always")
+def _cubic_distance(c0, c1, c2, nseg, kt, px, py, lo, hi, candidates, iterations):  # pragma: no cover - compiled
+    step = (hi - lo) / (candidates - 1)
+    best, ub = np.inf, lo
+    for j in range(candidates):
+        u = lo + step * j
+        s = span_of(u, nseg)
+        n0, n1, n2, n3 = _cubic(u, kt, nseg, s, 3)
+        qx, qy = _sum4(c0, s, n0, n1, n2, n3)
+        d = np.sqrt((qx - px) ** 2 + (qy - py) ** 2)
+        if d < best:
+            best, ub = d, u
+    a, b = max(ub - step, 0.0), min(ub + step, 1.0)
+    u = ub
+    for it in range(iterations + 1):  # the last pass only evaluates q at the final u
+        s = span_of(u, nseg)
+        n0, n1, n2, n3 = _cubic(u, kt, nseg, s, 3)
+        qx, qy = _sum4(c0, s, n0, n1, n2, n3)
+        if it == iterations:
+            break
+        n0, n1, n2, _, _, _, _ = _basis2(u, kt, s + 3)
+        d1x, d1y = _sum3(c1, s, n0, n1, n2)
+        n0, n1, _, _ = _basis1(u, kt, s + 3)
+        d2x, d2y = _sum2(c2, s, n0, n1)
+        u = _newton(u, qx - px, qy - py, d1x, d1y, d2x, d2y, a, b)
+    return min(np.sqrt((qx - px) ** 2 + (qy - py) ** 2), best)
+
+
+@numba.njit(cache=True, nogil=True)
+def _any_distance(c0, c1, c2, k, nseg, kt, N, left, right, px, py, lo, hi, candidates, iterations):  # pragma: no cover - compiled
+    step = (hi - lo) / (candidates - 1)
+    best, ub = np.inf, lo
+    for j in range(candidates):
+        u = lo + step * j
         qx, qy = spline_point(c0, k, nseg, u, kt, k, N, left, right)
-        out[i] = min(np.sqrt((qx - px) ** 2 + (qy - py) ** 2), best)
+        d = np.sqrt((qx - px) ** 2 + (qy - py) ** 2)
+        if d < best:
+            best, ub = d, u
+    a, b = max(ub - step, 0.0), min(ub + step, 1.0)
+    u = ub
+    for _ in range(iterations):
+        qx, qy = spline_point(c0, k, nseg, u, kt, k, N, left, right)
+        d1x, d1y = spline_point(c1, k - 1, nseg, u, kt, k, N, left, right)
+        d2x, d2y = (0.0, 0.0) if k < 2 else spline_point(c2, k - 2, nseg, u, kt, k, N, left, right)
+        u = _newton(u, qx - px, qy - py, d1x, d1y, d2x, d2y, a, b)
+    qx, qy = spline_point(c0, k, nseg, u, kt, k, N, left, right)
+    return min(np.sqrt((qx - px) ** 2 + (qy - py) ** 2), best)
+
+
+@numba.njit(cache=True, nogil=True)
+def period_deviation(c0, c1, c2, k, nseg, x, v, tau, c, su, candidates, iterations, out):  # pragma: no cover - compiled
+    """follow.path_deviation of a curve in one pass: per period i, the executed parabola
+    x_i + v_i tau + (v_i+1 - v_i) c (c = tau^2 / 2 dT) at the points tau, each point's
+    distance to the stretch [su_i - w / 2, su_i+1 + w / 2] (w = su_i+1 - su_i, at least 1e-9)
+    and the peak recovered by a parabola through the largest and its neighbours; the
+    array version's operations in its order (NaN kept as numpy keeps it)."""
+    N = np.empty(k + 1)
+    left = np.empty(k + 1)
+    right = np.empty(k + 1)
+    kt = knot_table(k, nseg)
+    R = tau.shape[0]
+    dist = np.empty(R)
+    for i in range(out.shape[0]):
+        w = su[i + 1] - su[i]
+        w = w if (w >= 1e-9 or w != w) else 1e-9
+        lo = su[i] - w / 2
+        lo = lo if (lo >= 0.0 or lo != lo) else 0.0
+        hi = su[i + 1] + w / 2
+        hi = hi if (hi <= 1.0 or hi != hi) else 1.0
+        top = 0
+        for r in range(R):
+            px = x[i, 0] + v[i, 0] * tau[r] + (v[i + 1, 0] - v[i, 0]) * c[r]
+            py = x[i, 1] + v[i, 1] * tau[r] + (v[i + 1, 1] - v[i, 1]) * c[r]
+            dist[r] = _distance(c0, c1, c2, k, nseg, kt, N, left, right, px, py, lo, hi, candidates, iterations)
+        for r in range(R):  # numpy's argmax: the first largest (the first NaN)
+            if dist[r] != dist[r]:
+                top = r
+                break
+            if dist[r] > dist[top]:
+                top = r
+        f0max = dist[top]
+        kk = min(max(top, 1), R - 2)
+        fm, f0, fp = dist[kk - 1], dist[kk], dist[kk + 1]
+        curv = 2 * f0 - fm - fp
+        peak = f0 + ((fp - fm) ** 2 / (8 * curv) if curv > 1e-15 else 0.0)
+        bound = f0 + abs(fp - fm)
+        lim = peak if (peak <= bound or peak != peak) else bound
+        out[i] = f0max if (f0max >= lim or f0max != f0max) else lim
 
 
 @numba.njit(cache=True, nogil=True)

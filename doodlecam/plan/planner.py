@@ -19,6 +19,7 @@ Bernstein bound is loose (``adaptive``), instead of everywhere.
 
 from __future__ import annotations
 
+import functools
 import math
 from dataclasses import dataclass
 from typing import Any
@@ -138,20 +139,27 @@ def interval_ratios(spline: Spline, u: np.ndarray, b: np.ndarray, limits: Limits
     ``refine`` points inside it, straight from the spline (no bounds)."""
     from doodlecam.plan.kernels import interval_worst, spline_interval_worst
 
-    h = np.diff(u)
-    tau = np.linspace(0.0, 1.0, refine + 1)
+    tau = _taus(refine)
     if limits.M is not None and spline.degree >= 2:
         c = spline.derivative_controls
         return spline_interval_worst(c[1], c[2], spline.degree, len(spline.control) - spline.degree,
-                                     np.asarray(u, float), np.nextafter(u[1:], -np.inf), tau, np.asarray(b, float),
+                                     np.asarray(u, float), tau, np.asarray(b, float),
                                      np.ascontiguousarray(limits.M, float), np.asarray(limits.amax, float),
                                      np.asarray(limits.vmax, float), float(limits.pen_speed or 0.0))
+    h = np.diff(u)
     uu = u[:-1, None] + tau[None, :] * h[:, None]
     # the right end as the interval's own limit: at a knot q'' (degree 2) or q' (degree 1) jumps
     uu[:, -1] = np.nextafter(u[1:], -np.inf)
     t1, t2, sp = limits.derivatives(spline, uu.ravel())
     return interval_worst(np.asarray(b, float), h, t1, t2, sp, limits.amax, limits.vmax,
                           float(limits.pen_speed or 0.0), refine)
+
+
+@functools.lru_cache(maxsize=8)
+def _taus(refine: int) -> np.ndarray:
+    tau = np.linspace(0.0, 1.0, refine + 1)
+    tau.flags.writeable = False
+    return tau
 
 
 def check_profile(spline: Spline, profile: Profile, limits: Limits, refine: int = CHECK_REFINE):
