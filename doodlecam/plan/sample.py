@@ -84,17 +84,30 @@ def _clarabel(P, q, A, b, n_eq, n_soc=0, n_tail=0):
     re-stacking cost more than the solve."""
     import clarabel
 
+    # the solver copies the settings and cones at set-up, so one of each serves every solve
+    cones = _cones(n_eq, A.shape[0] - n_eq - 3 * n_soc - n_tail, n_soc, n_tail)
+    res = clarabel.DefaultSolver(P, q, A, b, cones, _settings()).solve()
+    return np.asarray(res.x) if res.status == clarabel.SolverStatus.Solved else None
+
+
+@functools.lru_cache(maxsize=1)
+def _settings():
+    import clarabel
+
     settings = clarabel.DefaultSettings()
     settings.verbose = False
     # refinement buys residuals of 3e-10 instead of 1e-8 (mm, mm/s) at a quarter of the
     # time; the limit rows keep a 1e-6 relative margin and positions are checked after
     settings.iterative_refinement_enable = False
-    cones = [clarabel.ZeroConeT(n_eq), clarabel.NonnegativeConeT(A.shape[0] - n_eq - 3 * n_soc - n_tail)]
-    cones += [clarabel.SecondOrderConeT(3)] * n_soc
-    if n_tail:
-        cones.append(clarabel.NonnegativeConeT(n_tail))
-    res = clarabel.DefaultSolver(P, q, A, b, cones, settings).solve()
-    return np.asarray(res.x) if res.status == clarabel.SolverStatus.Solved else None
+    return settings
+
+
+@functools.lru_cache(maxsize=256)
+def _cones(n_eq: int, n_ineq: int, n_soc: int, n_tail: int) -> list:
+    import clarabel
+
+    cones = [clarabel.ZeroConeT(n_eq), clarabel.NonnegativeConeT(n_ineq)] + [clarabel.SecondOrderConeT(3)] * n_soc
+    return cones + [clarabel.NonnegativeConeT(n_tail)] if n_tail else cones
 
 
 @functools.lru_cache(maxsize=256)
