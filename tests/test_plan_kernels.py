@@ -208,3 +208,117 @@ def test_compiled_check_is_the_spline_evaluated_point_by_point(degree, extra):
     ref = interval_worst(b, h, d1 @ M.T, d2 @ M.T, np.linalg.norm(d1, axis=1), lim.amax, lim.vmax, 150.0, 20)
     for g, r in zip(got, ref):
         assert np.allclose(g, r, rtol=1e-9, atol=1e-12 * r.max())
+
+
+@pytest.mark.parametrize("degree", [1, 2, 3, 4, 5])
+@pytest.mark.parametrize("nseg", [1, 2, 3, 7, 12])
+def test_written_out_basis_gives_the_same_bits_as_de_boor(degree, nseg):
+    # the planner's kernels evaluate degrees 1-3 with the basis written out on scalars and the
+    # knots from a table; the files must not change by one byte, so the values must be the
+    # same bits as geometry.kernels' Cox-de Boor (bspline_eval), knots and span ends included
+    import numba
+
+    from doodlecam.geometry.kernels import bspline_eval
+    from doodlecam.plan.kernels import knot_table, spline_point
+
+    @numba.njit
+    def evaluate(c, k, nseg, x, P, out):
+        N, left, right = np.empty(P + 1), np.empty(P + 1), np.empty(P + 1)
+        kt = knot_table(P, nseg)
+        for j in range(x.shape[0]):
+            out[j, 0], out[j, 1] = spline_point(c, k, nseg, x[j], kt, P, N, left, right)
+
+    rng = np.random.default_rng(degree * 100 + nseg)
+    c = rng.normal(0.0, 30.0, (nseg + degree, 2))
+    knots = np.linspace(0.0, 1.0, nseg + 1)
+    x = np.concatenate([rng.uniform(0, 1, 2000), knots, np.nextafter(knots, -np.inf)[1:],
+                        np.nextafter(knots, np.inf)[:-1]])
+    ref, got = np.empty((len(x), 2)), np.empty((len(x), 2))
+    bspline_eval(c, degree, nseg, x, ref)
+    for P in {degree, 5}:  # the table of the spline's own degree, or of a higher one (its derivatives)
+        evaluate(c, degree, nseg, x, P, got)
+        assert np.array_equal(got.view(np.int64), ref.view(np.int64))
+
+
+@pytest.mark.parametrize("nseg", [1, 3, 9])
+def test_cubic_distance_gives_the_generic_bits(nseg):
+    # follow measures a cubic through its own compiled copy; it must measure exactly what
+    # the copy for any degree (spline_point, the same bits as de Boor) measures, and the
+    # fused per-period pass (period_deviation) exactly what the array version does
+    from doodlecam.model import StrokeSamples
+    from doodlecam.plan.follow import CANDIDATES, SUB, executed_points, path_deviation
+    from doodlecam.plan.kernels import _any_distance, distance_to_stretch, knot_table
+
+    rng = np.random.default_rng(nseg)
+    s = Spline(3, rng.normal(0.0, 20.0, (nseg + 3, 2)))
+    c = s.derivative_controls
+    lo = np.sort(rng.uniform(0, 1, (2, 500)), axis=0)
+    x = s(rng.uniform(lo[0], lo[1])) + rng.normal(0.0, 0.5, (500, 2))
+    kt, work = knot_table(3, nseg), np.empty(4)
+    for iterations in (0, 4):
+        got = np.empty(500)
+        distance_to_stretch(c[0], c[1], c[2], 3, nseg, x, lo[0], lo[1], CANDIDATES, iterations, got)
+        ref = [_any_distance(c[0], c[1], c[2], 3, nseg, kt, work, work.copy(), work.copy(), p[0], p[1], a, b,
+                             CANDIDATES, iterations) for p, a, b in zip(x, lo[0], lo[1])]
+        assert np.array_equal(got, ref) and np.all(got >= 0)
+
+    # samples wobbling along the curve: the deviation per period, fused, against the arrays
+    m = 40
+    su = np.sort(np.concatenate([[0.0, 1.0], rng.uniform(0, 1, m - 1)]))
+    pos = s(su)
+    smp = StrokeSamples(start=pos[0], velocity=np.vstack([np.diff(pos, axis=0)[:-1] / 0.04, np.zeros((1, 2))])
+                        + np.vstack([rng.normal(0, 2.0, (m - 1, 2)), np.zeros((1, 2))]), delta_time=0.04,
+                        time_scale=1.0, sample_u=su)
+    pts = executed_points(smp).reshape(-1, 2)
+    span = np.maximum(np.diff(su), 1e-9)
+    dist = np.empty(len(pts))
+    distance_to_stretch(c[0], c[1], c[2], 3, nseg, pts, np.repeat(np.maximum(su[:-1] - span / 2, 0.0), SUB + 1),
+                        np.repeat(np.minimum(su[1:] + span / 2, 1.0), SUB + 1), CANDIDATES, 4, dist)
+    dist = dist.reshape(m, SUB + 1)
+    k = np.clip(dist.argmax(axis=1), 1, SUB - 1)
+    fm, f0, fp = (dist[np.arange(m), k + j] for j in (-1, 0, 1))
+    curv = 2 * f0 - fm - fp
+    peak = f0 + np.where(curv > 1e-15, (fp - fm) ** 2 / (8 * np.maximum(curv, 1e-15)), 0.0)
+    assert np.array_equal(path_deviation(s, smp), np.maximum(dist.max(axis=1), np.minimum(peak, f0 + np.abs(fp - fm))))
+
+
+@pytest.mark.parametrize("degree", [2, 3, 4])
+def test_compiled_jerk_rows_are_the_numpy_formulas_bit_for_bit(degree):
+    # the jerk rows are built in compiled loops; the plans (and so the files) stay the same
+    # only if every coefficient is the same double as the array formulas give
+    from doodlecam.plan import constraints
+    from doodlecam.plan.follow import JerkBound
+
+    rng = np.random.default_rng(degree)
+    s = Spline(degree, rng.normal(0.0, 20.0, (degree + 6, 2)))
+    u = make_grid(s, 0.5)
+    taus, uu, c1, c2 = constraints.jerk_coefficients(s, u)
+    d1, d2, d3 = s(uu, 1), s(uu, 2), s(uu, 3)
+    sp = np.maximum(np.linalg.norm(d1, axis=-1), 1e-12)
+    c12 = d1[..., 0] * d2[..., 1] - d1[..., 1] * d2[..., 0]
+    c13 = d1[..., 0] * d3[..., 1] - d1[..., 1] * d3[..., 0]
+    dot12 = (d1 * d2).sum(axis=-1)
+    kappa = c12 / sp ** 3
+    kappa_s = (c13 * sp ** 2 - 3 * c12 * dot12) / sp ** 6
+    assert np.array_equal(c1, 3 * kappa * sp ** 2) and np.array_equal(c2, 3 * kappa * dot12 + sp ** 3 * kappa_s)
+
+    base = constraints.bernstein_rows(s, u, np.eye(2), np.array([150.0, 150.0]), np.array([2000.0, 2000.0]))
+    b_hat = rng.uniform(1e-6, 1e-3, len(u))
+    bound = JerkBound(3e4, ((0.2, 0.4, 0.5),))
+    rows = constraints.with_jerk(base, (taus, uu, c1, c2), u, b_hat, constraints.jerk_bound((taus, uu, c1, c2), bound))
+    tau = taus[:, None]
+    bh = b_hat[None, :-1] * (1 - tau) + b_hat[None, 1:] * tau
+    g = bound(uu) / np.sqrt(np.maximum(bh, 1e-300))
+    beta = c2 * tau + c1 / (2 * np.diff(u))[None, :]
+
+    def columns(x):
+        return np.stack([x, -x], axis=-1).transpose(1, 0, 2).reshape(x.shape[1], -1)
+
+    R = base.tot.shape[1]
+    assert np.array_equal(rows.tot, np.concatenate([base.tot, columns(c2)], 1))
+    assert np.array_equal(rows.beta, np.concatenate([base.beta, columns(beta)], 1))
+    assert np.array_equal(rows.gamma, np.concatenate([base.gamma, np.abs(columns(g))], 1))
+    assert np.array_equal(rows.ub, np.minimum(base.ub, b_hat))
+    b = rng.uniform(0.0, 2e-3, len(u))
+    assert np.array_equal(constraints.worst_ratios(rows, b), rows.ratios(b).max(axis=1))
+    assert np.array_equal(constraints.worst_ratios(rows, b, R), rows.ratios(b)[:, R:].max(axis=1))

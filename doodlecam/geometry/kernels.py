@@ -1,4 +1,4 @@
-"""Compiled B-spline kernels (numba): knots, basis functions, evaluation, distance to a stretch.
+"""Compiled B-spline kernels (numba): knots, basis functions, evaluation, span polynomials.
 
 The data model (``Spline``), the fitter and the planner's follower all evaluate splines
 through these; they import nothing from doodlecam, so everything can import them.
@@ -16,7 +16,7 @@ def knot(j, p, nseg):  # pragma: no cover - compiled
 
 @numba.njit(cache=True, nogil=True, inline="always")
 def span_at(x, nseg):  # pragma: no cover - compiled
-    """The knot span [s, s + 1] / nseg of x in [0, 1]."""
+    """The knot span s of x in [0, 1] ([s, s + 1] / nseg), right-continuous at knots."""
     s = min(max(int(x * nseg), 0), nseg - 1)
     step = 1.0 / nseg  # knot j is j * step, as numpy.linspace makes Spline.knots
     if s + 1 < nseg and x >= (s + 1) * step:  # x * nseg rounded across a knot:
@@ -83,41 +83,6 @@ def bspline_eval(c, k, nseg, x, out):  # pragma: no cover - compiled
     right = np.empty(k + 1)
     for j in range(x.shape[0]):
         out[j, 0], out[j, 1] = _point(c, k, nseg, min(max(x[j], 0.0), 1.0), N, left, right)
-
-
-@numba.njit(cache=True, nogil=True)
-def distance_to_stretch(c0, c1, c2, k, nseg, x, lo, hi, candidates, iterations, out):  # pragma: no cover - compiled
-    """out[i] = distance from x[i] to the spline (control points c0, its first and
-    second derivatives' c1, c2; degree k, nseg spans) on u in [lo[i], hi[i]]: the
-    nearest of ``candidates`` evenly spread parameters, then Newton steps on
-    (q(u) - x) . q'(u) = 0 kept within one spacing of it (follow.distance_to_stretch)."""
-    N = np.empty(k + 1)
-    left = np.empty(k + 1)
-    right = np.empty(k + 1)
-    for i in range(x.shape[0]):
-        px, py = x[i, 0], x[i, 1]
-        step = (hi[i] - lo[i]) / (candidates - 1)
-        best, ub = np.inf, lo[i]
-        for j in range(candidates):
-            u = lo[i] + step * j
-            qx, qy = _point(c0, k, nseg, u, N, left, right)
-            d = np.sqrt((qx - px) ** 2 + (qy - py) ** 2)
-            if d < best:
-                best, ub = d, u
-        a, b = max(ub - step, 0.0), min(ub + step, 1.0)
-        u = ub
-        for _ in range(iterations):
-            qx, qy = _point(c0, k, nseg, u, N, left, right)
-            d1x, d1y = _point(c1, k - 1, nseg, u, N, left, right)
-            d2x, d2y = (0.0, 0.0) if k < 2 else _point(c2, k - 2, nseg, u, N, left, right)
-            rx, ry = qx - px, qy - py
-            g = d1x * rx + d1y * ry
-            h = d1x * d1x + d1y * d1y + d2x * rx + d2y * ry
-            if h > 1e-12:
-                u -= g / h
-            u = min(max(u, a), b)
-        qx, qy = _point(c0, k, nseg, u, N, left, right)
-        out[i] = min(np.sqrt((qx - px) ** 2 + (qy - py) ** 2), best)
 
 
 @numba.njit(cache=True, nogil=True)

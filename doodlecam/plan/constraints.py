@@ -184,48 +184,55 @@ def sampled_rows(spline: Spline, u: np.ndarray, kinematics, vmax, amax, pen_spee
 
 def jerk_coefficients(spline: Spline, u: np.ndarray, taus=(0.0, 0.5, 1.0)):
     """(taus (T,), u there (T, K), c1 (T, K), c2 (T, K)) on the K intervals of the grid u,
-    the pen's jerk across the path being sqrt(b) (c1 a + c2 b) there (see jerk_rows)."""
+    the pen's jerk across the path being sqrt(b) (c1 a + c2 b) there (see with_jerk):
+    c1 = 3 kappa |q'|^2, c2 = 3 kappa q'.q'' + |q'|^3 dkappa/ds, with
+    kappa = q' x q'' / |q'|^3 and dkappa/ds = (q' x q''' |q'|^2 - 3 q' x q'' q'.q'') / |q'|^6."""
+    from doodlecam.plan.kernels import jerk_finish, jerk_terms
+
     h = np.diff(u)
     taus = np.asarray(taus, float)
     uu = (u[:-1, None] + taus[None, :] * h[:, None]).T  # (len(taus), K): all at once
     uu[taus >= 1] = np.nextafter(u[1:], -np.inf)  # the interval's own side of a knot (degree 2)
-    d1, d2, d3 = spline(uu, 1), spline(uu, 2), spline(uu, 3)
-    sp = np.maximum(np.linalg.norm(d1, axis=-1), 1e-12)
-    c12 = d1[..., 0] * d2[..., 1] - d1[..., 1] * d2[..., 0]
-    c13 = d1[..., 0] * d3[..., 1] - d1[..., 1] * d3[..., 0]
-    dot12 = (d1 * d2).sum(axis=-1)
-    kappa = c12 / sp ** 3
-    kappa_s = (c13 * sp ** 2 - 3 * c12 * dot12) / sp ** 6  # d kappa / d arc length
-    c1, c2 = 3 * kappa * sp ** 2, 3 * kappa * dot12 + sp ** 3 * kappa_s
+    sp, c12, c13, dot12 = (np.empty(uu.shape) for _ in range(4))
+    d = spline.derivative_controls
+    k = spline.degree
+    jerk_terms(d[1], d[min(2, k)], d[min(3, k)], k, len(spline.control) - k, uu, sp, c12, c13, dot12)
+    c1, c2 = np.empty(uu.shape), np.empty(uu.shape)
+    jerk_finish(sp, sp ** 3, sp ** 6, c12, c13, dot12, c1, c2)  # numpy's powers (as ever: the same plans)
     return taus, uu, c1, c2
 
 
-def jerk_rows(coefficients, u: np.ndarray, b_hat: np.ndarray, jerk_max) -> Rows:
-    """Rows bounding the pen's jerk across the path, |3 v kappa a_t + v^3 dkappa/ds| <= jerk_max
-    (mm/s^3; a number, or a function of the curve parameter u), at the points of
-    ``coefficients`` (jerk_coefficients on the grid u) inside every interval.
+def jerk_bound(coefficients, jerk_max) -> np.ndarray:
+    """The jerk bound (mm/s^3; a number, or a function of u such as follow.JerkBound) at the
+    points of ``coefficients`` (T, K): once per grid, for every set of rows on it."""
+    uu = coefficients[1]
+    return jerk_max(uu) if callable(jerk_max) else np.full(uu.shape, float(jerk_max))
+
+
+def with_jerk(rows: Rows, coefficients, u: np.ndarray, b_hat: np.ndarray, jm: np.ndarray) -> Rows:
+    """``rows`` and rows bounding the pen's jerk across the path, |3 v kappa a_t + v^3 dkappa/ds| <= jm
+    (mm/s^3, jerk_bound) at the points of ``coefficients`` (jerk_coefficients on the grid u) inside
+    every interval, all on the grid u (the jerk rows last: per interval and tau, + then -).
 
     With v = |q'| sqrt(b) and a_t = |q'| a + (q'.q''/|q'|) b it is sqrt(b) (c1 a + c2 b),
     c1 = 3 kappa |q'|^2, c2 = 3 kappa q'.q'' + |q'|^3 dkappa/ds. sqrt(b) is taken from
-    ``b_hat`` (nodes), a profile the new one stays below, so the linear rows
-    |c1 a + c2 b| <= jerk_max / sqrt(b_hat) are conservative. This jerk is what the
-    PLC's constant-acceleration periods cannot follow (docs/sampling.md).
+    ``b_hat`` (nodes), a profile the new one stays below (b <= b_hat is a node bound), so
+    the linear rows |c1 a + c2 b| <= jm / sqrt(b_hat) are conservative. This jerk is what
+    the PLC's constant-acceleration periods cannot follow (docs/sampling.md).
     """
-    taus, uu, c1, c2 = coefficients
-    tau = taus[:, None]  # all points at once (T, K); per interval the columns go tau by tau, + then -
-    bh = b_hat[None, :-1] * (1 - tau) + b_hat[None, 1:] * tau
-    jm = jerk_max(uu) if callable(jerk_max) else jerk_max
-    g = np.broadcast_to(jm / np.sqrt(np.maximum(bh, 1e-300)), c1.shape)
-    beta = c2 * tau + c1 / (2 * np.diff(u))[None, :]
+    from doodlecam.plan.kernels import with_jerk_rows
 
-    def columns(x):  # (T, K) -> (K, 2T): x, -x for each tau in turn
-        return np.stack([x, -x], axis=-1).transpose(1, 0, 2).reshape(x.shape[1], -1)
-
-    gamma = np.stack([g, g], axis=-1).transpose(1, 0, 2).reshape(g.shape[1], -1)
-    return Rows(columns(c2), columns(beta), gamma, np.full(len(u), np.inf))
+    taus, _, c1, c2 = coefficients
+    K, R = rows.tot.shape[0], rows.tot.shape[1] + 2 * len(taus)
+    tot, beta, gamma = np.empty((K, R)), np.empty((K, R)), np.empty((K, R))
+    with_jerk_rows(rows.tot, rows.beta, rows.gamma, c1, c2, taus, u, b_hat, jm, tot, beta, gamma)
+    return Rows(tot, beta, gamma, np.minimum(rows.ub, b_hat))
 
 
-def stack(a: Rows, b: Rows) -> Rows:
-    """Both sets of rows on the same grid."""
-    return Rows(np.concatenate([a.tot, b.tot], 1), np.concatenate([a.beta, b.beta], 1),
-                np.concatenate([a.gamma, b.gamma], 1), np.minimum(a.ub, b.ub))
+def worst_ratios(rows: Rows, b: np.ndarray, first: int = 0) -> np.ndarray:
+    """Per interval, the largest of rows.ratios(b) over the rows from ``first`` on (compiled)."""
+    from doodlecam.plan.kernels import row_ratios
+
+    out = np.empty(rows.tot.shape[0])
+    row_ratios(rows.tot, rows.beta, rows.gamma, np.asarray(b, float), first, out)
+    return out

@@ -70,8 +70,8 @@ def distance_to_stretch(spline: Spline, x: np.ndarray, lo: np.ndarray, hi: np.nd
     """Distance (mm) from each point x (n, 2) to the spline's stretch u in [lo, hi]
     (per point): the nearest of ``candidates`` evenly spread parameters, then
     Newton steps on (q(u) - x) . q'(u) = 0 kept within one spacing of it
-    (compiled: kernels.distance_to_stretch)."""
-    from doodlecam.geometry import kernels
+    (compiled: plan.kernels.distance_to_stretch)."""
+    from doodlecam.plan import kernels
 
     c = spline.derivative_controls
     out = np.empty(len(x))
@@ -89,22 +89,32 @@ def path_deviation(spline: Spline, samples: StrokeSamples, sub: int = SUB) -> np
     (``distance_to_stretch``). So the distance is to the curve being drawn
     then, not to another part of it that passes nearby.
     """
-    pts = executed_points(samples, sub)
-    m = len(pts)
     su = samples.sample_u
     if su is None:
         su = _aim_points(spline, samples)
+    if not spline.straight:  # the points, their distances and the peaks in one compiled pass
+        from doodlecam.plan import kernels
+
+        x = samples.integrate()
+        v = np.vstack([np.zeros((1, 2)), samples.velocity])
+        tau = np.linspace(0.0, samples.delta_time, sub + 1)
+        c = spline.derivative_controls
+        out = np.empty(len(x) - 1)
+        kernels.period_deviation(c[0], c[1], c[min(2, spline.degree)], spline.degree,
+                                 len(spline.control) - spline.degree, x, v, tau, tau ** 2 / (2 * samples.delta_time),
+                                 np.asarray(su, float), CANDIDATES, 4, out)
+        return out
+    pts = executed_points(samples, sub)
+    m = len(pts)
     x = pts.reshape(-1, 2)
     # the period's u-step widened by half of it on each side
     span = np.maximum(np.diff(su), 1e-9)
     lo = np.repeat(np.maximum(su[:-1] - span / 2, 0.0), sub + 1)
     hi = np.repeat(np.minimum(su[1:] + span / 2, 1.0), sub + 1)
-    if spline.straight:  # q(u) = a + u d: the nearest point of the stretch in closed form
-        a, d = spline.start, spline.end - spline.start
-        u = np.clip((x - a) @ d / float(d @ d), lo, hi)
-        dist = np.hypot(*(x - a - u[:, None] * d).T).reshape(m, sub + 1)
-    else:
-        dist = distance_to_stretch(spline, x, lo, hi).reshape(m, sub + 1)
+    # a straight stroke, q(u) = a + u d: the nearest point of the stretch in closed form
+    a, d = spline.start, spline.end - spline.start
+    u = np.clip((x - a) @ d / float(d @ d), lo, hi)
+    dist = np.hypot(*(x - a - u[:, None] * d).T).reshape(m, sub + 1)
     # the peak usually falls between the points: a parabola through the largest
     # and its neighbours in time recovers it (a kink where the curve turns tightly still reads a little low)
     k = np.clip(dist.argmax(axis=1), 1, sub - 1)

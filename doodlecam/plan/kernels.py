@@ -9,7 +9,7 @@ planned (numba's import costs ~0.3 s).
 import numba
 import numpy as np
 
-from doodlecam.geometry.kernels import _point
+from doodlecam.geometry.kernels import _point, span_at
 
 _EPS = 1e-12
 
@@ -344,10 +344,10 @@ def times(u, b, t):  # pragma: no cover - compiled
 
 
 @numba.njit(cache=True, nogil=True)
-def spline_interval_worst(c1, c2, k, nseg, u, ends, tau, b, M, amax, vmax, pen):  # pragma: no cover - compiled
+def spline_interval_worst(c1, c2, k, nseg, u, tau, b, M, amax, vmax, pen):  # pragma: no cover - compiled
     """interval_worst for linear kinematics (theta = M q) straight from the spline: q' and
     q'' (control points c1, c2 of degrees k - 1, k - 2 over nseg spans) evaluated at
-    u_k + tau h_k (the last point: ends[k]) inside the loop, so the 20x check grid is never
+    u_k + tau h_k (the last point: the float below u_k+1, the interval's side of a knot) inside the loop, so the 20x check grid is never
     stored (its arrays cost more than the arithmetic). The same points as the numpy version
     (tests/test_plan_kernels.py compares them)."""
     K = u.shape[0] - 1
@@ -360,11 +360,12 @@ def spline_interval_worst(c1, c2, k, nseg, u, ends, tau, b, M, amax, vmax, pen):
     wa = np.zeros(K)
     wv = np.zeros(K)
     wp = np.zeros(K)
+    kt = knot_table(k, nseg)
     for i in range(K):
         h = u[i + 1] - u[i]
         a = (b[i + 1] - b[i]) / (2.0 * h)
         for r in range(R):
-            x = ends[i] if r == refine else u[i] + tau[r] * h
+            x = np.nextafter(u[i + 1], -np.inf) if r == refine else u[i] + tau[r] * h
             x = min(max(x, 0.0), 1.0)
             sp = min(max(int(x * nseg), 0), nseg - 1)
             if k == 3 and 2 <= sp < nseg - 2:
@@ -377,9 +378,15 @@ def spline_interval_worst(c1, c2, k, nseg, u, ends, tau, b, M, amax, vmax, pen):
                 d1y = n0 * c1[sp, 1] + n1 * c1[sp + 1, 1] + n2 * c1[sp + 2, 1]
                 d2x = (1.0 - t) * c2[sp, 0] + t * c2[sp + 1, 0]
                 d2y = (1.0 - t) * c2[sp, 1] + t * c2[sp + 1, 1]
+            elif k == 3:  # _point's values: the basis written out for the degrees (constants), the knots from a table
+                s = span_at(x, nseg)
+                n0, n1, n2, _, _, _, _ = _basis2(x, kt, s + 3)
+                d1x, d1y = _sum3(c1, s, n0, n1, n2)
+                n0, n1, _, _ = _basis1(x, kt, s + 3)
+                d2x, d2y = _sum2(c2, s, n0, n1)
             else:
-                d1x, d1y = _point(c1, k - 1, nseg, x, N, left, right)
-                d2x, d2y = _point(c2, k - 2, nseg, x, N, left, right)
+                d1x, d1y = spline_point(c1, k - 1, nseg, x, kt, k, N, left, right)
+                d2x, d2y = spline_point(c2, k - 2, nseg, x, kt, k, N, left, right)
             tt = r / refine
             bb = b[i] * (1.0 - tt) + b[i + 1] * tt
             sb = np.sqrt(max(bb, 0.0))
@@ -397,3 +404,434 @@ def spline_interval_worst(c1, c2, k, nseg, u, ends, tau, b, M, amax, vmax, pen):
                 if p > wp[i]:
                     wp[i] = p
     return wa, wv, wp
+
+
+@numba.njit(cache=True, nogil=True)
+def knot_table(p, nseg):  # pragma: no cover - compiled
+    """kt[j] = geometry.kernels.knot(j, p, nseg) for j = 0 .. nseg + 2 p: the same
+    divisions done once per spline instead of twice per basis step."""
+    kt = np.empty(nseg + 2 * p + 1)
+    for j in range(kt.shape[0]):
+        kt[j] = min(max(j - p, 0), nseg) / nseg
+    return kt
+
+
+@numba.njit(cache=True, nogil=True, inline="always")
+def _split(n, r, l):  # pragma: no cover - compiled
+    """One term of a Cox-de Boor step: n shared out in proportion to r and l."""
+    t = n / (r + l)
+    return r * t, l * t
+
+
+@numba.njit(cache=True, nogil=True, inline="always")
+def _basis1(x, kt, ks):  # pragma: no cover - compiled
+    """geometry.kernels.basis_at's Cox-de Boor basis of degree 1 on scalars, the knots from
+    kt = knot_table(P, nseg) (ks = s + P): its operations in its order, so the same bits."""
+    l1 = x - kt[ks]
+    r1 = kt[ks + 1] - x
+    a, b = _split(1.0, r1, l1)
+    return 0.0 + a, b, l1, r1
+
+
+@numba.njit(cache=True, nogil=True, inline="always")
+def _basis2(x, kt, ks):  # pragma: no cover - compiled
+    """... of degree 2: one more step on _basis1."""
+    n0, n1, l1, r1 = _basis1(x, kt, ks)
+    l2 = x - kt[ks - 1]
+    r2 = kt[ks + 2] - x
+    a0, b0 = _split(n0, r1, l2)
+    a1, b1 = _split(n1, r2, l1)
+    return 0.0 + a0, b0 + a1, b1, l1, l2, r1, r2
+
+
+@numba.njit(cache=True, nogil=True, inline="always")
+def _basis3(x, kt, ks):  # pragma: no cover - compiled
+    """... of degree 3: one more step on _basis2."""
+    n0, n1, n2, l1, l2, r1, r2 = _basis2(x, kt, ks)
+    l3 = x - kt[ks - 2]
+    r3 = kt[ks + 3] - x
+    a0, b0 = _split(n0, r1, l3)
+    a1, b1 = _split(n1, r2, l2)
+    a2, b2 = _split(n2, r3, l1)
+    return 0.0 + a0, b0 + a1, b1 + a2, b2
+
+
+@numba.njit(cache=True, nogil=True, inline="always")
+def _cubic(x, kt, nseg, s, P):  # pragma: no cover - compiled
+    """The four cubic basis values of span s at x as geometry.kernels.basis_at makes them:
+    its closed form on an inner span, else Cox-de Boor (_basis3)."""
+    if 3 <= s < nseg - 3:
+        t = x * nseg - s
+        t2 = t * t
+        t3 = t2 * t
+        return (1.0 - t) ** 3 / 6.0, (3.0 * t3 - 6.0 * t2 + 4.0) / 6.0, (-3.0 * t3 + 3.0 * t2 + 3.0 * t + 1.0) / 6.0, t3 / 6.0
+    return _basis3(x, kt, s + P)
+
+
+@numba.njit(cache=True, nogil=True, inline="always")
+def _sum4(c, s, n0, n1, n2, n3):  # pragma: no cover - compiled
+    """The point from its basis values, summed as geometry.kernels._point sums them."""
+    sx, sy = _sum3(c, s, n0, n1, n2)
+    return sx + n3 * c[s + 3, 0], sy + n3 * c[s + 3, 1]
+
+
+@numba.njit(cache=True, nogil=True, inline="always")
+def _sum3(c, s, n0, n1, n2):  # pragma: no cover - compiled
+    sx = 0.0 + n0 * c[s, 0]
+    sy = 0.0 + n0 * c[s, 1]
+    sx += n1 * c[s + 1, 0]
+    sy += n1 * c[s + 1, 1]
+    sx += n2 * c[s + 2, 0]
+    sy += n2 * c[s + 2, 1]
+    return sx, sy
+
+
+@numba.njit(cache=True, nogil=True, inline="always")
+def _sum2(c, s, n0, n1):  # pragma: no cover - compiled
+    return (0.0 + n0 * c[s, 0]) + n1 * c[s + 1, 0], (0.0 + n0 * c[s, 1]) + n1 * c[s + 1, 1]
+
+
+@numba.njit(cache=True, nogil=True)
+def spline_point(c, k, nseg, x, kt, P, N, left, right):  # pragma: no cover - compiled
+    """geometry.kernels._point (the same bits), its basis written out on scalars for
+    degrees 1 to 3 and the knots read from kt = knot_table(P, nseg), P >= k."""
+    return value_in_span(c, k, nseg, span_at(x, nseg), x, kt, P, N, left, right)
+
+
+@numba.njit(cache=True, nogil=True, inline="always")
+def value_in_span(c, k, nseg, s, x, kt, P, N, left, right):  # pragma: no cover - compiled
+    """spline_point with the knot span s of x known (other degrees: _point itself)."""
+    if k == 3:
+        n0, n1, n2, n3 = _cubic(x, kt, nseg, s, P)
+        return _sum4(c, s, n0, n1, n2, n3)
+    if k == 2:
+        n0, n1, n2, _, _, _, _ = _basis2(x, kt, s + P)
+        return _sum3(c, s, n0, n1, n2)
+    if k == 1:
+        n0, n1, _, _ = _basis1(x, kt, s + P)
+        return _sum2(c, s, n0, n1)
+    return _point(c, k, nseg, x, N, left, right)
+
+
+@numba.njit(cache=True, nogil=True)
+def distance_to_stretch(c0, c1, c2, k, nseg, x, lo, hi, candidates, iterations, out):  # pragma: no cover - compiled
+    """out[i] = distance from x[i] to the spline (control points c0, its first and
+    second derivatives' c1, c2; degree k, nseg spans) on u in [lo[i], hi[i]]: the
+    nearest of ``candidates`` evenly spread parameters, then Newton steps on
+    (q(u) - x) . q'(u) = 0 kept within one spacing of it (follow.distance_to_stretch)."""
+    N = np.empty(k + 1)
+    left = np.empty(k + 1)
+    right = np.empty(k + 1)
+    kt = knot_table(k, nseg)
+    for i in range(x.shape[0]):
+        out[i] = _distance(c0, c1, c2, k, nseg, kt, N, left, right, x[i, 0], x[i, 1], lo[i], hi[i],
+                           candidates, iterations)
+
+
+@numba.njit(cache=True, nogil=True)
+def _distance(c0, c1, c2, k, nseg, kt, N, left, right, px, py, lo, hi, candidates, iterations):  # pragma: no cover - compiled
+    """distance_to_stretch of one point; the fitted cubic through its own copy with the degrees
+    written in (4x faster: spline_point's dispatch on a degree known only at run time cost
+    more than the arithmetic), the same values."""
+    if k == 3:
+        return _cubic_distance(c0, c1, c2, nseg, kt, px, py, lo, hi, candidates, iterations)
+    return _any_distance(c0, c1, c2, k, nseg, kt, N, left, right, px, py, lo, hi, candidates, iterations)
+
+
+@numba.njit(cache=True, nogil=True, inline="always")
+def _newton(u, rx, ry, d1x, d1y, d2x, d2y, a, b):  # pragma: no cover - compiled
+    """One Newton step on (q(u) - x) . q'(u) = 0 (r = q(u) - x), kept in [a, b]."""
+    g = d1x * rx + d1y * ry
+    h = d1x * d1x + d1y * d1y + d2x * rx + d2y * ry
+    if h > 1e-12:
+        u -= g / h
+    return min(max(u, a), b)
+
+
+@numba.njit(cache=True, nogil=True, inline="always")
+def _cubic_distance(c0, c1, c2, nseg, kt, px, py, lo, hi, candidates, iterations):  # pragma: no cover - compiled
+    step = (hi - lo) / (candidates - 1)
+    best, ub = np.inf, lo
+    for j in range(candidates):
+        u = lo + step * j
+        s = span_at(u, nseg)
+        n0, n1, n2, n3 = _cubic(u, kt, nseg, s, 3)
+        qx, qy = _sum4(c0, s, n0, n1, n2, n3)
+        d = np.sqrt((qx - px) ** 2 + (qy - py) ** 2)
+        if d < best:
+            best, ub = d, u
+    a, b = max(ub - step, 0.0), min(ub + step, 1.0)
+    u = ub
+    for it in range(iterations + 1):  # the last pass only evaluates q at the final u
+        s = span_at(u, nseg)
+        n0, n1, n2, n3 = _cubic(u, kt, nseg, s, 3)
+        qx, qy = _sum4(c0, s, n0, n1, n2, n3)
+        if it == iterations:
+            break
+        n0, n1, n2, _, _, _, _ = _basis2(u, kt, s + 3)
+        d1x, d1y = _sum3(c1, s, n0, n1, n2)
+        n0, n1, _, _ = _basis1(u, kt, s + 3)
+        d2x, d2y = _sum2(c2, s, n0, n1)
+        u = _newton(u, qx - px, qy - py, d1x, d1y, d2x, d2y, a, b)
+    return min(np.sqrt((qx - px) ** 2 + (qy - py) ** 2), best)
+
+
+@numba.njit(cache=True, nogil=True)
+def _any_distance(c0, c1, c2, k, nseg, kt, N, left, right, px, py, lo, hi, candidates, iterations):  # pragma: no cover - compiled
+    step = (hi - lo) / (candidates - 1)
+    best, ub = np.inf, lo
+    for j in range(candidates):
+        u = lo + step * j
+        qx, qy = spline_point(c0, k, nseg, u, kt, k, N, left, right)
+        d = np.sqrt((qx - px) ** 2 + (qy - py) ** 2)
+        if d < best:
+            best, ub = d, u
+    a, b = max(ub - step, 0.0), min(ub + step, 1.0)
+    u = ub
+    for _ in range(iterations):
+        qx, qy = spline_point(c0, k, nseg, u, kt, k, N, left, right)
+        d1x, d1y = spline_point(c1, k - 1, nseg, u, kt, k, N, left, right)
+        d2x, d2y = (0.0, 0.0) if k < 2 else spline_point(c2, k - 2, nseg, u, kt, k, N, left, right)
+        u = _newton(u, qx - px, qy - py, d1x, d1y, d2x, d2y, a, b)
+    qx, qy = spline_point(c0, k, nseg, u, kt, k, N, left, right)
+    return min(np.sqrt((qx - px) ** 2 + (qy - py) ** 2), best)
+
+
+@numba.njit(cache=True, nogil=True)
+def period_deviation(c0, c1, c2, k, nseg, x, v, tau, c, su, candidates, iterations, out):  # pragma: no cover - compiled
+    """follow.path_deviation of a curve in one pass: per period i, the executed parabola
+    x_i + v_i tau + (v_i+1 - v_i) c (c = tau^2 / 2 dT) at the points tau, each point's
+    distance to the stretch [su_i - w / 2, su_i+1 + w / 2] (w = su_i+1 - su_i, at least 1e-9)
+    and the peak recovered by a parabola through the largest and its neighbours; the
+    array version's operations in its order (NaN kept as numpy keeps it)."""
+    N = np.empty(k + 1)
+    left = np.empty(k + 1)
+    right = np.empty(k + 1)
+    kt = knot_table(k, nseg)
+    R = tau.shape[0]
+    dist = np.empty(R)
+    for i in range(out.shape[0]):
+        w = su[i + 1] - su[i]
+        w = w if (w >= 1e-9 or w != w) else 1e-9
+        lo = su[i] - w / 2
+        lo = lo if (lo >= 0.0 or lo != lo) else 0.0
+        hi = su[i + 1] + w / 2
+        hi = hi if (hi <= 1.0 or hi != hi) else 1.0
+        top = 0
+        for r in range(R):
+            px = x[i, 0] + v[i, 0] * tau[r] + (v[i + 1, 0] - v[i, 0]) * c[r]
+            py = x[i, 1] + v[i, 1] * tau[r] + (v[i + 1, 1] - v[i, 1]) * c[r]
+            dist[r] = _distance(c0, c1, c2, k, nseg, kt, N, left, right, px, py, lo, hi, candidates, iterations)
+        for r in range(R):  # numpy's argmax: the first largest (the first NaN)
+            if dist[r] != dist[r]:
+                top = r
+                break
+            if dist[r] > dist[top]:
+                top = r
+        f0max = dist[top]
+        kk = min(max(top, 1), R - 2)
+        fm, f0, fp = dist[kk - 1], dist[kk], dist[kk + 1]
+        curv = 2 * f0 - fm - fp
+        peak = f0 + ((fp - fm) ** 2 / (8 * curv) if curv > 1e-15 else 0.0)
+        bound = f0 + abs(fp - fm)
+        lim = peak if (peak <= bound or peak != peak) else bound
+        out[i] = f0max if (f0max >= lim or f0max != f0max) else lim
+
+
+@numba.njit(cache=True, nogil=True)
+def jerk_terms(c1, c2, c3, k, nseg, uu, sp, c12, c13, dot12):  # pragma: no cover - compiled
+    """At every point uu (clipped to [0, 1]) of constraints.jerk_coefficients: |q'| (at
+    least 1e-12), q' x q'', q' x q''' and q'.q'' from the control points c1, c2, c3 of
+    q', q'', q''' (degree k, nseg spans; a derivative above k is 0), the same bits as
+    Spline.__call__ and numpy's products give (one pass instead of three evaluations
+    and a dozen array operations)."""
+    T, K = uu.shape
+    N = np.empty(k + 1)
+    left = np.empty(k + 1)
+    right = np.empty(k + 1)
+    kt = knot_table(k, nseg)
+    for t in range(T):
+        for i in range(K):
+            x = min(max(uu[t, i], 0.0), 1.0)
+            if k == 3:
+                s = span_at(x, nseg)
+                n0, n1, n2, _, _, _, _ = _basis2(x, kt, s + 3)
+                d1x, d1y = _sum3(c1, s, n0, n1, n2)
+                n0, n1, _, _ = _basis1(x, kt, s + 3)
+                d2x, d2y = _sum2(c2, s, n0, n1)
+                d3x, d3y = 0.0 + 1.0 * c3[s, 0], 0.0 + 1.0 * c3[s, 1]  # degree 0: _point's sum
+            else:
+                d1x, d1y = spline_point(c1, k - 1, nseg, x, kt, k, N, left, right)
+                d2x, d2y = (0.0, 0.0) if k < 2 else spline_point(c2, k - 2, nseg, x, kt, k, N, left, right)
+                d3x, d3y = (0.0, 0.0) if k < 3 else spline_point(c3, k - 3, nseg, x, kt, k, N, left, right)
+            n = np.sqrt(d1x * d1x + d1y * d1y)
+            sp[t, i] = n if (n >= 1e-12 or n != n) else 1e-12  # np.maximum (NaN kept)
+            c12[t, i] = d1x * d2y - d1y * d2x
+            c13[t, i] = d1x * d3y - d1y * d3x
+            dot12[t, i] = d1x * d2x + d1y * d2y
+
+
+@numba.njit(cache=True, nogil=True)
+def jerk_finish(sp, sp3, sp6, c12, c13, dot12, c1, c2):  # pragma: no cover - compiled
+    """c1 = 3 kappa |q'|^2, c2 = 3 kappa q'.q'' + |q'|^3 dkappa/ds (constraints.jerk_coefficients),
+    with numpy's |q'|^3 and |q'|^6 (sp3, sp6: its power is not the compiled one)."""
+    T, K = sp.shape
+    for t in range(T):
+        for i in range(K):
+            sp2 = sp[t, i] * sp[t, i]
+            kappa = c12[t, i] / sp3[t, i]
+            kappa_s = (c13[t, i] * sp2 - 3 * c12[t, i] * dot12[t, i]) / sp6[t, i]
+            c1[t, i] = 3 * kappa * sp2
+            c2[t, i] = 3 * kappa * dot12[t, i] + sp3[t, i] * kappa_s
+
+
+@numba.njit(cache=True, nogil=True)
+def with_jerk_rows(tot0, beta0, gamma0, c1, c2, taus, u, b_hat, jm, tot, beta, gamma):  # pragma: no cover - compiled
+    """tot, beta, gamma (K, R0 + 2T) = the rows tot0, beta0, gamma0 (K, R0), then per
+    interval the jerk rows of constraints.with_jerk: for each tau, +-(c2, c2 tau + c1 / 2h)
+    <= jm / sqrt(b_hat(tau)), the operations of the numpy version in its order."""
+    K, R0 = tot0.shape
+    T = taus.shape[0]
+    for k in range(K):
+        for r in range(R0):
+            tot[k, r] = tot0[k, r]
+            beta[k, r] = beta0[k, r]
+            gamma[k, r] = gamma0[k, r]
+        h2 = 2 * (u[k + 1] - u[k])
+        for t in range(T):
+            tau = taus[t]
+            bh = b_hat[k] * (1 - tau) + b_hat[k + 1] * tau
+            g = jm[t, k] / np.sqrt(bh if (bh >= 1e-300 or bh != bh) else 1e-300)
+            be = c2[t, k] * tau + c1[t, k] / h2
+            r = R0 + 2 * t
+            tot[k, r] = c2[t, k]
+            beta[k, r] = be
+            gamma[k, r] = g
+            tot[k, r + 1] = -c2[t, k]
+            beta[k, r + 1] = -be
+            gamma[k, r + 1] = g
+
+
+@numba.njit(cache=True, nogil=True)
+def row_ratios(tot, beta, gamma, b, first, out):  # pragma: no cover - compiled
+    """out[k] = max over the rows r >= first of interval k of (tot b_k + beta (b_k+1 - b_k)) /
+    gamma (0 where gamma is not finite): constraints.Rows.ratios(b)[:, first:].max(axis=1),
+    NaN kept as numpy keeps it."""
+    K, R = tot.shape
+    for k in range(K):
+        d = b[k + 1] - b[k]
+        worst = -np.inf
+        for r in range(first, R):
+            g = gamma[k, r]
+            v = tot[k, r] * b[k] + beta[k, r] * d
+            v = v / g if np.isfinite(g) else 0.0
+            if v > worst or v != v:
+                worst = v
+                if v != v:
+                    break
+        out[k] = worst
+
+
+@numba.njit(cache=True, nogil=True)
+def qp_fill(tang, tagged, signs, inst, axes, adata, pind, pdata, dx, dy, cross, nrm, w, lam, v_plan, shifted,
+            p, tol, L, end, amax, vmax, dt, trust, cap, q, b):  # pragma: no cover - compiled
+    """The sampler's QP data in one pass (sample._qp, whose array steps these are in the
+    same order): the tracking rows' tangent entries of A, the objective's values (its
+    diagonal, and with normals nrm (n, 2) the penalty across the curve), q and the
+    right-hand side b. Empty amax: no actuator rows; empty trust: no trust rows;
+    cap < 0: no pen-speed cones."""
+    m = p.shape[0]
+    n = m - 1
+    nv = 2 * n
+    nx = 2 * m
+    for j in range(tagged.shape[0]):
+        adata[tagged[j]] = -signs[j] * tang[inst[j], axes[j]]
+    for j in range(pdata.shape[0]):
+        c = pind[j]
+        pdata[j] = (lam if c < nv else (0.0 if c < nv + nx else 1.0)) + 1e-12
+    for j in range(n):
+        pdata[cross[j]] = 0.0
+    if nrm.shape[0] > 0:
+        for j in range(n):
+            pdata[dx[j]] += w * nrm[j, 0] * nrm[j, 0]
+            pdata[dy[j]] += w * nrm[j, 1] * nrm[j, 1]
+            pdata[cross[j]] = w * nrm[j, 0] * nrm[j, 1]
+    for j in range(n):
+        q[j] = -lam * v_plan[j, 0]
+        q[n + j] = -lam * v_plan[j, 1]
+    for j in range(nx):
+        q[nv + j] = 0.0
+    for j in range(m):
+        q[nv + nx + j] = shifted[j]
+    o = 0
+    for j in range(2 * m):
+        b[o + j] = 0.0
+    o += 2 * m
+    b[o] = end[0]
+    b[o + 1] = end[1]
+    o += 2
+    for sign in (1.0, -1.0):
+        for a in range(2):
+            for j in range(m - 1):
+                b[o + j] = sign * p[j, a] + tol
+            o += m - 1
+    for j in range(m - 1):
+        b[o + j] = L * (p[j + 1, 2] - p[j, 2])
+    o += m - 1
+    for _ in range(2):
+        for i in range(amax.shape[0]):
+            ab = amax[i] * dt * (1 - 1e-6)
+            vb = vmax[i] * (1 - 1e-6)
+            for j in range(m):
+                b[o + j] = ab
+            o += m
+            for j in range(n):
+                b[o + j] = vb
+            o += n
+    if trust.shape[0] > 0:
+        for _ in range(2):
+            for j in range(m):
+                b[o + j] = trust[j]
+            o += m
+    if cap >= 0.0:
+        cb = cap * (1 - 1e-6)
+        for j in range(n):
+            b[o] = cb
+            b[o + 1] = 0.0
+            b[o + 2] = 0.0
+            o += 3
+
+
+@numba.njit(cache=True, nogil=True)
+def curve_frame(c0, c1, k, nseg, u, start, L, pu, tang, nrm, trust, trust_mm):  # pragma: no cover - compiled
+    """What the sampler linearises at the parameters u (clipped to [0, 1] as Spline.__call__
+    clips them), in one pass with the same bits as its array steps: pu = (q(u) - start, u),
+    tang = q'(u) / L and, where nrm has rows, the unit normal q'^perp / |q'| (|q'| at least
+    1e-12) and trust = trust_mm L / |q'|. c0, c1: the control points of q and q' (degree k)."""
+    N = np.empty(k + 1)
+    left = np.empty(k + 1)
+    right = np.empty(k + 1)
+    kt = knot_table(k, nseg)
+    follow = nrm.shape[0] > 0
+    for j in range(u.shape[0]):
+        x = min(max(u[j], 0.0), 1.0)
+        if k == 3:
+            s = span_at(x, nseg)
+            n0, n1, n2, n3 = _cubic(x, kt, nseg, s, 3)
+            qx, qy = _sum4(c0, s, n0, n1, n2, n3)
+            n0, n1, n2, _, _, _, _ = _basis2(x, kt, s + 3)
+            d1x, d1y = _sum3(c1, s, n0, n1, n2)
+        else:
+            qx, qy = spline_point(c0, k, nseg, x, kt, k, N, left, right)
+            d1x, d1y = spline_point(c1, k - 1, nseg, x, kt, k, N, left, right)
+        pu[j, 0] = qx - start[0]
+        pu[j, 1] = qy - start[1]
+        pu[j, 2] = u[j]
+        tang[j, 0] = d1x / L
+        tang[j, 1] = d1y / L
+        if follow:
+            sp = np.sqrt(d1x * d1x + d1y * d1y)
+            sp = sp if (sp >= 1e-12 or sp != sp) else 1e-12
+            nrm[j, 0] = -d1y / sp
+            nrm[j, 1] = d1x / sp
+            trust[j] = trust_mm * L / sp

@@ -19,6 +19,7 @@ Bernstein bound is loose (``adaptive``), instead of everywhere.
 
 from __future__ import annotations
 
+import functools
 import math
 from dataclasses import dataclass
 from typing import Any
@@ -138,20 +139,27 @@ def interval_ratios(spline: Spline, u: np.ndarray, b: np.ndarray, limits: Limits
     ``refine`` points inside it, straight from the spline (no bounds)."""
     from doodlecam.plan.kernels import interval_worst, spline_interval_worst
 
-    h = np.diff(u)
-    tau = np.linspace(0.0, 1.0, refine + 1)
+    tau = _taus(refine)
     if limits.M is not None and spline.degree >= 2:
         c = spline.derivative_controls
         return spline_interval_worst(c[1], c[2], spline.degree, len(spline.control) - spline.degree,
-                                     np.asarray(u, float), np.nextafter(u[1:], -np.inf), tau, np.asarray(b, float),
+                                     np.asarray(u, float), tau, np.asarray(b, float),
                                      np.ascontiguousarray(limits.M, float), np.asarray(limits.amax, float),
                                      np.asarray(limits.vmax, float), float(limits.pen_speed or 0.0))
+    h = np.diff(u)
     uu = u[:-1, None] + tau[None, :] * h[:, None]
     # the right end as the interval's own limit: at a knot q'' (degree 2) or q' (degree 1) jumps
     uu[:, -1] = np.nextafter(u[1:], -np.inf)
     t1, t2, sp = limits.derivatives(spline, uu.ravel())
     return interval_worst(np.asarray(b, float), h, t1, t2, sp, limits.amax, limits.vmax,
                           float(limits.pen_speed or 0.0), refine)
+
+
+@functools.lru_cache(maxsize=8)
+def _taus(refine: int) -> np.ndarray:
+    tau = np.linspace(0.0, 1.0, refine + 1)
+    tau.flags.writeable = False
+    return tau
 
 
 def check_profile(spline: Spline, profile: Profile, limits: Limits, refine: int = CHECK_REFINE):
@@ -289,7 +297,7 @@ def plan_stroke(spline: Spline, limits: Limits, solver: str = "reach", spacing: 
 
     ``jerk_max`` (mm/s^3, a number or a function of u such as
     follow.JerkBound): also bound the pen's jerk across the path
-    (constraints.jerk_rows), which slows it where the curve's turning changes
+    (constraints.with_jerk), which slows it where the curve's turning changes
     fast; two more solves on the final grid (``JERK_GROW``).
     ``grid``: plan on these u instead of making (and refining) a grid, e.g. the
     grid of an earlier plan of the same stroke.
@@ -336,7 +344,7 @@ def plan_stroke(spline: Spline, limits: Limits, solver: str = "reach", spacing: 
         if nonlinear:
             split = worst > 1 + 1e-9  # sampled rows missed a peak: refine there
         else:
-            used = rows.ratios(b).max(axis=1)
+            used = constraints.worst_ratios(rows, b)
             t = profile_times(u, b)[-1]
             if not np.isfinite(t) or t > best_t * (1 - 1e-4):
                 break  # refinement no longer pays
@@ -348,13 +356,14 @@ def plan_stroke(spline: Spline, limits: Limits, solver: str = "reach", spacing: 
     if jerk_max:
         base_rows = rows
         coefficients = constraints.jerk_coefficients(spline, u)
+        jm = constraints.jerk_bound(coefficients, jerk_max)
         b_free = b
         for grow in JERK_GROW:
             # b <= b_hat keeps sqrt(b) below the sqrt(b_hat) the rows were made with
             b_hat = np.minimum(b_free, grow * b) * (1 + 1e-12)
-            jr = constraints.jerk_rows(coefficients, u, b_hat, jerk_max)
-            rows = constraints.stack(base_rows, constraints.Rows(jr.tot, jr.beta, jr.gamma, b_hat))
-            if grow == JERK_GROW[0] and jr.ratios(b_free).max(initial=0.0) <= 1.0:
+            rows = constraints.with_jerk(base_rows, coefficients, u, b_hat, jm)
+            first = base_rows.tot.shape[1]  # the jerk rows
+            if grow == JERK_GROW[0] and constraints.worst_ratios(rows, b_free, first).max(initial=0.0) <= 1.0:
                 break  # the plan already keeps the bound (a straight stroke, say): it is the answer
             b = _solve(rows, u, base, b0, bN)
     if solver.startswith("qp"):

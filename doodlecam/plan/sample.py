@@ -84,17 +84,30 @@ def _clarabel(P, q, A, b, n_eq, n_soc=0, n_tail=0):
     re-stacking cost more than the solve."""
     import clarabel
 
+    # the solver copies the settings and cones at set-up, so one of each serves every solve
+    cones = _cones(n_eq, A.shape[0] - n_eq - 3 * n_soc - n_tail, n_soc, n_tail)
+    res = clarabel.DefaultSolver(P, q, A, b, cones, _settings()).solve()
+    return np.asarray(res.x) if res.status == clarabel.SolverStatus.Solved else None
+
+
+@functools.lru_cache(maxsize=1)
+def _settings():
+    import clarabel
+
     settings = clarabel.DefaultSettings()
     settings.verbose = False
     # refinement buys residuals of 3e-10 instead of 1e-8 (mm, mm/s) at a quarter of the
     # time; the limit rows keep a 1e-6 relative margin and positions are checked after
     settings.iterative_refinement_enable = False
-    cones = [clarabel.ZeroConeT(n_eq), clarabel.NonnegativeConeT(A.shape[0] - n_eq - 3 * n_soc - n_tail)]
-    cones += [clarabel.SecondOrderConeT(3)] * n_soc
-    if n_tail:
-        cones.append(clarabel.NonnegativeConeT(n_tail))
-    res = clarabel.DefaultSolver(P, q, A, b, cones, settings).solve()
-    return np.asarray(res.x) if res.status == clarabel.SolverStatus.Solved else None
+    return settings
+
+
+@functools.lru_cache(maxsize=256)
+def _cones(n_eq: int, n_ineq: int, n_soc: int, n_tail: int) -> list:
+    import clarabel
+
+    cones = [clarabel.ZeroConeT(n_eq), clarabel.NonnegativeConeT(n_ineq)] + [clarabel.SecondOrderConeT(3)] * n_soc
+    return cones + [clarabel.NonnegativeConeT(n_tail)] if n_tail else cones
 
 
 @functools.lru_cache(maxsize=256)
@@ -260,39 +273,27 @@ def _qp(p, tang, v_plan, end, dt, tol, limits, L, nrm=None, trust=None, crank=No
     key = (m, float(dt), M, trust is not None, pen)
     base, n_eq, tagged, signs, inst, axes = _pattern(*key)
     A = _working(key, base)
-    A.data[tagged] = -signs * tang[inst, axes]
     lam = VELOCITY_WEIGHT * dt * dt
-    diag = np.concatenate([np.full(nv, lam), np.zeros(nx), np.ones(m)]) + 1e-12
     P, dx, dy, cross = _objective(m)
     P = _working(m, P)
-    pdata = P.data
-    pdata[:] = diag[P.indices]  # every column's first entry is its diagonal but vy's
-    pdata[cross] = 0.0
-    if nrm is not None:
-        w = NORMAL_WEIGHT * (dt / 4) ** 2  # the swing e dT / 4 per unit of velocity across
-        nx_, ny_ = nrm[:n, 0], nrm[:n, 1]
-        pdata[dx] += w * nx_ * nx_
-        pdata[dy] += w * ny_ * ny_
-        pdata[cross] = w * nx_ * ny_
-    q = np.concatenate([-lam * v_plan[:n, 0], -lam * v_plan[:n, 1], np.zeros(nx),
-                        np.zeros(m) if shifted is None else shifted])
-    rhs = [np.zeros(2 * m), end]
-    for sign in (1.0, -1.0):
-        for a in range(2):
-            rhs.append(sign * p[:-1, a] + tol)
-    rhs.append(L * np.diff(p[:, 2]))
-    if M is not None:
-        # a hair inside the limits so solver tolerance (~1e-8) never shows as overshoot
-        for _sign in (1.0, -1.0):
-            for i in range(len(limits.amax)):
-                rhs += [np.full(m, limits.amax[i] * dt * (1 - 1e-6)), np.full(n, limits.vmax[i] * (1 - 1e-6))]
-    if trust is not None:
-        rhs += [trust, trust]
-    if pen:  # the velocity is linear on a period, so |v| <= cap at both ends holds throughout
-        cone = np.zeros((n, 3))
-        cone[:, 0] = limits.pen_speed * (1 - 1e-6)
-        rhs.append(cone.ravel())
-    b = np.concatenate(rhs)
+    limited = M is not None
+    n_rows = 2 * m + 2 + 5 * (m - 1) + (2 * len(limits.amax) * (m + n) if limited else 0) \
+        + (2 * m if trust is not None else 0) + (3 * n if pen else 0)
+    q, b = np.empty(nv + nx + m), np.empty(n_rows)
+    # in one compiled pass (kernels.qp_fill): A's tangent entries, the objective (its
+    # diagonal; with nrm, the swing e dT / 4 per unit of velocity across, weighted
+    # NORMAL_WEIGHT), q and b: the tracking boxes, the monotone shifts, the actuator rows a
+    # hair inside the limits (solver tolerance, ~1e-8, never shows as overshoot), the trust
+    # region and the pen-speed cones (the velocity is linear on a period, so |v| <= cap at
+    # both ends holds throughout)
+    from doodlecam.plan.kernels import qp_fill
+
+    empty = np.empty(0)
+    qp_fill(tang, tagged, signs, inst, axes, A.data, P.indices, P.data, dx, dy, cross,
+            nrm if nrm is not None else np.empty((0, 2)), NORMAL_WEIGHT * (dt / 4) ** 2, lam, v_plan,
+            shifted if shifted is not None else np.zeros(m), p, tol, L, np.asarray(end, float),
+            np.asarray(limits.amax, float) if limited else empty, np.asarray(limits.vmax, float) if limited else empty,
+            float(dt), trust if trust is not None else empty, float(limits.pen_speed) if pen else -1.0, q, b)
     n_tail = 0
     if crank is not None:
         import scipy.sparse as sp
@@ -301,9 +302,7 @@ def _qp(p, tang, v_plan, end, dt, tol, limits, L, nrm=None, trust=None, crank=No
     z = _clarabel(P, q, A, b, n_eq, n if pen else 0, n_tail)
     if z is None:
         return None
-    v = np.column_stack([z[:n], z[n:nv]])
-    x = np.column_stack([z[nv : nv + m], z[nv + m : nv + 2 * m]])
-    return v, x, z[nv + nx : nv + nx + m]
+    return z[:nv].reshape(2, n).T, z[nv : nv + nx].reshape(2, m).T, z[nv + nx : nv + nx + m]
 
 
 def whole_step_limits(limits, steps_per_mm, dt: float):
@@ -372,6 +371,9 @@ def sample_stroke(stroke: Stroke, dt: float, limits, steps_per_mm=(80.0, 80.0), 
         if fast is not None:
             return fast
     L = max(spline.length, 1e-9)
+    from doodlecam.plan.kernels import curve_frame
+
+    dc, nseg = spline.derivative_controls, len(spline.control) - spline.degree
 
     def attempt(m: int) -> StrokeSamples | None:
         c = prof.duration / (m * dt)  # time scale <= 1: a uniformly slower plan is within limits
@@ -383,14 +385,13 @@ def sample_stroke(stroke: Stroke, dt: float, limits, steps_per_mm=(80.0, 80.0), 
         ok = False
         anchor = u  # where the shifts are costed from: the planned points, then the first solve's
         for it in range(5 if follow else 3):  # linearise, solve, re-linearise at the shifted points
-            p = spline(u) - start
-            d1 = spline(u, 1)
-            tang = d1 / L  # d is in mm of arc (roughly): q(u + d/L) ~ q + q' d / L
-            nrm = trust = None
-            if follow:
-                speed = np.maximum(np.linalg.norm(d1, axis=1), 1e-12)
-                nrm = np.column_stack([-d1[:, 1], d1[:, 0]]) / speed[:, None]
-                trust = TRUST_MM * L / speed  # ~TRUST_MM of arc
+            # the points aimed at (from the start, with their u), the tangents: d is in mm of arc
+            # (roughly), q(u + d/L) ~ q + q' d / L; following, the unit normals and the trust
+            # region, ~TRUST_MM of arc (compiled: kernels.curve_frame)
+            pu, tang = np.empty((len(u), 3)), np.empty((len(u), 2))
+            nrm, trust = (np.empty((len(u), 2)), np.empty(len(u))) if follow else (None, None)
+            curve_frame(dc[0], dc[1], spline.degree, nseg, u, start, L, pu, tang,
+                        nrm if follow else np.empty((0, 2)), trust if follow else np.empty(0), TRUST_MM)
             crank = None
             if crank_share is not None and limits.M is None:
                 J = _jacobians(limits.kinematics, spline(u))
@@ -399,14 +400,12 @@ def sample_stroke(stroke: Stroke, dt: float, limits, steps_per_mm=(80.0, 80.0), 
                 crank = _crank_rows(J, dt, limits.vmax * crank_share[0] * (1 - 1e-6) - absJ @ (1.0 / k),
                                     limits.amax * crank_share[1] * (1 - 1e-6) - absJ @ (2.0 / (k * dt)))
             # the box is 3/4 of the tolerance: the rest absorbs the linearisation error
-            res = _qp(np.column_stack([p, u]), tang, v_plan, end, dt, 0.75 * tol, limits, L, nrm, trust, crank,
-                      (u - anchor) * L)
+            res = _qp(pu, tang, v_plan, end, dt, 0.75 * tol, limits, L, nrm, trust, crank, (u - anchor) * L)
             if res is None and it == 0 and trust is not None:
                 # the ramps may need to run further behind (or ahead of) the plan than the trust region
                 # lets one solve shift: the first solve then sets the timing without it, and the
                 # re-linearised solves that follow keep it (docs/sampling.md)
-                res = _qp(np.column_stack([p, u]), tang, v_plan, end, dt, 0.75 * tol, limits, L, nrm, None, crank,
-                          (u - anchor) * L)
+                res = _qp(pu, tang, v_plan, end, dt, 0.75 * tol, limits, L, nrm, None, crank, (u - anchor) * L)
             if res is None:
                 break
             v, x, d = res
