@@ -6,7 +6,7 @@ from this environment only the distributions the wheel's base requirements
 pull in (no extra: FastAPI, matplotlib, trimesh, qpsolvers, ... are not
 importable there), and runs the CLI from an empty folder: nothing of the
 checkout is on the path. Slow (the installed package compiles its numba
-kernels on the first conversion, ~30 s of CPU), so one test.
+kernels on the first conversion, about a minute of CPU), so one test.
 """
 
 from __future__ import annotations

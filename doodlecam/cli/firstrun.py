@@ -2,7 +2,7 @@
 
 The planner's and the fitter's hot loops are numba functions cached on disk
 (``cache=True``): the first conversion after an install or an upgrade compiles
-them, about 30 s of CPU time, and every later run loads them in well under a
+them, about a minute of CPU time, and every later run loads them in well under a
 second. A wheel cannot run code at install time, so instead the user is told,
 once per doodlecam/numba/Python version and install location. The marker
 lives in the user cache folder (platformdirs; $XDG_CACHE_HOME on Linux).
@@ -41,7 +41,7 @@ def first_run_notice() -> None:
         pkg = Path(__file__).resolve().parent.parent
         # numba's cache next to the sources already holds the kernels: nothing to say
         if not all(any((pkg / sub / "__pycache__").glob("kernels.*.nbi")) for sub in ("plan", "geometry")):
-            click.echo("doodlecam: first run of this install: compiling the planner's kernels (about 30 s of CPU "
+            click.echo("doodlecam: first run of this install: compiling the planner's kernels (about a minute of CPU "
                        "time, once; later runs start at once)", err=True)
         marker.parent.mkdir(parents=True, exist_ok=True)
         marker.write_text("numba kernels compiled (cache=True) for this install\n")
