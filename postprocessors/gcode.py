@@ -48,6 +48,7 @@ CAP_LEVELS = 24  # chord tolerances for feeds = cap: tol, tol/2^(1/4), ... (down
 CHORD_LEVEL = 2 ** -0.25
 MIN_LEVEL_STEPS = 0.15  # the finest level's tolerance, in motor steps
 START_LEVEL_STEPS = 0.3  # the level the search starts from, in motor steps
+CAP_CHUNK = 4000  # feeds = cap: curved strokes searched together (memory, not the chords: each search is its own)
 MAX_LINE = 79  # GRBL's line buffer is 80 bytes including the terminating NUL
 
 
@@ -504,8 +505,6 @@ class GcodePost(PostProcessor):
         stroke and level cost more than the work on drawings of 10^4 strokes). ``lifts`` (Job.lifts): where the
         pen goes on from one stroke into the next (a kept corner), the end chords are snapped to turn towards
         the neighbour's tangent (_pass_through)."""
-        from doodlecam.link.grbl.timing import _segment_time
-
         spm = np.array([machine.x.steps_per_mm, machine.y.steps_per_mm])
         out: list = [None] * len(strokes)
         curved = []
@@ -519,12 +518,26 @@ class GcodePost(PostProcessor):
                 curved.append(i)
         if not curved:
             return [(p, np.full(len(p) - 1, feeds[i]), {}) for i, p in enumerate(out)]
-        q, qoff, _ = self._dense([strokes[i] for i in curved], tol)
         rooms, r0, start = self._cap_levels(tol, spm)
-        v = np.array([feeds[i] / 60.0 for i in curved])
         acc = np.asarray(grbl.acceleration, float)
         t_in, t_out = _pass_through(strokes, curved, lifts)
-        walks = {s: _CapWalk(start, len(rooms)) for s in range(len(curved))}  # by position in curved
+        # CAP_CHUNK strokes at a time: each stroke's search is its own, so the chunks change no chord, and
+        # the dense points and candidates of 10^5 strokes are never all held at once
+        for c0 in range(0, len(curved), CAP_CHUNK):
+            part = curved[c0:c0 + CAP_CHUNK]
+            best = self._cap_search([strokes[i] for i in part], [feeds[i] for i in part], tol, spm, grbl, baud,
+                                    rooms, r0, start, acc, t_in[c0:c0 + CAP_CHUNK], t_out[c0:c0 + CAP_CHUNK])
+            for s, p in enumerate(best):
+                out[part[s]] = p
+        return [(p, np.full(len(p) - 1, feeds[i]), {}) for i, p in enumerate(out)]
+
+    def _cap_search(self, strokes, feeds, tol, spm, grbl, baud, rooms, r0, start, acc, t_in, t_out):
+        """The chosen chords (points) of each of these curved strokes (_cap_paths)."""
+        from doodlecam.link.grbl.timing import _segment_time
+
+        q, qoff, _ = self._dense(strokes, tol)
+        v = np.array([f / 60.0 for f in feeds])
+        walks = {s: _CapWalk(start, len(rooms)) for s in range(len(strokes))}  # by position in strokes
         best: dict[int, tuple] = {}  # position -> (points, key) of its best level so far
         asked = {s: start for s in walks}
         while asked:
@@ -547,7 +560,7 @@ class GcodePost(PostProcessor):
                 rest = np.zeros(len(mpts) - 1, bool)
                 rest[fm] = True  # its first block
                 rest[fm[1:] - 1] = True  # the joining block
-                feed = np.repeat([feeds[curved[s]] / 60.0 for s in which[moving]], nm)[:-1]
+                feed = np.repeat([feeds[s] / 60.0 for s in which[moving]], nm)[:-1]
                 bt = _segment_time(np.c_[mpts, np.zeros(len(mpts))], feed, grbl, rest)
             usable = serial_keeps_up(pts, off, bt, first, int(baud), 15)
             asked = {}
@@ -559,13 +572,11 @@ class GcodePost(PostProcessor):
                 # the fastest candidate a serial line can feed; if none can, the one of fewest lines
                 key = (0, t) if ok else (1, len(p))
                 if s not in best or key < best[s][1]:
-                    best[s] = (p, key)
+                    best[s] = (p.copy(), key)  # not a view: this round's arrays go
                 k = walks[s].send(t if ok else np.inf)
                 if k is not None:
                     asked[s] = k
-        for s, (p, _) in best.items():
-            out[curved[s]] = p
-        return [(p, np.full(len(p) - 1, feeds[i]), {}) for i, p in enumerate(out)]
+        return [best[s][0] for s in range(len(strokes))]
 
     def write(self, job, options: dict[str, Any]) -> bytes:
         d, options = self._resolve(options)

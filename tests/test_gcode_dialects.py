@@ -195,6 +195,24 @@ def test_grbl_idle_delay_at_every_stop():
     s1 = GrblSettings((100.0,) * 3, (1000.0,) * 3, 0.01, idle_delay_ms=0)
     assert estimate_program(prog, s1).total == pytest.approx(bare.total, abs=1e-12)
 
+def test_a_long_program_is_timed_in_parts_between_synchronisations(monkeypatch):
+    # 10^6 blocks of a generated drawing are timed a part at a time (memory); each part starts at a
+    # synchronisation, so the times are the one call's (to rounding: the forward pass sums from the start)
+    from doodlecam.link.grbl import timing
+
+    rng = np.random.default_rng(3)
+    prog = [("G1", 0.0, 0.0, 3000)]
+    for run in range(60):
+        prog += [("G1", float(x), float(y), None) for x, y in rng.uniform(0, 50, (int(rng.integers(1, 40)), 2))]
+        prog += [("M", "M3 S0"), ("G4", 0.1), ("G0", float(rng.uniform(0, 50)), 0.0, None), ("M", "M3 S1000")]
+    whole = estimate_program(prog)
+    for chunk in (1, 7, 50):
+        monkeypatch.setattr(timing, "RUN_CHUNK", chunk)
+        parts = estimate_program(prog)
+        assert parts.stops == whole.stops and parts.blocks == whole.blocks
+        assert np.allclose(parts.block_times, whole.block_times, rtol=1e-9, atol=1e-12)
+
+
 def test_grbl_straight_line():
     # 100 mm at F6000 (100 mm/s), a = 1000 mm/s²: 0.1 s up (5 mm), 90 mm cruise 0.9 s, 0.1 s down.
     s = NoIdle((1e3,) * 3, (1000.0,) * 3, 0.01)

@@ -237,6 +237,27 @@ def arc_points(start, target, center, clockwise: bool, arc_tolerance: float = 0.
     return np.vstack([pts, target[None, :]])
 
 
+RUN_CHUNK = 100_000  # blocks timed per call of _segment_time (it holds ~40 arrays of its blocks)
+
+
+def _run_times(points, feeds, s: GrblSettings, rest) -> np.ndarray:
+    """_segment_time of the blocks points[k] -> points[k+1], RUN_CHUNK blocks or so at a time, each part
+    starting at a synchronisation: runs are independent (a rest start carries entry speed 0 through
+    both passes, as the program's end does), so the parts give the same times as one call, in bounded memory."""
+    n = len(feeds)
+    cuts = [0]
+    starts = np.flatnonzero(rest)
+    while n - cuts[-1] > RUN_CHUNK:
+        k = starts[np.searchsorted(starts, cuts[-1] + RUN_CHUNK, side="right") - 1]
+        if k <= cuts[-1]:  # one run longer than a part: time it whole
+            k = starts[np.searchsorted(starts, cuts[-1] + RUN_CHUNK)] if starts[-1] > cuts[-1] + RUN_CHUNK else n
+        cuts.append(int(k))
+    if cuts[-1] != n:
+        cuts.append(n)
+    return np.concatenate([_segment_time(points[a:b + 1], feeds[a:b], s, rest[a:b])
+                           for a, b in zip(cuts[:-1], cuts[1:])])
+
+
 def estimate_program(program, settings: GrblSettings = GrblSettings(), start=(0.0, 0.0, 0.0)) -> Estimate:
     """Estimate a program given as a list of moves.
 
@@ -251,18 +272,20 @@ def estimate_program(program, settings: GrblSettings = GrblSettings(), start=(0.
     pos[:len(start)] = np.asarray(start, float)
     est = Estimate()
     # all runs in one call: block k goes from pts[k] to pts[k+1]; a synchronisation
-    # (dwell, M command) makes the next block start from rest
-    pts, feeds, rest = [pos.copy()], [], []
+    # (dwell, M command) makes the next block start from rest. Plain floats in flat lists
+    # (an array per point cost ~200 bytes: 10^6 blocks of a generated drawing)
+    xs, ys, zs = [float(pos[0])], [float(pos[1])], [float(pos[2])]
+    feeds, rest = [], []
     feed = None
     sync = True
     for item in program:
         kind = item[0]
         if kind in ("G0", "G1"):
             coords, f = item[1:-1], item[-1]
-            target = pts[-1].copy()
+            target = [xs[-1], ys[-1], zs[-1]]
             for k, c in enumerate(coords[:3]):
                 if c is not None:
-                    target[k] = c
+                    target[k] = float(c)
             if kind == "G1":
                 if f is not None:
                     feed = f
@@ -271,7 +294,9 @@ def estimate_program(program, settings: GrblSettings = GrblSettings(), start=(0.
                 v = feed / 60.0
             else:
                 v = np.inf
-            pts.append(target)
+            xs.append(target[0])
+            ys.append(target[1])
+            zs.append(target[2])
             feeds.append(v)
             rest.append(sync)
             sync = False
@@ -281,7 +306,7 @@ def estimate_program(program, settings: GrblSettings = GrblSettings(), start=(0.
                 feed = f
             if feed is None:
                 raise InputError("G2/G3 without a feed rate: GRBL refuses it (error:22); add F")
-            here = pts[-1]
+            here = np.array([xs[-1], ys[-1], zs[-1]])
             target = here.copy()
             for k, c in enumerate((x, y, z)):
                 if c is not None:
@@ -289,7 +314,9 @@ def estimate_program(program, settings: GrblSettings = GrblSettings(), start=(0.
             centre = here.copy()
             centre[:2] += (i or 0.0, j or 0.0)
             for q in arc_points(here, target, centre, kind == "G2", settings.arc_tolerance):
-                pts.append(q)
+                xs.append(float(q[0]))
+                ys.append(float(q[1]))
+                zs.append(float(q[2]))
                 feeds.append(feed / 60.0)
                 rest.append(sync)
                 sync = False
@@ -300,7 +327,8 @@ def estimate_program(program, settings: GrblSettings = GrblSettings(), start=(0.
             sync = True
         else:
             raise ValueError(f"unknown program item {item!r}")
-    bt = _segment_time(np.array(pts), np.array(feeds), settings, np.array(rest, bool)) if feeds else np.zeros(0)
+    bt = _run_times(np.column_stack([xs, ys, zs]), np.array(feeds), settings, np.array(rest, bool)) \
+        if feeds else np.zeros(0)
     if len(bt):  # every run with motion ends in a stop: st_go_idle waits $1
         run = np.cumsum(rest)
         est.stops = len(np.unique(run[bt > 0]))
