@@ -90,7 +90,7 @@ def in_process(svg: Path) -> dict:
 def in_browser(svg: Path) -> dict:
     from playwright.sync_api import sync_playwright
 
-    from bench_studio import ARGS, start_server
+    from bench_studio import ARGS, drag_and_wait, start_server
 
     out = {}
     srv, session, url = start_server(preload=False)
@@ -133,15 +133,7 @@ def in_browser(svg: Path) -> dict:
         page.wait_for_function("studio.selected >= 0")
         k = page.evaluate("studio.selected")
         for r in range(10):
-            n_before = page.evaluate("studioPerf.replan.length")
-            c = page.evaluate(f"studio.view.strokes[{k}].control[Math.floor(studio.view.strokes[{k}].control.length / 2)]")
-            x, y = page.evaluate(f"studioScreen({c[0]}, {c[1]})")
-            page.mouse.move(box["x"] + x, box["y"] + y)
-            page.mouse.down()
-            for i in range(1, 6):
-                page.mouse.move(box["x"] + x + i * 0.4 * (-1) ** r, box["y"] + y + i * 0.2)
-            page.mouse.up()
-            page.wait_for_function(f"studioPerf.replan.length > {n_before}", timeout=60_000)
+            drag_and_wait(page, box, k, f"Math.floor(studio.view.strokes[{k}].control.length / 2)", r, timeout=60_000)
         parts = page.evaluate("studioPerf.replanParts")
         assert len(parts) == 10, parts
         out["re-plan: server thread CPU ms (median of 10)"] = statistics.median(p["cpu"] for p in parts)

@@ -42,7 +42,7 @@ import numpy as np
 from doodlecam.api import Option, PostProcessor
 from doodlecam.errors import OutputError, PluginError
 from doodlecam.geometry.chord_batch import cap_candidates, dense_points, serial_keeps_up
-from doodlecam.geometry.chords import chord_ok, greedy_chords, one_step_apart
+from doodlecam.geometry.chords import chord_ok, one_step_apart
 
 CAP_LEVELS = 24  # chord tolerances for feeds = cap: tol, tol/2^(1/4), ... (down to MIN_LEVEL_STEPS)
 CHORD_LEVEL = 2 ** -0.25
@@ -127,12 +127,6 @@ def _chord_ok(q: np.ndarray, i: int, j: int, tol2: float) -> bool:
     return chord_ok(q, i, j, tol2)
 
 
-def _greedy_chords(q: np.ndarray, tol: float) -> np.ndarray:
-    """Indices of the vertices of the longest chords through q (n, 2), each within ``tol`` (compiled:
-    doodlecam.geometry.chords)."""
-    return greedy_chords(np.ascontiguousarray(q, dtype=float), float(tol))
-
-
 MAX_ARC_RADIUS = 2000.0  # mm: flatter pieces are chords
 MAX_ARC_SWEEP = 1.9 * np.pi
 
@@ -162,8 +156,8 @@ def _arc_fit(q: np.ndarray, i: int, j: int, tol: float):
 
 
 def _greedy_arcs(q: np.ndarray, tol: float) -> tuple[np.ndarray, dict[int, tuple]]:
-    """Vertices through q like _greedy_chords, but a piece that a circular arc within ``tol`` covers at least
-    twice as far as the longest chord becomes that arc: (indices, {segment k: (centre, clockwise)})."""
+    """Vertices through q like geometry.chords.greedy_chords, but a piece that a circular arc within ``tol``
+    covers at least twice as far as the longest chord becomes that arc: (indices, {segment k: (centre, clockwise)})."""
     n, tol2 = len(q), tol * tol
     out, arcs = [0], {}
     i = 0
@@ -560,7 +554,7 @@ class GcodePost(PostProcessor):
                 rest = np.zeros(len(mpts) - 1, bool)
                 rest[fm] = True  # its first block
                 rest[fm[1:] - 1] = True  # the joining block
-                feed = np.repeat([feeds[s] / 60.0 for s in which[moving]], nm)[:-1]
+                feed = np.repeat(v[which[moving]], nm)[:-1]
                 bt = _segment_time(np.c_[mpts, np.zeros(len(mpts))], feed, grbl, rest)
             usable = serial_keeps_up(pts, off, bt, first, int(baud), 15)
             asked = {}

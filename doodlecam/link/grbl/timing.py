@@ -248,12 +248,12 @@ def _run_times(points, feeds, s: GrblSettings, rest) -> np.ndarray:
     cuts = [0]
     starts = np.flatnonzero(rest)
     while n - cuts[-1] > RUN_CHUNK:
-        k = starts[np.searchsorted(starts, cuts[-1] + RUN_CHUNK, side="right") - 1]
-        if k <= cuts[-1]:  # one run longer than a part: time it whole
-            k = starts[np.searchsorted(starts, cuts[-1] + RUN_CHUNK)] if starts[-1] > cuts[-1] + RUN_CHUNK else n
-        cuts.append(int(k))
-    if cuts[-1] != n:
-        cuts.append(n)
+        later = starts[starts > cuts[-1]]
+        if not len(later):
+            break
+        within = later[later <= cuts[-1] + RUN_CHUNK]
+        cuts.append(int(within[-1] if len(within) else later[0]))  # else one run longer than a part: whole
+    cuts.append(n)
     return np.concatenate([_segment_time(points[a:b + 1], feeds[a:b], s, rest[a:b])
                            for a, b in zip(cuts[:-1], cuts[1:])])
 
