@@ -129,3 +129,20 @@ def test_a_tightened_distance_searched_again_is_the_same():
         assert a <= r and b <= r
         assert F._to_polyline(Q[k, 0], Q[k, 1], pts, cum, k, a, r) == a
         assert F._to_samples(pts[k, 0], pts[k, 1], Q, cum, k, b, r) == b
+
+
+def test_dedupe_measures_from_the_last_point_kept():
+    """A dense run of points each within SAME_POINT of the previous is thinned, not dropped whole;
+    the compiled pass keeps exactly the points the plain rule keeps."""
+    from doodlecam.model import SAME_POINT
+
+    rng = np.random.default_rng(3)
+    p = np.cumsum(rng.uniform(-0.7, 0.7, (5000, 2)) * SAME_POINT, axis=0)
+    p[::50] += rng.uniform(0, 1, (100, 2))  # some real steps among the crumbs
+    keep = [0]
+    for i in range(1, len(p)):
+        if np.abs(p[i] - p[keep[-1]]).max() > SAME_POINT:
+            keep.append(i)
+    got = F._dedupe(p)
+    assert 100 < len(keep) < len(p) - 100  # both rules in play: points dropped, points kept within runs
+    np.testing.assert_array_equal(got, p[keep])

@@ -35,11 +35,22 @@ def _dedupe(p: np.ndarray) -> np.ndarray:
     merged 1.7e-7 mm apart at a corner of a generated drawing)."""
     if np.any(np.abs(np.diff(p, axis=0)) > SAME_POINT, axis=1).all():
         return p
-    keep = [0]
-    for i in range(1, len(p)):  # rare: measured from the last point kept, so a dense run is not dropped whole
-        if np.abs(p[i] - p[keep[-1]]).max() > SAME_POINT:
-            keep.append(i)
-    return p[keep]
+    return p[_kept(p, SAME_POINT)]
+
+
+@numba.njit(cache=True, nogil=True)
+def _kept(p, near):  # pragma: no cover - compiled
+    """Which points of p are farther than ``near`` (per axis) from the last one kept before them:
+    measured from the last point kept, so a dense run is not dropped whole (compiled: a long
+    curve with one repeated point was a Python loop over all its points)."""
+    keep = np.zeros(p.shape[0], np.bool_)
+    keep[0] = True
+    last = 0
+    for i in range(1, p.shape[0]):
+        if max(abs(p[i, 0] - p[last, 0]), abs(p[i, 1] - p[last, 1])) > near:
+            keep[i] = True
+            last = i
+    return keep
 
 
 def densify(p: np.ndarray, spacing: float) -> np.ndarray:
