@@ -52,6 +52,8 @@ TRACKING_STEPS = 0.4
 # shift at the instants); shifts per solve stay within ~TRUST_MM of arc.
 NORMAL_WEIGHT = 10.0
 TRUST_MM = 0.5
+# Up to this many instants the QP is solved densely (kernels.sample_qp), past it by Clarabel.
+DENSE_INSTANTS = 12
 
 
 class _Coo:
@@ -268,12 +270,16 @@ def _qp(p, tang, v_plan, end, dt, tol, limits, L, nrm=None, trust=None, crank=No
     m = len(p)
     n = m - 1
     nv, nx = 2 * n, 2 * m
-    M = None if limits.M is None else tuple(np.asarray(limits.M, float).ravel())
     pen = limits.pen_speed is not None
+    lam = VELOCITY_WEIGHT * dt * dt
+    if crank is None and not pen and m <= DENSE_INSTANTS:
+        got = _dense_qp(p, tang, v_plan, end, dt, tol, limits, L, nrm, trust, shifted, lam)
+        if got is not False:
+            return got
+    M = None if limits.M is None else tuple(np.asarray(limits.M, float).ravel())
     key = (m, float(dt), M, trust is not None, pen)
     base, n_eq, tagged, signs, inst, axes = _pattern(*key)
     A = _working(key, base)
-    lam = VELOCITY_WEIGHT * dt * dt
     P, dx, dy, cross = _objective(m)
     P = _working(m, P)
     limited = M is not None
@@ -303,6 +309,28 @@ def _qp(p, tang, v_plan, end, dt, tol, limits, L, nrm=None, trust=None, crank=No
     if z is None:
         return None
     return z[:nv].reshape(2, n).T, z[nv : nv + nx].reshape(2, m).T, z[nv + nx : nv + nx + m]
+
+
+def _dense_qp(p, tang, v_plan, end, dt, tol, limits, L, nrm, trust, shifted, lam):
+    """_qp's problem solved exactly by a compiled dense dual active-set method (kernels.sample_qp):
+    (v, x, d), None where it is infeasible, or False where the method gave up (use Clarabel).
+    Its answer is the QP's optimum to rounding, so the rows hold without Clarabel's residuals."""
+    from doodlecam.plan.kernels import sample_qp
+
+    m = len(p)
+    limited = limits.M is not None
+    v, x, d = np.empty((m - 1, 2)), np.empty((m, 2)), np.empty(m)
+    status = sample_qp(tang, p, v_plan, shifted if shifted is not None else np.zeros(m),
+                       nrm if nrm is not None else _NO_ROWS, NORMAL_WEIGHT * (dt / 4) ** 2, lam, tol, L,
+                       np.asarray(end, float), np.asarray(limits.M, float) if limited else _NO_ROWS,
+                       np.asarray(limits.amax, float) if limited else _NONE, np.asarray(limits.vmax, float) if limited else _NONE,
+                       float(dt), trust if trust is not None else _NONE, v, x, d)
+    if status == 0:
+        return v, x, d
+    return None if status == 1 else False
+
+
+_NO_ROWS, _NONE = np.empty((0, 2)), np.empty(0)
 
 
 def whole_step_limits(limits, steps_per_mm, dt: float):
