@@ -412,14 +412,19 @@ def sample_stroke(stroke: Stroke, dt: float, limits, steps_per_mm=(80.0, 80.0), 
         v_plan[-1] = 0.0
         ok = False
         anchor = u  # where the shifts are costed from: the planned points, then the first solve's
-        for it in range(5 if follow else 3):  # linearise, solve, re-linearise at the shifted points
+        def frame(uu):
             # the points aimed at (from the start, with their u), the tangents: d is in mm of arc
             # (roughly), q(u + d/L) ~ q + q' d / L; following, the unit normals and the trust
-            # region, ~TRUST_MM of arc (compiled: kernels.curve_frame)
-            pu, tang = np.empty((len(u), 3)), np.empty((len(u), 2))
-            nrm, trust = (np.empty((len(u), 2)), np.empty(len(u))) if follow else (None, None)
-            curve_frame(dc[0], dc[1], spline.degree, nseg, u, start, L, pu, tang,
-                        nrm if follow else np.empty((0, 2)), trust if follow else np.empty(0), TRUST_MM)
+            # region, ~TRUST_MM of arc (compiled: kernels.curve_frame, q(u) with Spline's bits)
+            pu, tang = np.empty((len(uu), 3)), np.empty((len(uu), 2))
+            nrm, trust = (np.empty((len(uu), 2)), np.empty(len(uu))) if follow else (None, None)
+            curve_frame(dc[0], dc[1], spline.degree, nseg, uu, start, L, pu, tang,
+                        nrm if follow else _NO_ROWS, trust if follow else _NONE, TRUST_MM)
+            return pu, tang, nrm, trust
+
+        here = frame(u)
+        for it in range(5 if follow else 3):  # linearise, solve, re-linearise at the shifted points
+            pu, tang, nrm, trust = here
             crank = None
             if crank_share is not None and limits.M is None:
                 J = _jacobians(limits.kinematics, spline(u))
@@ -439,12 +444,15 @@ def sample_stroke(stroke: Stroke, dt: float, limits, steps_per_mm=(80.0, 80.0), 
             v, x, d = res
             u_new = np.clip(u + d / L, 0.0, 1.0)
             u_new[-1] = 1.0
-            err = np.abs(x - (spline(u_new) - start))[:-1]  # per axis: steps are per axis
+            here = frame(u_new)  # checked there; linearised there next unless made monotone
+            err = np.abs(x - here[0][:, :2])[:-1]  # per axis: steps are per axis
             if err.size == 0 or err.max() <= tol:
                 ok = True
                 u = u_new
                 break
             u = np.maximum.accumulate(u_new)
+            if not np.array_equal(u, u_new):
+                here = frame(u)
             if it == 0:
                 # the first solve sets the samples' timing (whole-period ramps cannot keep the
                 # plan's); costing later shifts from there, not from the last solve, lets the
