@@ -877,12 +877,28 @@ def dual_active_set(H, g, C, b, meq, z, maxit):  # pragma: no cover - compiled
         for k in range(nz):
             s -= J[i, k] * w[k]
         z[i] = s
+    # the rows' nonzeros (CSR): the scan for violated rows and J' n cost their count, not nc nz
+    ptr = np.zeros(nc + 1, np.int64)
+    for i in range(nc):
+        c = 0
+        for k in range(nz):
+            if C[i, k] != 0.0:
+                c += 1
+        ptr[i + 1] = ptr[i] + c
+    col = np.empty(ptr[nc], np.int64)
+    val = np.empty(ptr[nc])
+    for i in range(nc):
+        o = ptr[i]
+        for k in range(nz):
+            if C[i, k] != 0.0:
+                col[o] = k
+                val[o] = C[i, k]
+                o += 1
     R = np.zeros((nz, nz))
     active = np.empty(nz, np.int64)
     isact = np.zeros(nc, np.bool_)
     u = np.zeros(nz)
     r = np.zeros(nz)
-    nrm = np.empty(nz)
     d = np.empty(nz)
     step = np.empty(nz)
     q = 0
@@ -897,11 +913,9 @@ def dual_active_set(H, g, C, b, meq, z, maxit):  # pragma: no cover - compiled
                 break
         if p >= 0:
             s = -b[p]
-            for k in range(nz):
-                s += C[p, k] * z[k]
+            for o in range(ptr[p], ptr[p + 1]):
+                s += val[o] * z[col[o]]
             sg = -1.0 if s > 0.0 else 1.0  # as n'z >= bound, violated (or met) from below
-            for k in range(nz):
-                nrm[k] = sg * C[p, k]
             bound = sg * b[p]
             sp = -abs(s)
         else:
@@ -910,15 +924,14 @@ def dual_active_set(H, g, C, b, meq, z, maxit):  # pragma: no cover - compiled
                 if isact[i]:
                     continue
                 s = b[i]
-                for k in range(nz):
-                    s -= C[i, k] * z[k]
+                for o in range(ptr[i], ptr[i + 1]):
+                    s -= val[o] * z[col[o]]
                 if s < -1e-12 * (1.0 + abs(b[i])) and s < worst:
                     worst = s
                     p = i
             if p < 0:
                 return 0
-            for k in range(nz):
-                nrm[k] = -C[p, k]
+            sg = -1.0
             bound = -b[p]
             sp = worst
         unew = 0.0
@@ -926,11 +939,13 @@ def dual_active_set(H, g, C, b, meq, z, maxit):  # pragma: no cover - compiled
             it += 1
             if it > maxit:
                 return 2
-            for k in range(nz):  # d = J' nrm; the primal step J[:, q:] d[q:]
-                s = 0.0
-                for i in range(nz):
-                    s += J[i, k] * nrm[i]
-                d[k] = s
+            for k in range(nz):  # d = J' nrm (nrm = sg C[p]); the primal step J[:, q:] d[q:]
+                d[k] = 0.0
+            for o in range(ptr[p], ptr[p + 1]):
+                c = sg * val[o]
+                i = col[o]
+                for k in range(nz):
+                    d[k] += J[i, k] * c
             for i in range(nz):
                 s = 0.0
                 for k in range(q, nz):
@@ -1008,8 +1023,8 @@ def dual_active_set(H, g, C, b, meq, z, maxit):  # pragma: no cover - compiled
                     J[k, j] = c * x0 + sn * x1
                     J[k, j + 1] = -sn * x0 + c * x1
             sp = -bound
-            for k in range(nz):
-                sp += nrm[k] * z[k]
+            for o in range(ptr[p], ptr[p + 1]):
+                sp += sg * val[o] * z[col[o]]
 
 
 @numba.njit(cache=True, nogil=True)
