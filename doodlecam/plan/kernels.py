@@ -862,20 +862,23 @@ def dual_active_set(H, g, C, b, meq, z, maxit):  # pragma: no cover - compiled
             for k in range(j):
                 s -= Lc[i, k] * Lc[j, k]
             Lc[i, j] = s / Lc[j, j]
-    J = np.zeros((nz, nz))
+    Jt = np.zeros((nz, nz))  # J transposed: its columns, which the rotations mix, contiguous
     for c in range(nz):  # column c of L^-T: solve L' x = e_c (upper triangular)
         for i in range(c, -1, -1):
             s = 1.0 if i == c else 0.0
             for k in range(i + 1, c + 1):
-                s -= Lc[k, i] * J[k, c]
-            J[i, c] = s / Lc[i, i]
-    for i in range(nz):  # unconstrained minimum -J J' g
-        z[i] = 0.0
-    w = J.T @ g
+                s -= Lc[k, i] * Jt[c, k]
+            Jt[c, i] = s / Lc[i, i]
+    w = np.empty(nz)  # unconstrained minimum -J J' g
+    for c in range(nz):
+        s = 0.0
+        for i in range(nz):
+            s += Jt[c, i] * g[i]
+        w[c] = s
     for i in range(nz):
         s = 0.0
         for k in range(nz):
-            s -= J[i, k] * w[k]
+            s -= Jt[k, i] * w[k]
         z[i] = s
     # the rows' nonzeros (CSR): the scan for violated rows and J' n cost their count, not nc nz
     ptr = np.zeros(nc + 1, np.int64)
@@ -945,12 +948,12 @@ def dual_active_set(H, g, C, b, meq, z, maxit):  # pragma: no cover - compiled
                 c = sg * val[o]
                 i = col[o]
                 for k in range(nz):
-                    d[k] += J[i, k] * c
+                    d[k] += Jt[k, i] * c
             for i in range(nz):
-                s = 0.0
-                for k in range(q, nz):
-                    s += J[i, k] * d[k]
-                step[i] = s
+                step[i] = 0.0
+            for k in range(q, nz):
+                for i in range(nz):
+                    step[i] += Jt[k, i] * d[k]
             for i in range(q - 1, -1, -1):  # r = R^-1 d[:q]
                 s = d[i]
                 for k in range(i + 1, q):
@@ -987,9 +990,9 @@ def dual_active_set(H, g, C, b, meq, z, maxit):  # pragma: no cover - compiled
                     c, sn = a0 / h, a1 / h
                     d[i - 1], d[i] = h, 0.0
                     for k in range(nz):
-                        x0, x1 = J[k, i - 1], J[k, i]
-                        J[k, i - 1] = c * x0 + sn * x1
-                        J[k, i] = -sn * x0 + c * x1
+                        x0, x1 = Jt[i - 1, k], Jt[i, k]
+                        Jt[i - 1, k] = c * x0 + sn * x1
+                        Jt[i, k] = -sn * x0 + c * x1
                 for k in range(q + 1):
                     R[k, q] = d[k]
                 active[q] = p
@@ -1019,9 +1022,9 @@ def dual_active_set(H, g, C, b, meq, z, maxit):  # pragma: no cover - compiled
                     R[j + 1, k] = -sn * x0 + c * x1
                 R[j + 1, j] = 0.0
                 for k in range(nz):
-                    x0, x1 = J[k, j], J[k, j + 1]
-                    J[k, j] = c * x0 + sn * x1
-                    J[k, j + 1] = -sn * x0 + c * x1
+                    x0, x1 = Jt[j, k], Jt[j + 1, k]
+                    Jt[j, k] = c * x0 + sn * x1
+                    Jt[j + 1, k] = -sn * x0 + c * x1
             sp = -bound
             for o in range(ptr[p], ptr[p + 1]):
                 sp += sg * val[o] * z[col[o]]

@@ -53,7 +53,7 @@ TRACKING_STEPS = 0.4
 NORMAL_WEIGHT = 10.0
 TRUST_MM = 0.5
 # Up to this many instants the QP is solved densely (kernels.sample_qp), past it by Clarabel.
-DENSE_INSTANTS = 32
+DENSE_INSTANTS = 40
 
 
 class _Coo:
