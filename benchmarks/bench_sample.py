@@ -78,11 +78,11 @@ def main() -> None:
     t_old, old = replay(calls, 0)
     t_new, new = replay(calls, sample.DENSE_INSTANTS)
     po, pn = np.array([len(s.velocity) for s in old]), np.array([len(s.velocity) for s in new])
-    dv = max((float(np.abs(a.velocity - b.velocity).max()) for a, b in zip(old, new) if len(a.velocity) == len(b.velocity)),
-             default=0.0)
-    print("| sample_stroke calls | samples, Clarabel / dense | strokes with more / fewer periods | largest velocity change mm/s "
-          "| CPU s, Clarabel | CPU s, dense up to "
-          f"{sample.DENSE_INSTANTS} instants | less CPU |")
+    dv = max((float(np.abs(a.velocity - b.velocity).max())
+              for a, b in zip(old, new) if len(a.velocity) == len(b.velocity)), default=0.0)
+    print("| sample_stroke calls | samples, Clarabel / dense | strokes with more / fewer periods "
+          f"| largest velocity change mm/s | CPU s, Clarabel | CPU s, dense up to {sample.DENSE_INSTANTS} instants "
+          "| less CPU |")
     print("|---|---|---|---|---|---|---|")
     print(f"| {len(calls)} | {po.sum()} / {pn.sum()} | {(pn > po).sum()} / {(pn < po).sum()} | {dv:.3g} "
           f"| {t_old:.2f} | {t_new:.2f} | {t_old / t_new:.2f}x |")

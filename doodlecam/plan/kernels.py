@@ -1031,7 +1031,8 @@ def dual_active_set(H, g, C, b, meq, z, maxit):  # pragma: no cover - compiled
 
 
 @numba.njit(cache=True, nogil=True)
-def sample_qp(tang, p, v_plan, shifted, nrm, w, lam, tol, L, end, M, amax, vmax, dt, trust, v, x, d):  # pragma: no cover - compiled
+def sample_qp(tang, p, v_plan, shifted, nrm, w, lam, tol, L, end, M, amax, vmax, dt, trust,
+              v, x, d):  # pragma: no cover - compiled
     """The sampler's linearised QP (sample._pattern, kernels.qp_fill: the same objective, rows and
     bounds) with the positions eliminated, x_i = dT (v_1 + ... + v_i-1) + dT / 2 v_i, solved
     densely (dual_active_set). Empty M: no actuator rows; empty trust: no trust rows; empty nrm: no

@@ -22,6 +22,10 @@ little ahead or behind the plan, never off the path):
 If the limits leave no such targets in ceil(T / dT) periods, periods are
 added (the stroke runs slightly slower than planned) until they do.
 
+Up to DENSE_INSTANTS instants (most strokes of a drawing) the QP is solved
+exactly by a compiled dual active-set method (kernels.sample_qp), longer
+strokes, pen-speed cones and nonlinear actuator rows by Clarabel.
+
 ``follow=True`` (a path tolerance is set) also penalises the targets'
 component *across* the curve at every instant, with the shifts kept within a
 trust region so the linearisation holds. With each instant on the curve and
@@ -323,7 +327,8 @@ def _dense_qp(p, tang, v_plan, end, dt, tol, limits, L, nrm, trust, shifted, lam
     status = sample_qp(tang, p, v_plan, shifted if shifted is not None else np.zeros(m),
                        nrm if nrm is not None else _NO_ROWS, NORMAL_WEIGHT * (dt / 4) ** 2, lam, tol, L,
                        np.asarray(end, float), np.asarray(limits.M, float) if limited else _NO_ROWS,
-                       np.asarray(limits.amax, float) if limited else _NONE, np.asarray(limits.vmax, float) if limited else _NONE,
+                       np.asarray(limits.amax, float) if limited else _NONE,
+                       np.asarray(limits.vmax, float) if limited else _NONE,
                        float(dt), trust if trust is not None else _NONE, v, x, d)
     if status == 0:
         return v, x, d
@@ -412,6 +417,7 @@ def sample_stroke(stroke: Stroke, dt: float, limits, steps_per_mm=(80.0, 80.0), 
         v_plan[-1] = 0.0
         ok = False
         anchor = u  # where the shifts are costed from: the planned points, then the first solve's
+
         def frame(uu):
             # the points aimed at (from the start, with their u), the tangents: d is in mm of arc
             # (roughly), q(u + d/L) ~ q + q' d / L; following, the unit normals and the trust
