@@ -835,3 +835,290 @@ def curve_frame(c0, c1, k, nseg, u, start, L, pu, tang, nrm, trust, trust_mm):  
             nrm[j, 0] = -d1y / sp
             nrm[j, 1] = d1x / sp
             trust[j] = trust_mm * L / sp
+
+
+@numba.njit(cache=True, nogil=True)
+def dual_active_set(H, g, C, b, meq, z, maxit):  # pragma: no cover - compiled
+    """min 1/2 z'Hz + g'z subject to C[:meq] z = b[:meq] and C[meq:] z <= b[meq:], H positive
+    definite: Goldfarb and Idnani's dual active-set method (Math. Programming 27, 1983), dense,
+    for the sampler's small QPs. It starts at the unconstrained minimum and adds the most violated
+    constraint at a time, dropping those whose multipliers would turn negative, so every step
+    keeps the dual feasible and the first primal-feasible point is the optimum (to rounding).
+    Returns 0 (z the optimum), 1 (infeasible: a violated constraint no step can reach) or 2
+    (H not positive definite, or no convergence within maxit steps)."""
+    nz = H.shape[0]
+    nc = C.shape[0]
+    # H = L L'; J = L^-T (columns: an H-orthonormal basis), R: the active normals in it
+    Lc = np.zeros((nz, nz))
+    for j in range(nz):
+        s = H[j, j]
+        for k in range(j):
+            s -= Lc[j, k] * Lc[j, k]
+        if not s > 0.0:
+            return 2
+        Lc[j, j] = np.sqrt(s)
+        for i in range(j + 1, nz):
+            s = H[i, j]
+            for k in range(j):
+                s -= Lc[i, k] * Lc[j, k]
+            Lc[i, j] = s / Lc[j, j]
+    Jt = np.zeros((nz, nz))  # J transposed: its columns, which the rotations mix, contiguous
+    for c in range(nz):  # column c of L^-T: solve L' x = e_c (upper triangular)
+        for i in range(c, -1, -1):
+            s = 1.0 if i == c else 0.0
+            for k in range(i + 1, c + 1):
+                s -= Lc[k, i] * Jt[c, k]
+            Jt[c, i] = s / Lc[i, i]
+    w = np.empty(nz)  # unconstrained minimum -J J' g
+    for c in range(nz):
+        s = 0.0
+        for i in range(nz):
+            s += Jt[c, i] * g[i]
+        w[c] = s
+    for i in range(nz):
+        s = 0.0
+        for k in range(nz):
+            s -= Jt[k, i] * w[k]
+        z[i] = s
+    # the rows' nonzeros (CSR): the scan for violated rows and J' n cost their count, not nc nz
+    ptr = np.zeros(nc + 1, np.int64)
+    for i in range(nc):
+        c = 0
+        for k in range(nz):
+            if C[i, k] != 0.0:
+                c += 1
+        ptr[i + 1] = ptr[i] + c
+    col = np.empty(ptr[nc], np.int64)
+    val = np.empty(ptr[nc])
+    for i in range(nc):
+        o = ptr[i]
+        for k in range(nz):
+            if C[i, k] != 0.0:
+                col[o] = k
+                val[o] = C[i, k]
+                o += 1
+    R = np.zeros((nz, nz))
+    active = np.empty(nz, np.int64)
+    isact = np.zeros(nc, np.bool_)
+    u = np.zeros(nz)
+    r = np.zeros(nz)
+    d = np.empty(nz)
+    step = np.empty(nz)
+    q = 0
+    it = 0
+    while True:
+        # the next constraint: an equality not yet active, else the most violated inequality
+        p = -1
+        sp = 0.0
+        for i in range(meq):
+            if not isact[i]:
+                p = i
+                break
+        if p >= 0:
+            s = -b[p]
+            for o in range(ptr[p], ptr[p + 1]):
+                s += val[o] * z[col[o]]
+            sg = -1.0 if s > 0.0 else 1.0  # as n'z >= bound, violated (or met) from below
+            bound = sg * b[p]
+            sp = -abs(s)
+        else:
+            worst = 0.0
+            for i in range(meq, nc):
+                if isact[i]:
+                    continue
+                s = b[i]
+                for o in range(ptr[i], ptr[i + 1]):
+                    s -= val[o] * z[col[o]]
+                if s < -1e-12 * (1.0 + abs(b[i])) and s < worst:
+                    worst = s
+                    p = i
+            if p < 0:
+                return 0
+            sg = -1.0
+            bound = -b[p]
+            sp = worst
+        unew = 0.0
+        while True:
+            it += 1
+            if it > maxit:
+                return 2
+            for k in range(nz):  # d = J' nrm (nrm = sg C[p]); the primal step J[:, q:] d[q:]
+                d[k] = 0.0
+            for o in range(ptr[p], ptr[p + 1]):
+                c = sg * val[o]
+                i = col[o]
+                for k in range(nz):
+                    d[k] += Jt[k, i] * c
+            for i in range(nz):
+                step[i] = 0.0
+            for k in range(q, nz):
+                for i in range(nz):
+                    step[i] += Jt[k, i] * d[k]
+            for i in range(q - 1, -1, -1):  # r = R^-1 d[:q]
+                s = d[i]
+                for k in range(i + 1, q):
+                    s -= R[i, k] * r[k]
+                r[i] = s / R[i, i]
+            t1 = np.inf
+            drop = -1
+            for j in range(q):
+                if active[j] >= meq and r[j] > 0.0 and u[j] / r[j] < t1:
+                    t1 = u[j] / r[j]
+                    drop = j
+            dd = 0.0
+            for k in range(nz):
+                dd += d[k] * d[k]
+            zn = 0.0
+            for k in range(q, nz):
+                zn += d[k] * d[k]  # = step . nrm
+            t2 = -sp / zn if zn > 1e-13 * dd else np.inf
+            t = min(t1, t2)
+            if t == np.inf:
+                return 1
+            for j in range(q):
+                u[j] -= t * r[j]
+            unew += t
+            if t2 < np.inf:
+                for k in range(nz):
+                    z[k] += t * step[k]
+            if t2 <= t1:  # full step: p joins the active set
+                for i in range(nz - 1, q, -1):  # rotate d[q+1:] into d[q], and J's columns with it
+                    a0, a1 = d[i - 1], d[i]
+                    h = np.hypot(a0, a1)
+                    if h == 0.0:
+                        continue
+                    c, sn = a0 / h, a1 / h
+                    d[i - 1], d[i] = h, 0.0
+                    for k in range(nz):
+                        x0, x1 = Jt[i - 1, k], Jt[i, k]
+                        Jt[i - 1, k] = c * x0 + sn * x1
+                        Jt[i, k] = -sn * x0 + c * x1
+                for k in range(q + 1):
+                    R[k, q] = d[k]
+                active[q] = p
+                u[q] = unew
+                isact[p] = True
+                q += 1
+                break
+            # partial step: the constraint at position drop leaves; R back to triangular
+            isact[active[drop]] = False
+            for j in range(drop, q - 1):
+                active[j] = active[j + 1]
+                u[j] = u[j + 1]
+                for k in range(q):
+                    R[k, j] = R[k, j + 1]
+            for k in range(q):
+                R[k, q - 1] = 0.0
+            q -= 1
+            for j in range(drop, q):
+                a0, a1 = R[j, j], R[j + 1, j]
+                h = np.hypot(a0, a1)
+                if h == 0.0:
+                    continue
+                c, sn = a0 / h, a1 / h
+                for k in range(j, q):
+                    x0, x1 = R[j, k], R[j + 1, k]
+                    R[j, k] = c * x0 + sn * x1
+                    R[j + 1, k] = -sn * x0 + c * x1
+                R[j + 1, j] = 0.0
+                for k in range(nz):
+                    x0, x1 = Jt[j, k], Jt[j + 1, k]
+                    Jt[j, k] = c * x0 + sn * x1
+                    Jt[j + 1, k] = -sn * x0 + c * x1
+            sp = -bound
+            for o in range(ptr[p], ptr[p + 1]):
+                sp += sg * val[o] * z[col[o]]
+
+
+@numba.njit(cache=True, nogil=True)
+def sample_qp(tang, p, v_plan, shifted, nrm, w, lam, tol, L, end, M, amax, vmax, dt, trust,
+              v, x, d):  # pragma: no cover - compiled
+    """The sampler's linearised QP (sample._pattern, kernels.qp_fill: the same objective, rows and
+    bounds) with the positions eliminated, x_i = dT (v_1 + ... + v_i-1) + dT / 2 v_i, solved
+    densely (dual_active_set). Empty M: no actuator rows; empty trust: no trust rows; empty nrm: no
+    penalty across the curve. Fills v (n, 2), x (m, 2), d (m) and returns dual_active_set's status."""
+    m = p.shape[0]
+    n = m - 1
+    nz = 2 * n + m
+    T = np.zeros((m, n))  # x_k+1 = T[k] . v per axis
+    for k in range(m):
+        for j in range(min(k, n)):
+            T[k, j] = dt
+        if k < n:
+            T[k, k] = 0.5 * dt
+    H = np.zeros((nz, nz))
+    g = np.zeros(nz)
+    for i in range(n):  # objective: as qp_fill, the 1e-12 on the positions carried through T
+        for a in range(2):
+            g[a * n + i] = -lam * v_plan[i, a]
+            H[a * n + i, a * n + i] += lam + 1e-12
+            for j in range(n):
+                s = 0.0
+                for k in range(m):
+                    s += T[k, i] * T[k, j]
+                H[a * n + i, a * n + j] += 1e-12 * s
+        if nrm.shape[0] > 0:
+            H[i, i] += w * nrm[i, 0] * nrm[i, 0]
+            H[n + i, n + i] += w * nrm[i, 1] * nrm[i, 1]
+            H[i, n + i] = w * nrm[i, 0] * nrm[i, 1]
+            H[n + i, i] = H[i, n + i]
+    for j in range(m):
+        H[2 * n + j, 2 * n + j] = 1.0 + 1e-12
+        g[2 * n + j] = shifted[j]
+    na = M.shape[0]
+    nc = 2 + 5 * (m - 1) + 2 * na * (m + n) + (2 * m if trust.shape[0] > 0 else 0)
+    C = np.zeros((nc, nz))
+    b = np.zeros(nc)
+    for a in range(2):  # the end, reached exactly
+        for j in range(n):
+            C[a, a * n + j] = dt
+        b[a] = end[a]
+    o = 2
+    for sign in (1.0, -1.0):  # tracking boxes at instants 1 .. m-1
+        for a in range(2):
+            for k in range(m - 1):
+                for j in range(n):
+                    C[o, a * n + j] = sign * T[k, j]
+                C[o, 2 * n + k] = -sign * tang[k, a]
+                b[o] = sign * p[k, a] + tol
+                o += 1
+    for k in range(m - 1):  # monotone shifted parameter
+        C[o, 2 * n + k] = 1.0
+        C[o, 2 * n + k + 1] = -1.0
+        b[o] = L * (p[k + 1, 2] - p[k, 2])
+        o += 1
+    for sign in (1.0, -1.0):  # per actuator: a period's change, then the velocity
+        for i in range(na):
+            for r in range(m):
+                for a in range(2):
+                    c = sign * M[i, a]
+                    if r < n:
+                        C[o, a * n + r] += c
+                    if r > 0:
+                        C[o, a * n + r - 1] -= c
+                b[o] = amax[i] * dt * (1 - 1e-6)
+                o += 1
+            for r in range(n):
+                for a in range(2):
+                    C[o, a * n + r] = sign * M[i, a]
+                b[o] = vmax[i] * (1 - 1e-6)
+                o += 1
+    if trust.shape[0] > 0:
+        for sign in (1.0, -1.0):
+            for j in range(m):
+                C[o, 2 * n + j] = sign
+                b[o] = trust[j]
+                o += 1
+    z = np.empty(nz)
+    status = dual_active_set(H, g, C, b, 2, z, 20 * (nz + nc))
+    for a in range(2):
+        for j in range(n):
+            v[j, a] = z[a * n + j]
+        for k in range(m):
+            s = 0.0
+            for j in range(n):
+                s += T[k, j] * z[a * n + j]
+            x[k, a] = s
+    for j in range(m):
+        d[j] = z[2 * n + j]
+    return status

@@ -22,6 +22,10 @@ little ahead or behind the plan, never off the path):
 If the limits leave no such targets in ceil(T / dT) periods, periods are
 added (the stroke runs slightly slower than planned) until they do.
 
+Up to DENSE_INSTANTS instants (most strokes of a drawing) the QP is solved
+exactly by a compiled dual active-set method (kernels.sample_qp), longer
+strokes, pen-speed cones and nonlinear actuator rows by Clarabel.
+
 ``follow=True`` (a path tolerance is set) also penalises the targets'
 component *across* the curve at every instant, with the shifts kept within a
 trust region so the linearisation holds. With each instant on the curve and
@@ -52,6 +56,8 @@ TRACKING_STEPS = 0.4
 # shift at the instants); shifts per solve stay within ~TRUST_MM of arc.
 NORMAL_WEIGHT = 10.0
 TRUST_MM = 0.5
+# Up to this many instants the QP is solved densely (kernels.sample_qp), past it by Clarabel.
+DENSE_INSTANTS = 40
 
 
 class _Coo:
@@ -268,12 +274,16 @@ def _qp(p, tang, v_plan, end, dt, tol, limits, L, nrm=None, trust=None, crank=No
     m = len(p)
     n = m - 1
     nv, nx = 2 * n, 2 * m
-    M = None if limits.M is None else tuple(np.asarray(limits.M, float).ravel())
     pen = limits.pen_speed is not None
+    lam = VELOCITY_WEIGHT * dt * dt
+    if crank is None and not pen and m <= DENSE_INSTANTS:
+        got = _dense_qp(p, tang, v_plan, end, dt, tol, limits, L, nrm, trust, shifted, lam)
+        if got is not False:
+            return got
+    M = None if limits.M is None else tuple(np.asarray(limits.M, float).ravel())
     key = (m, float(dt), M, trust is not None, pen)
     base, n_eq, tagged, signs, inst, axes = _pattern(*key)
     A = _working(key, base)
-    lam = VELOCITY_WEIGHT * dt * dt
     P, dx, dy, cross = _objective(m)
     P = _working(m, P)
     limited = M is not None
@@ -303,6 +313,29 @@ def _qp(p, tang, v_plan, end, dt, tol, limits, L, nrm=None, trust=None, crank=No
     if z is None:
         return None
     return z[:nv].reshape(2, n).T, z[nv : nv + nx].reshape(2, m).T, z[nv + nx : nv + nx + m]
+
+
+def _dense_qp(p, tang, v_plan, end, dt, tol, limits, L, nrm, trust, shifted, lam):
+    """_qp's problem solved exactly by a compiled dense dual active-set method (kernels.sample_qp):
+    (v, x, d), None where it is infeasible, or False where the method gave up (use Clarabel).
+    Its answer is the QP's optimum to rounding, so the rows hold without Clarabel's residuals."""
+    from doodlecam.plan.kernels import sample_qp
+
+    m = len(p)
+    limited = limits.M is not None
+    v, x, d = np.empty((m - 1, 2)), np.empty((m, 2)), np.empty(m)
+    status = sample_qp(tang, p, v_plan, shifted if shifted is not None else np.zeros(m),
+                       nrm if nrm is not None else _NO_ROWS, NORMAL_WEIGHT * (dt / 4) ** 2, lam, tol, L,
+                       np.asarray(end, float), np.asarray(limits.M, float) if limited else _NO_ROWS,
+                       np.asarray(limits.amax, float) if limited else _NONE,
+                       np.asarray(limits.vmax, float) if limited else _NONE,
+                       float(dt), trust if trust is not None else _NONE, v, x, d)
+    if status == 0:
+        return v, x, d
+    return None if status == 1 else False
+
+
+_NO_ROWS, _NONE = np.empty((0, 2)), np.empty(0)
 
 
 def whole_step_limits(limits, steps_per_mm, dt: float):
@@ -384,14 +417,20 @@ def sample_stroke(stroke: Stroke, dt: float, limits, steps_per_mm=(80.0, 80.0), 
         v_plan[-1] = 0.0
         ok = False
         anchor = u  # where the shifts are costed from: the planned points, then the first solve's
-        for it in range(5 if follow else 3):  # linearise, solve, re-linearise at the shifted points
+
+        def frame(uu):
             # the points aimed at (from the start, with their u), the tangents: d is in mm of arc
             # (roughly), q(u + d/L) ~ q + q' d / L; following, the unit normals and the trust
-            # region, ~TRUST_MM of arc (compiled: kernels.curve_frame)
-            pu, tang = np.empty((len(u), 3)), np.empty((len(u), 2))
-            nrm, trust = (np.empty((len(u), 2)), np.empty(len(u))) if follow else (None, None)
-            curve_frame(dc[0], dc[1], spline.degree, nseg, u, start, L, pu, tang,
-                        nrm if follow else np.empty((0, 2)), trust if follow else np.empty(0), TRUST_MM)
+            # region, ~TRUST_MM of arc (compiled: kernels.curve_frame, q(u) with Spline's bits)
+            pu, tang = np.empty((len(uu), 3)), np.empty((len(uu), 2))
+            nrm, trust = (np.empty((len(uu), 2)), np.empty(len(uu))) if follow else (None, None)
+            curve_frame(dc[0], dc[1], spline.degree, nseg, uu, start, L, pu, tang,
+                        nrm if follow else _NO_ROWS, trust if follow else _NONE, TRUST_MM)
+            return pu, tang, nrm, trust
+
+        here = frame(u)
+        for it in range(5 if follow else 3):  # linearise, solve, re-linearise at the shifted points
+            pu, tang, nrm, trust = here
             crank = None
             if crank_share is not None and limits.M is None:
                 J = _jacobians(limits.kinematics, spline(u))
@@ -411,12 +450,15 @@ def sample_stroke(stroke: Stroke, dt: float, limits, steps_per_mm=(80.0, 80.0), 
             v, x, d = res
             u_new = np.clip(u + d / L, 0.0, 1.0)
             u_new[-1] = 1.0
-            err = np.abs(x - (spline(u_new) - start))[:-1]  # per axis: steps are per axis
+            here = frame(u_new)  # checked there; linearised there next unless made monotone
+            err = np.abs(x - here[0][:, :2])[:-1]  # per axis: steps are per axis
             if err.size == 0 or err.max() <= tol:
                 ok = True
                 u = u_new
                 break
             u = np.maximum.accumulate(u_new)
+            if not np.array_equal(u, u_new):
+                here = frame(u)
             if it == 0:
                 # the first solve sets the samples' timing (whole-period ramps cannot keep the
                 # plan's); costing later shifts from there, not from the last solve, lets the
