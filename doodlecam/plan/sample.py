@@ -23,7 +23,7 @@ If the limits leave no such targets in ceil(T / dT) periods, periods are
 added (the stroke runs slightly slower than planned) until they do.
 
 Up to DENSE_INSTANTS instants (most strokes of a drawing) the QP is solved
-exactly by a compiled dual active-set method (kernels.sample_qp), longer
+exactly by quadprog's dual active-set method (kernels.sample_qp builds it), longer
 strokes, pen-speed cones and nonlinear actuator rows by Clarabel.
 
 ``follow=True`` (a path tolerance is set) also penalises the targets'
@@ -56,7 +56,7 @@ TRACKING_STEPS = 0.4
 # shift at the instants); shifts per solve stay within ~TRUST_MM of arc.
 NORMAL_WEIGHT = 10.0
 TRUST_MM = 0.5
-# Up to this many instants the QP is solved densely (kernels.sample_qp), past it by Clarabel.
+# Up to this many instants the QP is solved densely (quadprog), past it by Clarabel.
 DENSE_INSTANTS = 40
 
 
@@ -316,23 +316,30 @@ def _qp(p, tang, v_plan, end, dt, tol, limits, L, nrm=None, trust=None, crank=No
 
 
 def _dense_qp(p, tang, v_plan, end, dt, tol, limits, L, nrm, trust, shifted, lam):
-    """_qp's problem solved exactly by a compiled dense dual active-set method (kernels.sample_qp):
-    (v, x, d), None where it is infeasible, or False where the method gave up (use Clarabel).
-    Its answer is the QP's optimum to rounding, so the rows hold without Clarabel's residuals."""
+    """_qp's problem solved exactly by quadprog (Goldfarb and Idnani's dual active-set method) on
+    the dense arrays of kernels.sample_qp: (v, x, d), None where it is infeasible, or False where
+    quadprog gives up (use Clarabel). An active-set answer is the QP's optimum to rounding, so the
+    rows hold without an interior point's residuals; for a few dozen instants it costs a fraction
+    of Clarabel's set-up (benchmarks/bench_sample.py)."""
+    import quadprog
+
     from doodlecam.plan.kernels import sample_qp
 
     m = len(p)
+    n = m - 1
     limited = limits.M is not None
-    v, x, d = np.empty((m - 1, 2)), np.empty((m, 2)), np.empty(m)
-    status = sample_qp(tang, p, v_plan, shifted if shifted is not None else np.zeros(m),
-                       nrm if nrm is not None else _NO_ROWS, NORMAL_WEIGHT * (dt / 4) ** 2, lam, tol, L,
-                       np.asarray(end, float), np.asarray(limits.M, float) if limited else _NO_ROWS,
-                       np.asarray(limits.amax, float) if limited else _NONE,
-                       np.asarray(limits.vmax, float) if limited else _NONE,
-                       float(dt), trust if trust is not None else _NONE, v, x, d)
-    if status == 0:
-        return v, x, d
-    return None if status == 1 else False
+    H, g, C, b, T = sample_qp(tang, p, v_plan, shifted if shifted is not None else np.zeros(m),
+                              nrm if nrm is not None else _NO_ROWS, NORMAL_WEIGHT * (dt / 4) ** 2, lam, tol, L,
+                              np.asarray(end, float), np.asarray(limits.M, float) if limited else _NO_ROWS,
+                              np.asarray(limits.amax, float) if limited else _NONE,
+                              np.asarray(limits.vmax, float) if limited else _NONE,
+                              float(dt), trust if trust is not None else _NONE)
+    try:  # quadprog: min 1/2 z'Hz - a'z subject to C' z >= b, the first meq rows equalities
+        z = quadprog.solve_qp(H, -g, -C.T, -b, 2)[0]
+    except ValueError as e:  # "constraints are inconsistent, no solution" is its verdict of infeasible
+        return None if "inconsistent" in str(e) else False
+    v = z[:2 * n].reshape(2, n).T
+    return v, T @ v, z[2 * n:]
 
 
 _NO_ROWS, _NONE = np.empty((0, 2)), np.empty(0)
