@@ -112,20 +112,14 @@ def _join(polylines: list[np.ndarray], tol: float) -> list[np.ndarray]:
 
 _CURVE_TURN = 0.25  # a curve's chords turn by at most this share of the corner angle at each point
 _TURN_MAX_POINTS = 4096  # ... unless that takes more points (a cusp: a real corner, kept as one)
+_MAX_POINTS = 200_000  # points on one curve at most
+_ROUND_POINTS = 1 << 20  # curve points evaluated at once at most (bounds the memory of a round)
 
 
 def _curve_points(seg, tol: float, corner: float = 0.0) -> np.ndarray:
-    """Points along one curved segment (Bézier or elliptical arc) whose chords stay within
-    ``tol`` of it, end points included.
-
-    The chord over a parameter step dt sags by at most max|P''| dt² / 8; max|P''| is
-    estimated from 64 samples, and the midpoints of the chords are then checked against
-    the curve itself, doubling the count until every chord is within tolerance. With
-    ``corner`` (degrees), also until the chords turn by at most a quarter of it at each
-    point, so the fitter, which keeps every turn sharper than ``corner`` as a corner,
-    finds only the path's own tangent breaks (a chord at a smooth join leans by half a
-    turn, so a join is misjudged by at most an eighth of ``corner``).
-    """
+    """Points along one curved segment (an elliptical arc, or any segment svgelements can
+    evaluate) whose chords stay within ``tol`` of it, end points included: as
+    ``_bezier_points`` (which see), one segment at a time through svgelements' npoint."""
     from doodlecam.geometry.fit import turn_angles
 
     t = np.linspace(0.0, 1.0, 65)
@@ -135,11 +129,11 @@ def _curve_points(seg, tol: float, corner: float = 0.0) -> np.ndarray:
     max_turn = np.radians(corner * _CURVE_TURN)
     sag_rounds = 0
     while True:
-        n = min(n, 200_000)
+        n = min(n, _MAX_POINTS)
         t = np.linspace(0.0, 1.0, n + 1)
         p = np.asarray(seg.npoint(t), float)
         mid = np.asarray(seg.npoint((t[:-1] + t[1:]) / 2), float)
-        sag = n == 200_000 or sag_rounds == 8 or np.hypot(*(mid - (p[:-1] + p[1:]) / 2).T).max() <= tol
+        sag = n == _MAX_POINTS or sag_rounds == 8 or np.hypot(*(mid - (p[:-1] + p[1:]) / 2).T).max() <= tol
         smooth = not corner or n >= _TURN_MAX_POINTS or turn_angles(p).max(initial=0.0) <= max_turn
         if sag and smooth:
             return p
@@ -147,34 +141,194 @@ def _curve_points(seg, tol: float, corner: float = 0.0) -> np.ndarray:
         n *= 2
 
 
-def _path_polylines(path, tol: float, corner: float = 0.0) -> list[np.ndarray]:
-    """An svgelements Path (transform applied) as polylines, one per subpath, in its units."""
+def _bezier(ctrl: np.ndarray, t: np.ndarray, owner: np.ndarray) -> np.ndarray:
+    """Points (k, 2) of the Bézier segments ``ctrl[owner]`` (control points, (m, 3 or 4, 2))
+    at the parameters ``t``: svgelements' npoint's operations in its order, so that the
+    points are the same to the bit."""
+    c = ctrl[owner]
+    t = t[:, None]
+    n_pos = 1 - t
+    if ctrl.shape[1] == 4:
+        return (n_pos * n_pos * n_pos * c[:, 0] + 3 * (n_pos * n_pos * t * c[:, 1] + t * t * n_pos * c[:, 2])
+                + t * t * t * c[:, 3])
+    return n_pos * n_pos * c[:, 0] + 2 * (n_pos * t) * c[:, 1] + t * t * c[:, 2]
+
+
+def _groups(counts: np.ndarray, size: int) -> list[np.ndarray]:
+    """Indices into ``counts`` cut into consecutive runs whose counts add up to about ``size`` at most."""
+    run = (np.cumsum(counts) - 1) // size
+    return np.split(np.arange(len(counts)), np.flatnonzero(np.diff(run)) + 1)
+
+
+def _bezier_points(ctrl: np.ndarray, tol: float, corner: float = 0.0) -> list[np.ndarray | None]:
+    """Points along each Bézier segment (control points ``ctrl``, (m, 3 or 4, 2)) whose chords
+    stay within ``tol`` of it, end points included; all segments evaluated together.
+
+    The chord over a parameter step dt sags by at most max|P''| dt² / 8; max|P''| is
+    estimated from 64 samples, and the midpoints of the chords are then checked against
+    the curve itself, doubling the count until every chord is within tolerance. With
+    ``corner`` (degrees), also until the chords turn by at most a quarter of it at each
+    point, so the fitter, which keeps every turn sharper than ``corner`` as a corner,
+    finds only the path's own tangent breaks (a chord at a smooth join leans by half a
+    turn, so a join is misjudged by at most an eighth of ``corner``). Each segment takes
+    the same steps as ``_curve_points`` would, with the same arithmetic; a segment whose
+    estimate is not finite is left as None for it (it raises there as before).
+    """
+    m = len(ctrl)
+    out: list[np.ndarray | None] = [None] * m
+    n = np.zeros(m)
+    t65 = np.linspace(0.0, 1.0, 65)
+    for g in _groups(np.full(m, 65), _ROUND_POINTS):
+        p = _bezier(ctrl[g], np.tile(t65, len(g)), np.repeat(np.arange(len(g)), 65)).reshape(len(g), 65, 2)
+        d2 = np.abs(p[:, 2:] - 2 * p[:, 1:-1] + p[:, :-2]).max(axis=(1, 2)) * 64**2
+        n[g] = np.ceil(1.2 * np.sqrt(d2 / (8 * tol)))
+    active = np.flatnonzero(np.isfinite(n))
+    n = np.maximum(1, np.minimum(np.nan_to_num(n), 2.0**40)).astype(np.int64)
+    sag_rounds = np.zeros(m, np.int64)
+    max_turn = np.radians(corner * _CURVE_TURN)
+    while active.size:
+        n[active] = np.minimum(n[active], _MAX_POINTS)
+        again = []
+        for g in _groups(n[active] + 1, _ROUND_POINTS):
+            seg = active[g]
+            nn = n[seg]
+            cnt = nn + 1
+            start = np.cumsum(cnt) - cnt
+            owner = np.repeat(np.arange(len(seg)), cnt)
+            t = (np.arange(cnt.sum()) - start[owner]) * (1.0 / nn)[owner]  # np.linspace's steps
+            last = start + nn
+            t[last] = 1.0
+            c = ctrl[seg]
+            p = _bezier(c, t, owner)
+            a = np.delete(np.arange(len(t)), last)  # each chord's first point
+            mid = _bezier(c, (t[a] + t[a + 1]) / 2, owner[a])
+            dev = np.hypot(*(mid - (p[a] + p[a + 1]) / 2).T)
+            chord0 = start - np.arange(len(seg))  # each segment's first chord in ``a``
+            sag = (nn == _MAX_POINTS) | (sag_rounds[seg] == 8) | (np.maximum.reduceat(dev, chord0) <= tol)
+            smooth = np.ones(len(seg), bool)
+            if corner:
+                d = p[a + 1] - p[a]
+                b = np.delete(np.arange(len(d)), chord0 + nn - 1)  # each turn's first chord
+                d0, d1 = d[b], d[b + 1]
+                turn = np.abs(np.arctan2(d0[:, 0] * d1[:, 1] - d0[:, 1] * d1[:, 0], (d0 * d1).sum(axis=1)))
+                many = nn >= 2  # a single chord turns nowhere
+                worst = np.zeros(len(seg))
+                worst[many] = np.maximum(np.maximum.reduceat(turn, (chord0 - np.arange(len(seg)))[many]), 0.0)
+                smooth = (nn >= _TURN_MAX_POINTS) | (worst <= max_turn)
+            done = sag & smooth
+            for k in np.flatnonzero(done):
+                out[seg[k]] = p[start[k]:start[k] + cnt[k]]
+            rest = ~done
+            sag_rounds[seg[rest]] += ~sag[rest]
+            n[seg[rest]] *= 2
+            again.append(seg[rest])
+        active = np.concatenate(again)
+    return out
+
+
+def _identity(pt) -> tuple[float, float]:
+    """A point as svgelements' reify leaves it under the identity matrix (x 1 + y 0 + 0: -0.0 becomes 0.0)."""
+    x, y = pt.x, pt.y
+    return x * 1.0 + y * 0.0 + 1 * 0.0, x * 0.0 + y * 1.0 + 1 * 0.0
+
+
+def _plain(p):
+    return p.x, p.y
+
+
+def _shape_segments(shape):
+    """``shape``'s segments and how to read their points, without svgelements' Path copy and
+    reify where the parse has already reified it: a path of lines and Béziers, a polyline or
+    a polygon (points taken as that reify would leave them). Other shapes (arcs, rectangles,
+    circles, ...) go through a reified Path."""
     import svgelements as se
 
-    out: list[np.ndarray] = []
-    for sub in path.as_subpaths():
-        pts: list[np.ndarray] = []
-        for seg in sub:
+    fast = (se.Move, se.Line, se.Close, se.QuadraticBezier, se.CubicBezier)
+    if shape.transform.is_identity():  # as the parse leaves every shape (reify=True)
+        if isinstance(shape, se.Path) and all(isinstance(s, fast) for s in shape):
+            return shape, _identity
+        if isinstance(shape, (se.Polyline, se.Polygon)):
+            return shape.segments(transformed=False), _identity
+    path = se.Path(shape)
+    path.reify()
+    return path, _plain
+
+
+def _paths_polylines(shapes, tol: float, corner: float = 0.0) -> list[list[np.ndarray]]:
+    """Each shape (see ``_shape_segments``) as polylines, one per subpath, in its units: the
+    Béziers of all shapes evaluated together (``_bezier_points``)."""
+    import svgelements as se
+
+    plans = []  # per shape, its polylines: lists of points (x, y), curve k (its points after the first) or ~k (its first)
+    curves: list = []
+    ctrl: dict[int, list] = {3: [], 4: []}  # control points of quadratic / cubic Béziers, and their places in curves
+    where: dict[int, list[int]] = {3: [], 4: []}
+    for shape in shapes:
+        segs, point = _shape_segments(shape)
+        polys: list[list] = []
+        pts: list = []
+        for seg in segs:  # svgelements' subpaths: from a Move, or after a Close, to the next
             if isinstance(seg, se.Move):
-                if pts and len(pts) > 1:
-                    out.append(np.vstack(pts))
-                pts = [np.array([[seg.end.x, seg.end.y]], float)]
+                if len(pts) > 1:
+                    polys.append(pts)
+                pts = [point(seg.end)]
                 continue
-            if seg.start is None or seg.end is None:
-                continue
-            if isinstance(seg, (se.Line, se.Close)):
-                q = np.array([[seg.start.x, seg.start.y], [seg.end.x, seg.end.y]], float)
-            else:
-                q = _curve_points(seg, tol, corner)
-            if not pts:
-                pts = [q[:1]]
-            pts.append(q[1:])
+            if seg.start is not None and seg.end is not None:
+                if isinstance(seg, (se.Line, se.Close)):
+                    if not pts:
+                        pts = [point(seg.start)]
+                    pts.append(point(seg.end))
+                else:
+                    k = len(curves)
+                    curves.append(seg)
+                    if isinstance(seg, (se.CubicBezier, se.QuadraticBezier)):
+                        c = [point(q) for q in seg]
+                        ctrl[len(c)].append(c)
+                        where[len(c)].append(k)
+                    if not pts:
+                        pts = [~k]
+                    pts.append(k)
+            if isinstance(seg, se.Close):
+                if len(pts) > 1:
+                    polys.append(pts)
+                pts = []
         if len(pts) > 1:
-            poly = np.vstack(pts)
-            keep = np.r_[True, np.any(np.diff(poly, axis=0) != 0, axis=1)]  # no zero-length steps
-            if keep.sum() >= 2:
-                out.append(poly[keep])
-    return [q for q in out if np.isfinite(q).all()]
+            polys.append(pts)
+        plans.append(polys)
+    points: list = [None] * len(curves)
+    for size in (3, 4):
+        if ctrl[size]:
+            for k, q in zip(where[size], _bezier_points(np.array(ctrl[size], float), tol, corner)):
+                points[k] = q
+    for k, seg in enumerate(curves):
+        if points[k] is None:  # arcs, and curves whose estimate is not finite
+            points[k] = _curve_points(seg, tol, corner)
+    return [[q for q in (_polyline(pts, points) for pts in polys) if q is not None] for polys in plans]
+
+
+def _polyline(pts: list, points: list) -> np.ndarray | None:
+    """One subpath's points, without zero-length steps; None when less than a line is left or it is not finite."""
+    if all(isinstance(q, tuple) for q in pts):
+        poly = np.array(pts, float)
+    else:
+        parts, run = [], []
+        for q in pts:
+            if isinstance(q, tuple):
+                run.append(q)
+                continue
+            if run:
+                parts.append(np.array(run, float))
+                run = []
+            parts.append(points[q][1:] if q >= 0 else points[~q][:1])
+        if run:
+            parts.append(np.array(run, float))
+        poly = np.concatenate(parts)
+    step = np.any(np.diff(poly, axis=0) != 0, axis=1)
+    if not step.all():
+        if step.sum() < 1:
+            return None
+        poly = poly[np.r_[True, step]]
+    return poly if np.isfinite(poly).all() else None
 
 
 def _mm_per_px(svg) -> float:
@@ -300,9 +454,7 @@ def _clip_region(node, tol: float):
     rings = []
     for shape in clip:
         if isinstance(shape, se.Shape):
-            path = se.Path(shape)
-            path.reify()
-            rings += [Polygon(q).buffer(0) for q in _path_polylines(path, tol) if len(q) >= 3]
+            rings += [Polygon(q).buffer(0) for q in _paths_polylines([shape], tol)[0] if len(q) >= 3]
     region = unary_union(rings) if rings else Polygon()
     # svgelements' Matrix(a, b, c, d, e, f) maps (x, y) to (a x + c y + e, b x + d y + f)
     return affine_transform(region, [m.a, m.c, m.b, m.d, m.e, m.f])
@@ -323,11 +475,26 @@ def _clipped(polys: list[np.ndarray], region) -> list[np.ndarray]:
 _INKSCAPE = "{http://www.inkscape.org/namespaces/inkscape}"
 
 
+_SHAPES_AT_ONCE = 4096  # shapes whose curves are evaluated together (bounds the memory of their points)
+
+
 def _svg_shapes(svg, tol: float, corner: float = 0.0):
     """(polylines, layer name, colour) of every visible shape, clip paths applied."""
     import svgelements as se
 
-    found = []  # (polylines, inkscape layer, top group, colour)
+    found = []  # (polylines, inkscape layer, top group, colour, index of the shape)
+    pending = []  # shapes waiting for their points: (shape, clip regions, layer, top group, colour)
+    seen = [0]  # shapes handed to pending so far
+
+    def flush():
+        polys = _paths_polylines([shape for shape, *_ in pending], tol, corner)
+        first = seen[0] - len(pending)
+        for i, ((_, regions, layer, group, colour), qs) in enumerate(zip(pending, polys)):
+            for r in regions:
+                qs = _clipped(qs, r)
+            if qs:
+                found.append((qs, layer, group, colour, first + i))
+        pending.clear()
 
     def walk(node, layer, group, regions):
         for child in node:
@@ -339,22 +506,23 @@ def _svg_shapes(svg, tol: float, corner: float = 0.0):
                 lay = layer
                 if layer is None and child.values.get(_INKSCAPE + "groupmode") == "layer":
                     lay = child.values.get(_INKSCAPE + "label") or child.values.get("id") or "layer"
-                walk(child, lay, group if group is not None else f"group {len(found) + 1}", here)
+                walk(child, lay, group if group is not None else seen[0], here)  # named below
             elif isinstance(child, se.Shape) and not isinstance(child, se.Text):
                 if child.values.get("visibility") in ("hidden", "collapse"):
                     continue
                 if all(c is None or getattr(c, "value", None) is None for c in (child.stroke, child.fill)):
                     continue  # no stroke and no fill: it renders nothing (a fill-only shape is drawn as its outline)
-                path = se.Path(child)
-                path.reify()
-                polys = _path_polylines(path, tol, corner)
-                for r in here:
-                    polys = _clipped(polys, r)
-                if polys:
-                    found.append((polys, layer, group, _colour(child)))
+                pending.append((child, here, layer, group, _colour(child)))
+                seen[0] += 1
+                if len(pending) >= _SHAPES_AT_ONCE:
+                    flush()
 
     walk(svg, None, None, [])
-    return found
+    flush()
+    # a top-level group is "group N", N - 1 the number of shapes drawn before it
+    drawn = np.searchsorted([i for *_, i in found], [g if g is not None else 0 for _, _, g, _, _ in found])
+    return [(qs, layer, None if g is None else f"group {n + 1}", colour)
+            for (qs, layer, g, colour, _), n in zip(found, drawn)]
 
 
 def _layer_names(found, by: str) -> list[str]:
