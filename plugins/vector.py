@@ -559,22 +559,30 @@ def _svg(path: Path, opt) -> Drawing:
     mm = _mm_per_px(svg)
     vb = se.Matrix(getattr(svg, "viewbox_transform", "") or "")
     mm_per_unit = float(np.sqrt(abs(vb.a * vb.d - vb.b * vb.c))) * mm
+    canvas = (0.0, 0.0, float(svg.width) * mm, float(svg.height) * mm) if svg.width and svg.height else None
     found = _svg_shapes(svg, opt["tolerance"] / mm, opt["corner"])
+    del svg  # the document (~3 kB a path) is not needed any more
     if not found:
         raise InputError(f"{path}: no shapes to draw (no paths, lines, rectangles, circles, ...; text must be "
                          "converted to paths first)")
-    names = _layer_names(found, opt["layers"])
+    shapes_of: dict[str, list[int]] = {}
+    for i, name in enumerate(_layer_names(found, opt["layers"])):
+        shapes_of.setdefault(name, []).append(i)
     polys, layers, colours = [], [], {}
-    for name in dict.fromkeys(names):  # join pieces within a layer, in the file's order of layers
-        mine = [q * mm for (qs, *_), n in zip(found, names) if n == name for q in qs]
+    for name, shapes in shapes_of.items():  # join pieces within a layer, in the file's order of layers
+        mine = []
+        for i in shapes:
+            qs = found[i][0]
+            mine += [q * mm for q in qs]
+            qs.clear()  # a shape's points in its units go as their copies in mm come (one copy of the drawing)
         joined = _join(mine, 1e-6 * max(1.0, _span(mine)))
         polys += joined
         layers += [name] * len(joined)
-        colours[name] = next(c for (*_, c), n in zip(found, names) if n == name)
+        colours[name] = found[shapes[0]][3]
     meta = {"tracer": "vector", "format": "svg", "mm_per_user_unit": mm_per_unit, "polylines": len(polys),
             "layer_colours": colours, "not_drawn": not_drawn}
-    if svg.width and svg.height:
-        meta["canvas"] = (0.0, 0.0, float(svg.width) * mm, float(svg.height) * mm)
+    if canvas is not None:
+        meta["canvas"] = canvas
     if not_drawn:
         hints = [_NOT_DRAWN_HINT[k] for k in not_drawn if k in _NOT_DRAWN_HINT]
         meta["warnings"] = ["not drawn: " + ", ".join(f"{n} {k}{'s' if n > 1 else ''}" for k, n in not_drawn.items())
