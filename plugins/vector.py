@@ -141,17 +141,29 @@ def _curve_points(seg, tol: float, corner: float = 0.0) -> np.ndarray:
         n *= 2
 
 
-def _bezier(ctrl: np.ndarray, t: np.ndarray, owner: np.ndarray) -> np.ndarray:
-    """Points (k, 2) of the Bézier segments ``ctrl[owner]`` (control points, (m, 3 or 4, 2))
-    at the parameters ``t``: svgelements' npoint's operations in its order, so that the
-    points are the same to the bit."""
-    c = ctrl[owner]
-    t = t[:, None]
-    n_pos = 1 - t
-    if ctrl.shape[1] == 4:
-        return (n_pos * n_pos * n_pos * c[:, 0] + 3 * (n_pos * n_pos * t * c[:, 1] + t * t * n_pos * c[:, 2])
-                + t * t * t * c[:, 3])
-    return n_pos * n_pos * c[:, 0] + 2 * (n_pos * t) * c[:, 1] + t * t * c[:, 2]
+def _bezier(ctrl: np.ndarray, t: np.ndarray, counts: np.ndarray) -> np.ndarray:
+    """Points (k, 2) of the Bézier segments ``ctrl`` (control points, (m, 3 or 4, 2)) at the
+    parameters ``t``, ``counts[i]`` of them on segment i: svgelements' npoint's operations in
+    its order, so that the points are the same to the bit."""
+    n = 1 - t
+    nn, tt = n * n, t * t
+    cubic = ctrl.shape[1] == 4
+    a = (nn * n, nn * t, tt * n, tt * t) if cubic else (nn, 2 * (n * t), tt)
+    out = np.empty((len(t), 2))
+    for j in range(2):
+        c = [np.repeat(ctrl[:, i, j], counts) for i in range(ctrl.shape[1])]
+        x = a[0] * c[0]
+        if cubic:  # a0 x0 + 3 (a1 x1 + a2 x2) + a3 x3
+            y = a[1] * c[1]
+            y += a[2] * c[2]
+            y *= 3
+            x += y
+            x += a[3] * c[3]
+        else:  # a0 x0 + a1 x1 + a2 x2
+            x += a[1] * c[1]
+            x += a[2] * c[2]
+        out[:, j] = x
+    return out
 
 
 def _groups(counts: np.ndarray, size: int) -> list[np.ndarray]:
@@ -185,10 +197,9 @@ def _bezier_points(ctrl: np.ndarray, tol: float, corner: float = 0.0) -> list[np
         seg, nn = ok[g], n[ok[g]]
         cnt = nn + 1
         start = np.cumsum(cnt) - cnt
-        owner = np.repeat(np.arange(len(seg)), cnt)
-        t = (np.arange(cnt.sum()) - start[owner]) * (1.0 / nn)[owner]  # np.linspace's steps
+        t = (np.arange(cnt.sum()) - np.repeat(start, cnt)) * np.repeat(1.0 / nn, cnt)  # np.linspace's steps
         t[start + nn] = 1.0
-        p = _bezier(ctrl[seg], t, owner)
+        p = _bezier(ctrl[seg], t, cnt)
         for k, q in zip(seg, np.split(p, start[1:])):
             out[k] = q
     return out
