@@ -25,7 +25,7 @@ one stroke.
 from __future__ import annotations
 
 import io
-
+import itertools
 import re
 from pathlib import Path
 from typing import Any
@@ -308,26 +308,38 @@ def _paths_polylines(shapes, tol: float, corner: float = 0.0) -> list[list[np.nd
     curves = _Curves()
     plans = [_shape_plan(shape, curves) for shape in shapes]
     curves.evaluate(tol, corner)
-    rows: list = []  # the points of all subpaths of straight lines
+    # every subpath's points as a run of one array (the straight ones' from one list of (x, y), the
+    # others' piece by piece), so that the checks are a few passes over it, not a few per subpath
+    rows: list = []
+    pieces: list[np.ndarray] = []
+    size = 0
+    runs = []  # per shape, per subpath: (in pieces, first point, end)
     for polys in plans:
-        for i, pts in enumerate(polys):
-            if all(type(q) is tuple for q in pts):
-                polys[i] = (len(rows), len(rows) + len(pts))
-                rows += pts
-    flat = np.array(rows, float).reshape(-1, 2)
-    # zero-length steps and points that are not finite, counted up to each point
-    zero = np.r_[0, np.cumsum((flat[1:, 0] == flat[:-1, 0]) & (flat[1:, 1] == flat[:-1, 1]))]
-    bad = np.r_[0, np.cumsum(~(np.isfinite(flat[:, 0]) & np.isfinite(flat[:, 1])))]
-    out = []
-    for polys in plans:
-        mine = []
+        spans = []
         for pts in polys:
-            if type(pts) is tuple:
-                a, b = pts
-                q = flat[a:b] if zero[b - 1] == zero[a] and bad[b] == bad[a] else _polyline(flat[a:b])
-            else:
-                q = _polyline(np.concatenate([np.array([k], float) if type(k) is tuple else
-                                              curves.points[k][1:] if k >= 0 else curves.points[~k][:1] for k in pts]))
+            if all(type(q) is tuple for q in pts):
+                spans.append((False, len(rows), len(rows) + len(pts)))
+                rows += pts
+                continue
+            first = size
+            for points, group in itertools.groupby(pts, key=lambda q: type(q) is tuple):
+                add = [np.array(list(group), float)] if points else \
+                    [curves.points[k][1:] if k >= 0 else curves.points[~k][:1] for k in group]
+                pieces += add
+                size += sum(len(q) for q in add)
+            spans.append((True, first, size))
+        runs.append(spans)
+    flat = np.concatenate([np.array(rows, float).reshape(-1, 2), *pieces])
+    x, y = flat[:, 0], flat[:, 1]
+    # zero-length steps and points that are not finite, counted up to each point
+    zero = np.r_[0, np.cumsum((x[1:] == x[:-1]) & (y[1:] == y[:-1]))]
+    bad = np.r_[0, np.cumsum(~(np.isfinite(x) & np.isfinite(y)))]
+    out = []
+    for spans in runs:
+        mine = []
+        for in_pieces, a, b in spans:
+            a, b = (a + len(rows), b + len(rows)) if in_pieces else (a, b)
+            q = flat[a:b] if zero[b - 1] == zero[a] and bad[b] == bad[a] else _polyline(flat[a:b])
             if q is not None:
                 mine.append(q)
         out.append(mine)
@@ -699,8 +711,14 @@ def _dxf(path: Path, opt) -> Drawing:
 
 
 def _span(polys: list[np.ndarray]) -> float:
-    pts = np.concatenate(polys)
-    return float(max(np.ptp(pts[:, 0]), np.ptp(pts[:, 1])))  # a column at a time: 20x faster than axis=0
+    """The larger side of the polylines' bounding box (a thousand at a time: one array of millions
+    of points would be fresh pages; a column at a time: 20x faster than axis=0)."""
+    lo, hi = np.full(2, np.inf), np.full(2, -np.inf)
+    for i in range(0, len(polys), 1000):
+        pts = np.concatenate(polys[i:i + 1000])
+        lo = np.minimum(lo, (pts[:, 0].min(), pts[:, 1].min()))
+        hi = np.maximum(hi, (pts[:, 0].max(), pts[:, 1].max()))
+    return float((hi - lo).max())
 
 
 # ---------------------------------------------------------------- meshes
