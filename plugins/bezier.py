@@ -41,10 +41,10 @@ def chord_counts(c, tol, max_turn, max_points, turn_max_points):  # pragma: no c
         for i in range(2, 65):
             x2, y2 = _at(c, k, 1.0 if i == 64 else i * (1.0 / 64))
             for v in (abs(x2 - 2 * x1 + x0), abs(y2 - 2 * y1 + y0)):
-                if not v <= d2:  # NaN wins, as in a NumPy max
+                if d2 == d2 and not v <= d2:  # a NaN stays, as in a NumPy max
                     d2 = v
             x0, y0, x1, y1 = x1, y1, x2, y2
-        nf = math.ceil(1.2 * math.sqrt(d2 * 64**2 / (8 * tol)))
+        nf = np.ceil(1.2 * np.sqrt(d2 * 64**2 / (8 * tol)))  # a float: math.ceil would be an int
         if not math.isfinite(nf):
             out[k] = -1
             continue
@@ -70,7 +70,9 @@ def chord_counts(c, tol, max_turn, max_points, turn_max_points):  # pragma: no c
                         break
                 if not smooth and turn_ok:
                     dx, dy = qx - px, qy - py
-                    if j > 0 and not abs(math.atan2(ex * dy - ey * dx, ex * dx + ey * dy)) <= max_turn:
+                    # the dot product summed from +0.0 as NumPy's sum does: at a chord of length 0
+                    # (a cusp sampled on both sides), atan2(0, +0.0) is 0 where atan2(0, -0.0) is pi
+                    if j > 0 and not abs(math.atan2(ex * dy - ey * dx, 0.0 + ex * dx + ey * dy)) <= max_turn:
                         turn_ok = False
                         if sag:
                             break
