@@ -1,10 +1,12 @@
-"""Compiled pass of the vector tracer (numba): how many chords each Bézier segment needs.
+"""Compiled passes of the vector tracer (numba): how many chords each Bézier segment needs,
+and their points.
 
 The search doubles a segment's chord count until the chords are close and smooth enough
 (``vector._bezier_points`` says how); in NumPy every round of every segment costs a dozen
-array operations, here one loop per segment, stopping at the first chord that fails. Only
-the counts come out: the points themselves are evaluated afterwards in NumPy with
-svgelements' arithmetic, so they are the same to the bit. Imported only when a drawing has
+array operations, here one loop per segment, stopping at the first chord that fails. Every
+point is computed with svgelements' npoint's operations in its order (numba, without
+fastmath, fuses no multiply-add), so the points, and the decisions taken on them, are
+svgelements' to the bit (tests/test_vector_batch.py). Imported only when a drawing has
 Béziers (numba's import costs ~0.3 s).
 """
 
@@ -84,3 +86,18 @@ def chord_counts(c, tol, max_turn, max_points, turn_max_points):  # pragma: no c
             rounds += not sag_ok
             n *= 2
     return out
+
+
+@numba.njit(cache=True, nogil=True)
+def chord_points(c, counts, out):  # pragma: no cover - compiled
+    """The points of each segment of ``c`` at ``counts[k]`` equal steps (np.linspace's), one
+    after the other into ``out``; segments counted 0 or less are skipped."""
+    at = 0
+    for k in range(c.shape[0]):
+        n = counts[k]
+        if n <= 0:
+            continue
+        step = 1.0 / n
+        for j in range(n + 1):
+            out[at + j, 0], out[at + j, 1] = _at(c, k, 1.0 if j == n else j * step)
+        at += n + 1

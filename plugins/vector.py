@@ -113,7 +113,6 @@ def _join(polylines: list[np.ndarray], tol: float) -> list[np.ndarray]:
 _CURVE_TURN = 0.25  # a curve's chords turn by at most this share of the corner angle at each point
 _TURN_MAX_POINTS = 4096  # ... unless that takes more points (a cusp: a real corner, kept as one)
 _MAX_POINTS = 200_000  # points on one curve at most
-_ROUND_POINTS = 1 << 20  # curve points evaluated at once at most (bounds the memory of a round)
 
 
 def _curve_points(seg, tol: float, corner: float = 0.0) -> np.ndarray:
@@ -141,37 +140,6 @@ def _curve_points(seg, tol: float, corner: float = 0.0) -> np.ndarray:
         n *= 2
 
 
-def _bezier(ctrl: np.ndarray, t: np.ndarray, counts: np.ndarray) -> np.ndarray:
-    """Points (k, 2) of the Bézier segments ``ctrl`` (control points, (m, 3 or 4, 2)) at the
-    parameters ``t``, ``counts[i]`` of them on segment i: svgelements' npoint's operations in
-    its order, so that the points are the same to the bit."""
-    n = 1 - t
-    nn, tt = n * n, t * t
-    cubic = ctrl.shape[1] == 4
-    a = (nn * n, nn * t, tt * n, tt * t) if cubic else (nn, 2 * (n * t), tt)
-    out = np.empty((len(t), 2))
-    for j in range(2):
-        c = [np.repeat(ctrl[:, i, j], counts) for i in range(ctrl.shape[1])]
-        x = a[0] * c[0]
-        if cubic:  # a0 x0 + 3 (a1 x1 + a2 x2) + a3 x3
-            y = a[1] * c[1]
-            y += a[2] * c[2]
-            y *= 3
-            x += y
-            x += a[3] * c[3]
-        else:  # a0 x0 + a1 x1 + a2 x2
-            x += a[1] * c[1]
-            x += a[2] * c[2]
-        out[:, j] = x
-    return out
-
-
-def _groups(counts: np.ndarray, size: int) -> list[np.ndarray]:
-    """Indices into ``counts`` cut into consecutive runs whose counts add up to about ``size`` at most."""
-    run = (np.cumsum(counts) - 1) // size
-    return np.split(np.arange(len(counts)), np.flatnonzero(np.diff(run)) + 1)
-
-
 def _bezier_points(ctrl: np.ndarray, tol: float, corner: float = 0.0) -> list[np.ndarray | None]:
     """Points along each Bézier segment (control points ``ctrl``, (m, 3 or 4, 2)) whose chords
     stay within ``tol`` of it, end points included; all segments evaluated together.
@@ -183,25 +151,21 @@ def _bezier_points(ctrl: np.ndarray, tol: float, corner: float = 0.0) -> list[np
     point, so the fitter, which keeps every turn sharper than ``corner`` as a corner,
     finds only the path's own tangent breaks (a chord at a smooth join leans by half a
     turn, so a join is misjudged by at most an eighth of ``corner``). Each segment takes
-    the steps ``_curve_points`` takes with svgelements' arithmetic; the counts come from a
-    compiled pass (``plugins/bezier.py``), the points from NumPy. A segment whose estimate
+    the steps ``_curve_points`` takes, in compiled passes (``plugins/bezier.py``) with
+    svgelements' arithmetic, so the points are the same to the bit. A segment whose estimate
     is not finite is left as None for ``_curve_points`` (which raises on it as before).
     """
-    from doodlecam.plugins.bezier import chord_counts
+    from doodlecam.plugins.bezier import chord_counts, chord_points
 
+    ctrl = np.ascontiguousarray(ctrl, float)
     max_turn = float(np.radians(corner * _CURVE_TURN)) if corner else -1.0
-    n = chord_counts(np.ascontiguousarray(ctrl, float), float(tol), max_turn, _MAX_POINTS, _TURN_MAX_POINTS)
+    n = chord_counts(ctrl, float(tol), max_turn, _MAX_POINTS, _TURN_MAX_POINTS)
+    ok = n > 0
+    points = np.empty((int((n[ok] + 1).sum()), 2))
+    chord_points(ctrl, n, points)
     out: list[np.ndarray | None] = [None] * len(ctrl)
-    ok = np.flatnonzero(n > 0)
-    for g in _groups(n[ok] + 1, _ROUND_POINTS):
-        seg, nn = ok[g], n[ok[g]]
-        cnt = nn + 1
-        start = np.cumsum(cnt) - cnt
-        t = (np.arange(cnt.sum()) - np.repeat(start, cnt)) * np.repeat(1.0 / nn, cnt)  # np.linspace's steps
-        t[start + nn] = 1.0
-        p = _bezier(ctrl[seg], t, cnt)
-        for k, q in zip(seg, np.split(p, start[1:])):
-            out[k] = q
+    for k, q in zip(np.flatnonzero(ok), np.split(points, np.cumsum(n[ok] + 1)[:-1])):
+        out[k] = q
     return out
 
 
