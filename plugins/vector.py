@@ -390,22 +390,27 @@ def _svg_check_numbers(path: Path) -> None:
             return
         tag = name.rpartition(" ")[2]
         attrs = {k.rpartition(" ")[2]: v for k, v in attrs.items()}
-        what = f"line {parser.CurrentLineNumber}: <{tag}" + (f" id={attrs['id']!r}" if "id" in attrs else "") + ">"
+        line = parser.CurrentLineNumber
+
+        def what():  # made only for a message: most elements need none
+            return f"line {line}: <{tag}" + (f" id={attrs['id']!r}" if "id" in attrs else "") + ">"
+
         for key in _NUMERIC & attrs.keys():
             v = attrs[key]
-            if _NOT_A_NUMBER.search(v) or not all(math.isfinite(float(t)) for t in _NUMBER.findall(v)):
-                found.append(f"{what} has a number that is not finite in {key}={_excerpt(v)}; fix it in the file")
+            big = "e" in v or "E" in v or len(v) > 300  # only an exponent or 300 digits overflow a float
+            if _NOT_A_NUMBER.search(v) or big and not all(math.isfinite(float(t)) for t in _NUMBER.findall(v)):
+                found.append(f"{what()} has a number that is not finite in {key}={_excerpt(v)}; fix it in the file")
                 return
         for key in ("width", "height", "r", "rx", "ry"):
             m = _NUMBER.match(attrs.get(key, "").strip())
             if m and float(m.group()) < 0:
-                found.append(f"{what} has a negative {key} ({_excerpt(attrs[key])}), which SVG does not allow; "
+                found.append(f"{what()} has a negative {key} ({_excerpt(attrs[key])}), which SVG does not allow; "
                              "fix it in the file")
                 return
         if tag == "svg" and "viewBox" in attrs:
             box = [float(t) for t in _NUMBER.findall(attrs["viewBox"])]
             if len(box) != 4 or box[2] <= 0 or box[3] <= 0:
-                found.append(f"{what} has a viewBox of no size ({_excerpt(attrs['viewBox'])}); give it a width and "
+                found.append(f"{what()} has a viewBox of no size ({_excerpt(attrs['viewBox'])}); give it a width and "
                              "height above 0")
 
     parser.StartElementHandler = start
