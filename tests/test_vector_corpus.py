@@ -374,6 +374,7 @@ def test_percentages_are_of_the_viewport_as_a_real_renderer_draws_them(tmp_path,
 @pytest.mark.parametrize("body, words", [
     ('<path id="p" d="M 0 0 L 10 NaN" stroke="black"/>', "line 2: <path id='p'> has a number that is not finite in d="),
     ('<path d="M 0 0 L 1e999 10" stroke="black"/>', "line 2: <path> has a number that is not finite"),
+    ('<path d="M 0 0 L ' + "9" * 400 + ' 10" stroke="black"/>', "line 2: <path> has a number that is not finite"),
     ('<circle cx="inf" cy="5" r="3" stroke="black"/>', "not finite in cx='inf'"),
     ('<g transform="translate(NaN,0)"><path d="M0 0 L1 1" stroke="black"/></g>', "not finite in transform="),
     ('<rect x="10" y="10" width="-5" height="5" stroke="black"/>', "negative width ('-5')"),

@@ -28,7 +28,8 @@ from doodlecam.options import layout_options
 
 def _canvas(drawing: Drawing, pts: np.ndarray, fit: str) -> tuple[float, float, float, float]:
     """(x0, y0, x1, y1) in drawing units: the frame to fit."""
-    ink = (*pts.min(axis=0), *pts.max(axis=0))
+    x, y = pts[:, 0], pts[:, 1]  # a column at a time: reductions along axis 0 of (n, 2) are ~20x slower
+    ink = (x.min(), y.min(), x.max(), y.max())
     if fit == "ink":
         return ink
     frame = drawing.meta.get("canvas")
@@ -101,7 +102,7 @@ def fit_to_work_area(drawing: Drawing, machine, options: dict[str, Any] | None =
     if not drawing.polylines:
         raise InputError(f"{src}: nothing to draw; try other tracer options or another picture")
     pts = np.concatenate(drawing.polylines)
-    if not np.isfinite(pts).all():
+    if not np.isfinite(pts.ravel()).all():
         raise InputError(f"{src}: the drawing has non-finite coordinates; check the file")
     x0, y0, x1, y1 = _canvas(drawing, pts, opt["fit"])
     if drawing.y_down:  # to y up: flip about the canvas
@@ -119,14 +120,28 @@ def fit_to_work_area(drawing: Drawing, machine, options: dict[str, Any] | None =
     ox, oy = machine.width / 2, machine.height / 2  # the page (or the work area) is centred
     cos, sin = [(1, 0), (0, 1), (-1, 0), (0, -1)][turns]
     min_len = machine.pen.width if opt["min_length"] is None else opt["min_length"]
-    # All points at once: thousands of hatch strokes cost one pass, not a loop.
-    x, y = pts[:, 0] - cx, flip_y * pts[:, 1] - cy
-    q = np.column_stack([ox + scale * (cos * x - sin * y), oy + scale * (sin * x + cos * y)])
+    # All points at once: thousands of hatch strokes cost one pass, not a loop. In place where it
+    # can be: arrays of millions of points are fresh pages at every allocation.
+    x = pts[:, 0] - cx
+    y = flip_y * pts[:, 1]
+    y -= cy
+    q = np.empty_like(pts)
+    a, b = cos * x, sin * y
+    a -= b
+    a *= scale
+    np.add(ox, a, out=q[:, 0])  # ox + scale (cos x - sin y)
+    np.multiply(sin, x, out=a)
+    np.multiply(cos, y, out=b)
+    a += b
+    a *= scale
+    np.add(oy, a, out=q[:, 1])  # oy + scale (sin x + cos y)
+    del x, y, a, b
     counts = np.array([len(p) for p in drawing.polylines])
     stop = np.cumsum(counts)
-    seg = np.r_[0.0, np.hypot(*np.diff(q, axis=0).T)]
-    seg[stop[:-1]] = 0.0  # no segment between one polyline's end and the next one's start
-    cum = np.cumsum(seg)
+    cum = np.zeros(len(q))
+    np.hypot(q[1:, 0] - q[:-1, 0], q[1:, 1] - q[:-1, 1], out=cum[1:])
+    cum[stop[:-1]] = 0.0  # no segment between one polyline's end and the next one's start
+    np.cumsum(cum, out=cum)
     lengths = cum[stop - 1] - cum[stop - counts]
     keep = (counts >= 2) & (lengths >= max(min_len, 1e-9))
     out = [piece for piece, k in zip(np.split(q, stop[:-1]), keep) if k]
