@@ -217,3 +217,25 @@ def test_cli_converts_vector_samples(tmp_path):
     bad.write_text('<svg xmlns="http://www.w3.org/2000/svg"/>')
     assert main(["convert", str(bad), "-o", str(tmp_path / "none")]) != 0
     assert not (tmp_path / "none" / "nothing.svg").exists()
+
+
+def test_a_cusp_is_one_corner_without_thousands_of_points(tmp_path):
+    """A curve doubling back on itself (a folded quadratic, as clipping a generated random walk
+    to the page makes) turns by pi at its cusp however finely it is cut: the chords stop
+    doubling at the turn's cap instead of at 4 096 points, the fitter cuts the stroke there
+    once, and the pieces still follow the curve within tolerance."""
+    from doodlecam.geometry.fit import fit_pieces
+
+    svg = tmp_path / "cusp.svg"
+    svg.write_text('<svg xmlns="http://www.w3.org/2000/svg" width="100mm" height="100mm" viewBox="0 0 100 100">'
+                   '<path d="M10,50 Q90,50.0 40,50.0 Q20,80 60,90" fill="none" stroke="black"/></svg>')
+    d = VectorTracer().trace(svg, {})
+    (p,) = d.polylines
+    assert len(p) <= 2 * 1025  # two segments of at most 1 024 chords (4 096 made 6 306 points)
+    pieces = fit_pieces(p, 3, 0.1, corner=float(d.meta["split_corners_deg"]))
+    ends = [s.end for s, _ in pieces[:-1]]
+    # the fold (the first quadratic's largest x) is a cut
+    t = (90 - 10) / ((90 - 10) + (90 - 40))
+    tip = (1 - t) ** 2 * 10 + 2 * (1 - t) * t * 90 + t ** 2 * 40
+    assert any(abs(e[0] - tip) < 0.05 for e in ends)
+    assert max(err for _, err in pieces) <= 0.1
