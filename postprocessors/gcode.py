@@ -321,6 +321,27 @@ class _CapWalk:
         return self.k - 1
 
 
+def _g1_lines(p: np.ndarray, feed: np.ndarray, num, body: list[str], program: list[tuple]) -> None:
+    """One stroke's G1 moves to the rows of p (n, 2) at feeds (mm/min): its lines onto body, with an F word
+    where the printed feed changes (and on the first), and one ("G1*", ...) run onto program (the estimate's
+    items, timing.estimate_program), without a Python tuple per vertex. ``num``: _num, cached."""
+    f = np.maximum(feed, 0.1)  # never print F0
+    xs, ys = [num(x) for x in p[:, 0].tolist()], [num(y) for y in p[:, 1].tolist()]
+    lines = [f"G1 X{x} Y{y}" for x, y in zip(xs, ys)]
+    fw = np.full(len(lines), np.nan)  # the F words, for the estimate
+    # feeds = cap: one feed per stroke, printed on its first line
+    changes = ((0, float(f[0])),) if (f == f[0]).all() else enumerate(f.tolist())
+    last = ""
+    for k, x in changes:
+        fs = num(x, 1)
+        if fs != last:
+            lines[k] += f" F{fs}"
+            fw[k] = float(fs)
+            last = fs
+    body.extend(lines)
+    program.append(("G1*", p, fw))
+
+
 class GcodePost(PostProcessor):
     name = "gcode"
     summary = "G-code (GRBL, Marlin, LinuxCNC): G0 travels, G1 strokes at the pen-speed cap or the planned feeds"
@@ -639,18 +660,21 @@ class GcodePost(PostProcessor):
                 fs = _num(max(feed[0] if len(feed) else caps[pen_no[n]], 0.1), 1)
                 body.append(f"G1 X{num(p[0, 0])} Y{num(p[0, 1])} F{fs}")
                 program.append(("G1", p[0, 0], p[0, 1], None, float(fs)))
-            last_f = ""
-            for k, ((x, y), f) in enumerate(zip(p[1:].tolist(), feed.tolist())):
-                fs = num(max(f, 0.1), 1)  # never print F0
-                fword = f" F{fs}" if fs != last_f else ""
-                if k in arc:
-                    (i, j), cw = arc[k]
-                    body.append(f"G{2 if cw else 3} X{num(x)} Y{num(y)} I{_num(i)} J{_num(j)}" + fword)
-                    program.append((f"G{2 if cw else 3}", x, y, None, float(i), float(j), float(fs) if fword else None))
-                else:
-                    body.append(f"G1 X{num(x)} Y{num(y)}" + fword)
-                    program.append(("G1", x, y, None, float(fs) if fword else None))
-                last_f = fs
+            if arc:
+                last_f = ""
+                for k, ((x, y), f) in enumerate(zip(p[1:].tolist(), feed.tolist())):
+                    fs = num(max(f, 0.1), 1)  # never print F0
+                    fword = f" F{fs}" if fs != last_f else ""
+                    if k in arc:
+                        (i, j), cw = arc[k]
+                        body.append(f"G{2 if cw else 3} X{num(x)} Y{num(y)} I{_num(i)} J{_num(j)}" + fword)
+                        program.append((f"G{2 if cw else 3}", x, y, None, float(i), float(j), float(fs) if fword else None))
+                    else:
+                        body.append(f"G1 X{num(x)} Y{num(y)}" + fword)
+                        program.append(("G1", x, y, None, float(fs) if fword else None))
+                    last_f = fs
+            elif len(feed):
+                _g1_lines(p[1:], feed, num, body, program)
             if lifts[n + 1]:
                 pen(options["pen_up"], tool.up_delay)
         body.append(f"G0 X{_num(home[0])} Y{_num(home[1])}")

@@ -267,22 +267,63 @@ def estimate_program(program, settings: GrblSettings = GrblSettings(), start=(0.
     ``("G2"|"G3", x, y, z, i, j, F)`` (clockwise / counter-clockwise, centre at
     the start plus (i, j)), cut into lines as GRBL does (``arc_points``).
     Coordinates are absolute mm; x, y or z None keeps that axis.
+    ``("G1*", xy, F)``: a run of G1 moves to the rows of xy (n, 2), z kept, block k with the
+    F word F[k] (mm/min; NaN: none, the modal feed), as n G1 items would be (a writer's strokes
+    without one Python tuple per vertex).
     """
     pos = np.zeros(3)
     pos[:len(start)] = np.asarray(start, float)
     est = Estimate()
     # all runs in one call: block k goes from pts[k] to pts[k+1]; a synchronisation
-    # (dwell, M command) makes the next block start from rest. Plain floats in flat lists
-    # (an array per point cost ~200 bytes: 10^6 blocks of a generated drawing)
+    # (dwell, M command) makes the next block start from rest. Single moves go to plain
+    # float lists, runs as arrays (an array per point cost ~200 bytes: 10^6 blocks of a
+    # generated drawing), each kept in program order in ``parts``
     xs, ys, zs = [float(pos[0])], [float(pos[1])], [float(pos[2])]
     feeds, rest = [], []
+    parts: list[tuple] = []  # (points (n, 3), feeds (n,) mm/s, rest (n,)) of the moves before
+    here = [float(pos[0]), float(pos[1]), float(pos[2])]
     feed = None
     sync = True
+
+    def flush():
+        if xs:
+            parts.append((np.column_stack([xs, ys, zs]), np.array(feeds, float), np.array(rest, bool)))
+            xs.clear(), ys.clear(), zs.clear(), feeds.clear(), rest.clear()
+
+    def add(x, y, z, v):
+        nonlocal sync
+        xs.append(x)
+        ys.append(y)
+        zs.append(z)
+        feeds.append(v)
+        rest.append(sync)
+        sync = False
+        here[:] = x, y, z
+
     for item in program:
         kind = item[0]
-        if kind in ("G0", "G1"):
+        if kind == "G1*":
+            xy, fw = np.asarray(item[1], float), np.asarray(item[2], float)
+            if not len(xy):
+                continue
+            has = ~np.isnan(fw)
+            if not has[0] and feed is None:
+                raise InputError("G1 without a feed rate: GRBL refuses it (error:22); add F")
+            # the modal feed of each block: its own F word, else the last one before it
+            last = np.maximum.accumulate(np.where(has, np.arange(len(fw)), -1))
+            f = np.where(last >= 0, fw[np.maximum(last, 0)], np.nan if feed is None else feed)
+            flush()
+            pts = np.empty((len(xy), 3))
+            pts[:, :2], pts[:, 2] = xy, here[2]
+            r = np.zeros(len(xy), bool)
+            r[0] = sync
+            parts.append((pts, f / 60.0, r))
+            sync = False
+            feed = float(f[-1])
+            here[:] = float(xy[-1, 0]), float(xy[-1, 1]), here[2]
+        elif kind in ("G0", "G1"):
             coords, f = item[1:-1], item[-1]
-            target = [xs[-1], ys[-1], zs[-1]]
+            target = list(here)
             for k, c in enumerate(coords[:3]):
                 if c is not None:
                     target[k] = float(c)
@@ -294,32 +335,22 @@ def estimate_program(program, settings: GrblSettings = GrblSettings(), start=(0.
                 v = feed / 60.0
             else:
                 v = np.inf
-            xs.append(target[0])
-            ys.append(target[1])
-            zs.append(target[2])
-            feeds.append(v)
-            rest.append(sync)
-            sync = False
+            add(target[0], target[1], target[2], v)
         elif kind in ("G2", "G3"):
             x, y, z, i, j, f = item[1:]
             if f is not None:
                 feed = f
             if feed is None:
                 raise InputError("G2/G3 without a feed rate: GRBL refuses it (error:22); add F")
-            here = np.array([xs[-1], ys[-1], zs[-1]])
-            target = here.copy()
+            at = np.array(here)
+            target = at.copy()
             for k, c in enumerate((x, y, z)):
                 if c is not None:
                     target[k] = c
-            centre = here.copy()
+            centre = at.copy()
             centre[:2] += (i or 0.0, j or 0.0)
-            for q in arc_points(here, target, centre, kind == "G2", settings.arc_tolerance):
-                xs.append(float(q[0]))
-                ys.append(float(q[1]))
-                zs.append(float(q[2]))
-                feeds.append(feed / 60.0)
-                rest.append(sync)
-                sync = False
+            for q in arc_points(at, target, centre, kind == "G2", settings.arc_tolerance):
+                add(float(q[0]), float(q[1]), float(q[2]), feed / 60.0)
         elif kind == "G4":
             sync = True
             est.dwell += float(item[1])
@@ -327,10 +358,13 @@ def estimate_program(program, settings: GrblSettings = GrblSettings(), start=(0.
             sync = True
         else:
             raise ValueError(f"unknown program item {item!r}")
-    bt = _run_times(np.column_stack([xs, ys, zs]), np.array(feeds), settings, np.array(rest, bool)) \
-        if feeds else np.zeros(0)
+    flush()
+    pts = np.concatenate([p for p, _, _ in parts])
+    fv = np.concatenate([f for _, f, _ in parts])
+    rs = np.concatenate([r for _, _, r in parts])
+    bt = _run_times(pts, fv, settings, rs) if len(fv) else np.zeros(0)
     if len(bt):  # every run with motion ends in a stop: st_go_idle waits $1
-        run = np.cumsum(rest)
+        run = np.cumsum(rs)
         est.stops = len(np.unique(run[bt > 0]))
         est.idle = est.stops * settings.idle_delay
     bt = bt[bt > 0]  # the blocks GRBL keeps (zero-length ones take no time)
