@@ -43,12 +43,14 @@ from doodlecam.api import Option, PostProcessor
 from doodlecam.errors import OutputError, PluginError
 from doodlecam.geometry.chord_batch import cap_candidates, dense_points, serial_keeps_up
 from doodlecam.geometry.chords import chord_ok, one_step_apart
+from doodlecam.geometry.spline_batch import eval_many
 
 CAP_LEVELS = 24  # chord tolerances for feeds = cap: tol, tol/2^(1/4), ... (down to MIN_LEVEL_STEPS)
 CHORD_LEVEL = 2 ** -0.25
 MIN_LEVEL_STEPS = 0.15  # the finest level's tolerance, in motor steps
 START_LEVEL_STEPS = 0.3  # the level the search starts from, in motor steps
 CAP_CHUNK = 4000  # feeds = cap: curved strokes searched together (memory, not the chords: each search is its own)
+_ENDS = np.array([0.0, 1.0])
 MAX_LINE = 79  # GRBL's line buffer is 80 bytes including the terminating NUL
 
 
@@ -522,15 +524,18 @@ class GcodePost(PostProcessor):
         the neighbour's tangent (_pass_through)."""
         spm = np.array([machine.x.steps_per_mm, machine.y.steps_per_mm])
         out: list = [None] * len(strokes)
-        curved = []
+        curved, straight = [], []
         for i, st in enumerate(strokes):
             if st.profile is None:
                 raise OutputError("job is not planned (a stroke has no feed profile); plan it before writing G-code")
-            if st.spline.straight:  # one chord
-                p = np.round(st.spline(np.array([0.0, 1.0])), 3)
-                out[i] = p[_one_step_apart(p, spm)]
-            else:
-                curved.append(i)
+            (straight if st.spline.straight else curved).append(i)
+        # a straight stroke is one chord: its ends, both kept unless they round to the same steps
+        # (_one_step_apart of two points), all evaluated in one call
+        ends = np.round(eval_many([strokes[i].spline for i in straight], [_ENDS] * len(straight)), 3).reshape(-1, 2, 2)
+        st = np.round(ends * spm).astype(np.int64)
+        moved = (st[:, 0] != st[:, 1]).any(axis=1).tolist()
+        for i, p, m in zip(straight, ends, moved):
+            out[i] = p if m else p[:1]
         if not curved:
             return [(p, np.full(len(p) - 1, feeds[i]), {}) for i, p in enumerate(out)]
         rooms, r0, start = self._cap_levels(tol, spm)
