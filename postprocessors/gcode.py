@@ -323,25 +323,34 @@ class _CapWalk:
         return self.k - 1
 
 
-def _g1_lines(p: np.ndarray, feed: np.ndarray, num, body: list[str], program: list[tuple]) -> None:
-    """One stroke's G1 moves to the rows of p (n, 2) at feeds (mm/min): its lines onto body, with an F word
-    where the printed feed changes (and on the first), and one ("G1*", ...) run onto program (the estimate's
-    items, timing.estimate_program), without a Python tuple per vertex. ``num``: _num, cached."""
-    f = np.maximum(feed, 0.1)  # never print F0
-    xs, ys = [num(x) for x in p[:, 0].tolist()], [num(y) for y in p[:, 1].tolist()]
+def _g1_text(paths, num) -> dict[int, tuple]:
+    """The G1 lines of every path (points, feeds mm/min, arcs) without arcs, all formatted at once:
+    {path: (lines, F words)}. A line moves to a point after the first; an F word is printed on a path's first
+    line and where the printed feed changes. The F words (NaN where none) go to the GRBL estimate with the
+    points (timing.estimate_program's "G1*" runs), so no Python tuple is made per vertex. ``num``: _num,
+    cached."""
+    which = [n for n, (_, f, arc) in enumerate(paths) if not arc and len(f)]
+    if not which:
+        return {}
+    pts = np.concatenate([paths[n][0][1:] for n in which])
+    f = np.maximum(np.concatenate([paths[n][1] for n in which]), 0.1)  # never print F0
+    off = np.concatenate([[0], np.cumsum([len(paths[n][1]) for n in which])])
+    xs, ys = [num(x) for x in pts[:, 0].tolist()], [num(y) for y in pts[:, 1].tolist()]
     lines = [f"G1 X{x} Y{y}" for x, y in zip(xs, ys)]
-    fw = np.full(len(lines), np.nan)  # the F words, for the estimate
-    # feeds = cap: one feed per stroke, printed on its first line
-    changes = ((0, float(f[0])),) if (f == f[0]).all() else enumerate(f.tolist())
-    last = ""
-    for k, x in changes:
-        fs = num(x, 1)
-        if fs != last:
-            lines[k] += f" F{fs}"
-            fw[k] = float(fs)
-            last = fs
-    body.extend(lines)
-    program.append(("G1*", p, fw))
+    # each distinct feed printed once; lines with the same printed feed share an id
+    uniq, inv = np.unique(f, return_inverse=True)
+    printed = [num(u, 1) for u in uniq.tolist()]
+    ids = {}
+    sid = np.array([ids.setdefault(t, len(ids)) for t in printed], np.int64)[inv.reshape(-1)]
+    word = np.ones(len(f), bool)
+    word[1:] = sid[1:] != sid[:-1]
+    word[off[:-1]] = True
+    fw = np.full(len(f), np.nan)
+    ks = np.flatnonzero(word)
+    fw[ks] = np.array([float(t) for t in printed])[inv.reshape(-1)[ks]]
+    for k, t in zip(ks.tolist(), inv.reshape(-1)[ks].tolist()):
+        lines[k] += f" F{printed[t]}"
+    return {n: (lines[a:b], fw[a:b]) for n, a, b in zip(which, off[:-1].tolist(), off[1:].tolist())}
 
 
 class GcodePost(PostProcessor):
@@ -647,6 +656,7 @@ class GcodePost(PostProcessor):
             if delay > 0:
                 line(f"G4 P{int(round(delay * 1000.0))}" if d.dwell_ms else f"G4 P{_num(delay)}")
 
+        g1 = _g1_text(paths, num)
         pen(options["pen_up"], m.pen.up_delay)
         lifts = job.lifts + (True,)  # a stroke that starts where the last ended keeps the pen down
         for n, (p, feed, arc) in enumerate(paths):
@@ -678,8 +688,10 @@ class GcodePost(PostProcessor):
                         body.append(f"G1 X{num(x)} Y{num(y)}" + fword)
                         program.append(("G1", x, y, None, float(fs) if fword else None))
                     last_f = fs
-            elif len(feed):
-                _g1_lines(p[1:], feed, num, body, program)
+            elif n in g1:
+                lines, fw = g1[n]
+                body.extend(lines)
+                program.append(("G1*", p[1:], fw))
             if lifts[n + 1]:
                 pen(options["pen_up"], tool.up_delay)
         body.append(f"G0 X{_num(home[0])} Y{_num(home[1])}")
