@@ -121,7 +121,8 @@ def test_estimate_runs_time_as_their_single_moves():
         fw = np.full(len(xy), np.nan)
         if k == 0 or rng.integers(3):
             fw[0] = float(rng.choice([1200.0, 3000.0, 9000.0]))
-        fw[rng.integers(len(xy))] = 2400.0 if rng.integers(2) else np.nan
+        if len(xy) > 1:
+            fw[rng.integers(1, len(xy))] = 2400.0  # a feed change inside the run
         head = [("G0", *x0.tolist(), None, None), ("M", "M3 S1000"), ("G4", 0.1)]
         tail = [("G1", float(x0[0]), float(x0[1]), None, None)] if k % 4 == 1 else []  # the modal feed after a run
         tail += [("M", "M3 S0")]
