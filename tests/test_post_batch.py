@@ -177,3 +177,14 @@ def test_batched_junction_costs_equal_the_junction_cost(acc):
         want = [_junction_cost(a[0], a[1], b[0], b[1], v, v2, *acc, 0.01) for a, b in zip(u, w)]
         assert np.array_equal(out, want)
         assert (out == 0).any() and (out > 0).any()
+
+
+def test_dense_points_of_all_strokes_equal_each_stroke_refined_alone():
+    """The compiled refinement (each point evaluated once, its value carried to the next round) against the
+    NumPy one (postprocessors.gcode._refine, every segment's ends evaluated again each round)."""
+    strokes = [Stroke(spline=s, profile=None) for s in random_splines(40, 11, degrees=(2, 3, 3))]
+    tol = 0.05
+    q, off, fine = gcode.GcodePost._dense(strokes, tol)
+    for k, st in enumerate(strokes):
+        u0 = np.linspace(0.0, 1.0, max(int(np.ceil(st.spline.length / 0.5)) + 1, 9))
+        assert np.array_equal(q[off[k]:off[k + 1]], st.spline(gcode._refine(st.spline, u0, fine))), k
