@@ -50,7 +50,7 @@ CHORD_LEVEL = 2 ** -0.25
 MIN_LEVEL_STEPS = 0.15  # the finest level's tolerance, in motor steps
 START_LEVEL_STEPS = 0.3  # the level the search starts from, in motor steps
 CAP_CHUNK = 4000  # feeds = cap: curved strokes searched together (memory, not the chords: each search is its own)
-_ENDS = np.array([0.0, 1.0])
+_ENDS = np.array([0.0, 1.0])  # a straight stroke's chord: its ends
 MAX_LINE = 79  # GRBL's line buffer is 80 bytes including the terminating NUL
 
 
@@ -541,8 +541,8 @@ class GcodePost(PostProcessor):
         # a straight stroke is one chord: its ends, both kept unless they round to the same steps
         # (_one_step_apart of two points), all evaluated in one call
         ends = np.round(eval_many([strokes[i].spline for i in straight], [_ENDS] * len(straight)), 3).reshape(-1, 2, 2)
-        st = np.round(ends * spm).astype(np.int64)
-        moved = (st[:, 0] != st[:, 1]).any(axis=1).tolist()
+        steps = np.round(ends * spm).astype(np.int64)
+        moved = (steps[:, 0] != steps[:, 1]).any(axis=1).tolist()
         for i, p, m in zip(straight, ends, moved):
             out[i] = p if m else p[:1]
         if not curved:
