@@ -43,12 +43,14 @@ from doodlecam.api import Option, PostProcessor
 from doodlecam.errors import OutputError, PluginError
 from doodlecam.geometry.chord_batch import cap_candidates, dense_points, serial_keeps_up
 from doodlecam.geometry.chords import chord_ok, one_step_apart
+from doodlecam.geometry.spline_batch import eval_many
 
 CAP_LEVELS = 24  # chord tolerances for feeds = cap: tol, tol/2^(1/4), ... (down to MIN_LEVEL_STEPS)
 CHORD_LEVEL = 2 ** -0.25
 MIN_LEVEL_STEPS = 0.15  # the finest level's tolerance, in motor steps
 START_LEVEL_STEPS = 0.3  # the level the search starts from, in motor steps
 CAP_CHUNK = 4000  # feeds = cap: curved strokes searched together (memory, not the chords: each search is its own)
+_ENDS = np.array([0.0, 1.0])  # a straight stroke's chord: its ends
 MAX_LINE = 79  # GRBL's line buffer is 80 bytes including the terminating NUL
 
 
@@ -321,6 +323,36 @@ class _CapWalk:
         return self.k - 1
 
 
+def _g1_text(paths, num) -> dict[int, tuple]:
+    """The G1 lines of every path (points, feeds mm/min, arcs) without arcs, all formatted at once:
+    {path: (lines, F words)}. A line moves to a point after the first; an F word is printed on a path's first
+    line and where the printed feed changes. The F words (NaN where none) go to the GRBL estimate with the
+    points (timing.estimate_program's "G1*" runs), so no Python tuple is made per vertex. ``num``: _num,
+    cached."""
+    which = [n for n, (_, f, arc) in enumerate(paths) if not arc and len(f)]
+    if not which:
+        return {}
+    pts = np.concatenate([paths[n][0][1:] for n in which])
+    f = np.maximum(np.concatenate([paths[n][1] for n in which]), 0.1)  # never print F0
+    off = np.concatenate([[0], np.cumsum([len(paths[n][1]) for n in which])])
+    xs, ys = [num(x) for x in pts[:, 0].tolist()], [num(y) for y in pts[:, 1].tolist()]
+    lines = [f"G1 X{x} Y{y}" for x, y in zip(xs, ys)]
+    # each distinct feed printed once; lines with the same printed feed share an id
+    uniq, inv = np.unique(f, return_inverse=True)
+    printed = [num(u, 1) for u in uniq.tolist()]
+    ids = {}
+    sid = np.array([ids.setdefault(t, len(ids)) for t in printed], np.int64)[inv.reshape(-1)]
+    word = np.ones(len(f), bool)
+    word[1:] = sid[1:] != sid[:-1]
+    word[off[:-1]] = True
+    fw = np.full(len(f), np.nan)
+    ks = np.flatnonzero(word)
+    fw[ks] = np.array([float(t) for t in printed])[inv.reshape(-1)[ks]]
+    for k, t in zip(ks.tolist(), inv.reshape(-1)[ks].tolist()):
+        lines[k] += f" F{printed[t]}"
+    return {n: (lines[a:b], fw[a:b]) for n, a, b in zip(which, off[:-1].tolist(), off[1:].tolist())}
+
+
 class GcodePost(PostProcessor):
     name = "gcode"
     summary = "G-code (GRBL, Marlin, LinuxCNC): G0 travels, G1 strokes at the pen-speed cap or the planned feeds"
@@ -501,15 +533,18 @@ class GcodePost(PostProcessor):
         the neighbour's tangent (_pass_through)."""
         spm = np.array([machine.x.steps_per_mm, machine.y.steps_per_mm])
         out: list = [None] * len(strokes)
-        curved = []
+        curved, straight = [], []
         for i, st in enumerate(strokes):
             if st.profile is None:
                 raise OutputError("job is not planned (a stroke has no feed profile); plan it before writing G-code")
-            if st.spline.straight:  # one chord
-                p = np.round(st.spline(np.array([0.0, 1.0])), 3)
-                out[i] = p[_one_step_apart(p, spm)]
-            else:
-                curved.append(i)
+            (straight if st.spline.straight else curved).append(i)
+        # a straight stroke is one chord: its ends, both kept unless they round to the same steps
+        # (_one_step_apart of two points), all evaluated in one call
+        ends = np.round(eval_many([strokes[i].spline for i in straight], [_ENDS] * len(straight)), 3).reshape(-1, 2, 2)
+        steps = np.round(ends * spm).astype(np.int64)
+        moved = (steps[:, 0] != steps[:, 1]).any(axis=1).tolist()
+        for i, p, m in zip(straight, ends, moved):
+            out[i] = p if m else p[:1]
         if not curved:
             return [(p, np.full(len(p) - 1, feeds[i]), {}) for i, p in enumerate(out)]
         rooms, r0, start = self._cap_levels(tol, spm)
@@ -621,6 +656,7 @@ class GcodePost(PostProcessor):
             if delay > 0:
                 line(f"G4 P{int(round(delay * 1000.0))}" if d.dwell_ms else f"G4 P{_num(delay)}")
 
+        g1 = _g1_text(paths, num)
         pen(options["pen_up"], m.pen.up_delay)
         lifts = job.lifts + (True,)  # a stroke that starts where the last ended keeps the pen down
         for n, (p, feed, arc) in enumerate(paths):
@@ -639,18 +675,23 @@ class GcodePost(PostProcessor):
                 fs = _num(max(feed[0] if len(feed) else caps[pen_no[n]], 0.1), 1)
                 body.append(f"G1 X{num(p[0, 0])} Y{num(p[0, 1])} F{fs}")
                 program.append(("G1", p[0, 0], p[0, 1], None, float(fs)))
-            last_f = ""
-            for k, ((x, y), f) in enumerate(zip(p[1:].tolist(), feed.tolist())):
-                fs = num(max(f, 0.1), 1)  # never print F0
-                fword = f" F{fs}" if fs != last_f else ""
-                if k in arc:
-                    (i, j), cw = arc[k]
-                    body.append(f"G{2 if cw else 3} X{num(x)} Y{num(y)} I{_num(i)} J{_num(j)}" + fword)
-                    program.append((f"G{2 if cw else 3}", x, y, None, float(i), float(j), float(fs) if fword else None))
-                else:
-                    body.append(f"G1 X{num(x)} Y{num(y)}" + fword)
-                    program.append(("G1", x, y, None, float(fs) if fword else None))
-                last_f = fs
+            if arc:
+                last_f = ""
+                for k, ((x, y), f) in enumerate(zip(p[1:].tolist(), feed.tolist())):
+                    fs = num(max(f, 0.1), 1)  # never print F0
+                    fword = f" F{fs}" if fs != last_f else ""
+                    if k in arc:
+                        (i, j), cw = arc[k]
+                        body.append(f"G{2 if cw else 3} X{num(x)} Y{num(y)} I{_num(i)} J{_num(j)}" + fword)
+                        program.append((f"G{2 if cw else 3}", x, y, None, float(i), float(j), float(fs) if fword else None))
+                    else:
+                        body.append(f"G1 X{num(x)} Y{num(y)}" + fword)
+                        program.append(("G1", x, y, None, float(fs) if fword else None))
+                    last_f = fs
+            elif n in g1:
+                lines, fw = g1[n]
+                body.extend(lines)
+                program.append(("G1*", p[1:], fw))
             if lifts[n + 1]:
                 pen(options["pen_up"], tool.up_delay)
         body.append(f"G0 X{_num(home[0])} Y{_num(home[1])}")

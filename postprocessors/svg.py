@@ -17,6 +17,7 @@ import numpy as np
 
 from doodlecam.api import Option, PostProcessor
 from doodlecam.errors import PluginError
+from doodlecam.geometry.spline_batch import eval_many
 
 PAD = 2.0  # mm around the work area, so its outline is not clipped
 
@@ -24,6 +25,45 @@ PAD = 2.0  # mm around the work area, so its outline is not clipped
 def _path_d(p: np.ndarray) -> str:
     xy = [f"{x:.3f} {y:.3f}" for x, y in np.round(p, 3).tolist()]
     return "M" + xy[0] + "L" + " ".join(xy[1:] or xy[:1])
+
+
+def _segments_d(a: np.ndarray, b: np.ndarray) -> list[str]:
+    """_path_d of every segment a[k]-b[k] (rows, already flipped): one format call for all of them."""
+    if not len(a):
+        return []
+    xy = np.round(np.stack([a, b], axis=1), 3).reshape(len(a), 4).tolist()
+    return ("\n".join(["M%.3f %.3fL%.3f %.3f"] * len(xy)) % tuple(v for r in xy for v in r)).split("\n")
+
+
+def _cubic_ds(splines, flip) -> list[str]:
+    """SvgPost._stroke_d of cubic splines, all at once: their end points and derivatives at the breakpoints in
+    one compiled call, the Bezier points in array operations over all of them (the same per element as one
+    stroke's), one format call for every number (a stroke at a time cost ~40 us of Python each)."""
+    if not splines:
+        return []
+    bps = [s.breakpoints for s in splines]
+    n = np.array([len(b) for b in bps])
+    u = np.concatenate(bps)
+    q, d1 = eval_many(splines, bps), eval_many(splines, bps, 1)
+    last = np.cumsum(n) - 1  # each spline's last breakpoint
+    a = np.ones(len(u), bool)
+    a[last] = False
+    a = np.flatnonzero(a)  # the start of every polynomial piece
+    h = (u[a + 1] - u[a])[:, None]
+    ctrl = np.stack([q[a] + d1[a] * h / 3, q[a + 1] - d1[a + 1] * h / 3, q[a + 1]], axis=1).reshape(-1, 2)
+    head = np.round(q[last - n + 1] * flip[0] + flip[1], 3)
+    ctrl = np.round(ctrl * flip[0] + flip[1], 3)
+    # each spline's head, then its pieces' 3 points each
+    rows = np.empty((len(head) + len(ctrl), 2))
+    starts = np.concatenate([[0], np.cumsum(1 + 3 * (n - 1))[:-1]])
+    rows[starts] = head
+    body = np.ones(len(rows), bool)
+    body[starts] = False
+    rows[body] = ctrl
+    fmts: dict[int, str] = {}
+    for k in set((n - 1).tolist()):
+        fmts[k] = "M%.3f %.3fC" + " ".join(["%.3f %.3f"] * (3 * k))
+    return ("\n".join([fmts[k] for k in (n - 1).tolist()]) % tuple(rows.reshape(-1).tolist())).split("\n")
 
 
 class SvgPost(PostProcessor):
@@ -56,6 +96,14 @@ class SvgPost(PostProcessor):
         xy = " ".join(f"{x:.3f} {y:.3f}" for x, y in np.round(ctrl * flip[0] + flip[1], 3).tolist())
         return f"M{head[0]:.3f} {head[1]:.3f}C{xy}"
 
+    def _strokes_d(self, splines, step: float, flip) -> list[str]:
+        """[_stroke_d(s, step, flip) for s in splines], the cubic ones in one batch (_cubic_ds)."""
+        cubic = [k for k, s in enumerate(splines) if s.degree == 3]
+        out = [None if s.degree == 3 else self._stroke_d(s, step, flip) for s in splines]
+        for k, d in zip(cubic, _cubic_ds([splines[k] for k in cubic], flip)):
+            out[k] = d
+        return out
+
     def _pen_layers(self, job, strokes: list[str], width: float) -> list[str]:
         """The pen-down strokes: one Inkscape layer per pen layer of the job, in its colour."""
         names = job.layers or ("",)
@@ -87,9 +135,10 @@ class SvgPost(PostProcessor):
         width = options["pen_width"] or m.pen.width
         thin = max(0.2, width / 3)
 
-        strokes = [self._stroke_d(s.spline, step, flip) for s in job.strokes]
-        travels = [_path_d(np.array([t.start, t.end]) * flip[0] + flip[1])
-                   for t, lift in zip(job.travels, job.lifts + (True,)) if lift] if options["show_travels"] else []
+        strokes = self._strokes_d([s.spline for s in job.strokes], step, flip)
+        shown = [t for t, lift in zip(job.travels, job.lifts + (True,)) if lift] if options["show_travels"] else []
+        travels = _segments_d(np.array([t.start for t in shown], float).reshape(-1, 2) * flip[0] + flip[1],
+                              np.array([t.end for t in shown], float).reshape(-1, 2) * flip[0] + flip[1])
 
         vb = f"{-PAD:g} {-PAD:g} {W + 2 * PAD:g} {H + 2 * PAD:g}"
         out = [

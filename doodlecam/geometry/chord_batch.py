@@ -36,11 +36,14 @@ def _eval(c, k, nseg, u, out, N, left, right):  # pragma: no cover - compiled
 @numba.njit(cache=True, nogil=True)
 def _refine_one(c, k, u, tol, max_rounds):  # pragma: no cover - compiled
     """u split at the middle of every segment whose chord strays more than ``tol`` from the spline (control
-    points c, degree k), round after round (postprocessors.gcode._refine). A segment found within ``tol``
-    stays as it is, so only the halves of split ones are probed again."""
+    points c, degree k), round after round (postprocessors.gcode._refine): (u, the spline at u). A segment
+    found within ``tol`` stays as it is, so only the halves of split ones are probed again; each point of u is
+    evaluated once (a segment's ends are its neighbours' too)."""
     nseg = c.shape[0] - k
     N, left, right = np.empty(k + 1), np.empty(k + 1), np.empty(k + 1)
     done = np.zeros(u.shape[0] - 1, np.bool_)  # segment i is within tol
+    p = np.empty((u.shape[0], 2))
+    _eval(c, k, nseg, u, p, N, left, right)
     for _ in range(max_rounds):
         n = u.shape[0]
         bad = np.zeros(n - 1, np.bool_)
@@ -48,8 +51,8 @@ def _refine_one(c, k, u, tol, max_rounds):  # pragma: no cover - compiled
         for i in range(n - 1):
             if done[i]:
                 continue
-            ax, ay = _point(c, k, nseg, min(max(u[i], 0.0), 1.0), N, left, right)
-            bx, by = _point(c, k, nseg, min(max(u[i + 1], 0.0), 1.0), N, left, right)
+            ax, ay = p[i, 0], p[i, 1]
+            bx, by = p[i + 1, 0], p[i + 1, 1]
             dx, dy = bx - ax, by - ay
             dd = max(dx * dx + dy * dy, 1e-300)
             err = 0.0
@@ -67,18 +70,20 @@ def _refine_one(c, k, u, tol, max_rounds):  # pragma: no cover - compiled
         if nbad == 0:
             break
         v = np.empty(n + nbad)
+        pv = np.empty((n + nbad, 2))
         dv = np.zeros(n + nbad - 1, np.bool_)
         m = 0
         for i in range(n):
-            v[m] = u[i]
+            v[m], pv[m, 0], pv[m, 1] = u[i], p[i, 0], p[i, 1]
             if i < n - 1:
                 dv[m] = done[i]
             m += 1
             if i < n - 1 and bad[i]:
                 v[m] = 0.5 * (u[i] + u[i + 1])
+                pv[m, 0], pv[m, 1] = _point(c, k, nseg, min(max(v[m], 0.0), 1.0), N, left, right)
                 m += 1
-        u, done = v, dv
-    return u
+        u, p, done = v, pv, dv
+    return u, p
 
 
 @numba.njit(cache=True, nogil=True)
@@ -91,10 +96,10 @@ def dense_points(ctrl, coff, degree, u0, uoff, tol, max_rounds):  # pragma: no c
     for s in range(ns):
         c = ctrl[coff[s]:coff[s + 1]]
         k = degree[s]
-        u = _refine_one(c, k, u0[uoff[s]:uoff[s + 1]].copy(), tol, max_rounds)
+        u, p = _refine_one(c, k, u0[uoff[s]:uoff[s + 1]].copy(), tol, max_rounds)
         n = u.shape[0]
         out = _grow(out, off[s] + n)
-        _eval(c, k, c.shape[0] - k, u, out[off[s]:off[s] + n], np.empty(k + 1), np.empty(k + 1), np.empty(k + 1))
+        out[off[s]:off[s] + n] = p
         off[s + 1] = off[s] + n
     return out[:off[ns]], off
 

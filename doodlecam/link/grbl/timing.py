@@ -267,59 +267,85 @@ def estimate_program(program, settings: GrblSettings = GrblSettings(), start=(0.
     ``("G2"|"G3", x, y, z, i, j, F)`` (clockwise / counter-clockwise, centre at
     the start plus (i, j)), cut into lines as GRBL does (``arc_points``).
     Coordinates are absolute mm; x, y or z None keeps that axis.
+    ``("G1*", xy, F)``: a run of G1 moves to the rows of xy (n, 2), z kept, block k with the
+    F word F[k] (mm/min; NaN: none, the modal feed), as n G1 items would be (a writer's strokes
+    without one Python tuple per vertex).
     """
     pos = np.zeros(3)
     pos[:len(start)] = np.asarray(start, float)
     est = Estimate()
     # all runs in one call: block k goes from pts[k] to pts[k+1]; a synchronisation
-    # (dwell, M command) makes the next block start from rest. Plain floats in flat lists
-    # (an array per point cost ~200 bytes: 10^6 blocks of a generated drawing)
-    xs, ys, zs = [float(pos[0])], [float(pos[1])], [float(pos[2])]
+    # (dwell, M command) makes the next block start from rest. Single moves go to plain
+    # float lists (an array per point cost ~200 bytes: 10^6 blocks of a generated drawing),
+    # runs as arrays, each with the number of single moves before it: both are put in
+    # program order once, at the end
+    xs, ys, zs = [], [], []
     feeds, rest = [], []
+    runs: list[tuple] = []  # (single moves before it, points (n, 2), F words, first feed, z, rest)
+    here = [float(pos[0]), float(pos[1]), float(pos[2])]
     feed = None
+    feed_run = None  # after a run: its index (the modal feed is its last F word, found when needed)
     sync = True
+
+    def add(x, y, z, v):
+        nonlocal sync
+        xs.append(x)
+        ys.append(y)
+        zs.append(z)
+        feeds.append(v)
+        rest.append(sync)
+        sync = False
+        here[:] = x, y, z
+
+    def modal(what="G1"):
+        """The modal feed (mm/min); after a run, its last F word."""
+        nonlocal feed, feed_run
+        if feed_run is not None:
+            _, _, fw, f0, _, _ = runs[feed_run]
+            words = np.flatnonzero(fw == fw)
+            feed, feed_run = (float(fw[words[-1]]) if len(words) else f0), None
+        if feed is None:
+            raise InputError(f"{what} without a feed rate: GRBL refuses it (error:22); add F")
+        return feed
+
     for item in program:
         kind = item[0]
-        if kind in ("G0", "G1"):
+        if kind == "G1*":
+            xy, fw = item[1], item[2]
+            if not len(xy):
+                continue
+            f0 = fw[0] if fw[0] == fw[0] else modal()  # a NaN: no F word, the modal feed
+            runs.append((len(xs), xy, fw, float(f0), here[2], sync))
+            sync = False
+            feed_run = len(runs) - 1
+            here[:] = float(xy[-1, 0]), float(xy[-1, 1]), here[2]
+        elif kind in ("G0", "G1"):
             coords, f = item[1:-1], item[-1]
-            target = [xs[-1], ys[-1], zs[-1]]
+            target = list(here)
             for k, c in enumerate(coords[:3]):
                 if c is not None:
                     target[k] = float(c)
             if kind == "G1":
                 if f is not None:
-                    feed = f
-                if feed is None:
-                    raise InputError("G1 without a feed rate: GRBL refuses it (error:22); add F")
-                v = feed / 60.0
+                    feed, feed_run = f, None
+                v = modal() / 60.0
             else:
                 v = np.inf
-            xs.append(target[0])
-            ys.append(target[1])
-            zs.append(target[2])
-            feeds.append(v)
-            rest.append(sync)
-            sync = False
+            add(target[0], target[1], target[2], v)
         elif kind in ("G2", "G3"):
             x, y, z, i, j, f = item[1:]
             if f is not None:
-                feed = f
-            if feed is None:
-                raise InputError("G2/G3 without a feed rate: GRBL refuses it (error:22); add F")
-            here = np.array([xs[-1], ys[-1], zs[-1]])
-            target = here.copy()
+                feed, feed_run = f, None
+            feed = modal("G2/G3")
+            at = np.array(here)
+            target = at.copy()
             for k, c in enumerate((x, y, z)):
                 if c is not None:
                     target[k] = c
-            centre = here.copy()
+            centre = at.copy()
             centre[:2] += (i or 0.0, j or 0.0)
-            for q in arc_points(here, target, centre, kind == "G2", settings.arc_tolerance):
-                xs.append(float(q[0]))
-                ys.append(float(q[1]))
-                zs.append(float(q[2]))
-                feeds.append(feed / 60.0)
-                rest.append(sync)
-                sync = False
+            for q in arc_points(at, target, centre, kind == "G2", settings.arc_tolerance):
+                add(float(q[0]), float(q[1]), float(q[2]), feed / 60.0)
         elif kind == "G4":
             sync = True
             est.dwell += float(item[1])
@@ -327,10 +353,34 @@ def estimate_program(program, settings: GrblSettings = GrblSettings(), start=(0.
             sync = True
         else:
             raise ValueError(f"unknown program item {item!r}")
-    bt = _run_times(np.column_stack([xs, ys, zs]), np.array(feeds), settings, np.array(rest, bool)) \
-        if feeds else np.zeros(0)
+    nr = np.array([len(r[1]) for r in runs], np.int64)
+    n = len(xs) + int(nr.sum())
+    pts, fv, rs = np.empty((n + 1, 3)), np.empty(n), np.empty(n, bool)
+    pts[0] = pos
+    if runs:
+        # block r of the runs' concatenation comes after the single moves before its run
+        into = np.repeat(np.array([r[0] for r in runs], np.int64), nr) + np.arange(int(nr.sum()))
+        first = np.concatenate([[0], np.cumsum(nr)[:-1]])  # each run's first block among the runs' blocks
+        pts[1 + into, :2] = np.concatenate([r[1] for r in runs])
+        pts[1 + into, 2] = np.repeat([r[4] for r in runs], nr)
+        # each block's feed: its F word, else the last one before it in its run, else the feed before the run
+        f = np.concatenate([r[2] for r in runs]).astype(float)
+        f[first] = [r[3] for r in runs]
+        f = f[np.maximum.accumulate(np.where(f == f, np.arange(len(f)), 0))]
+        fv[into] = f / 60.0
+        starts = np.zeros(len(f), bool)
+        starts[first] = [r[5] for r in runs]
+        rs[into] = starts
+        single = np.ones(n, bool)
+        single[into] = False
+    else:
+        single = slice(None)
+    pts[1:][single] = np.column_stack([xs, ys, zs]).reshape(-1, 3)
+    fv[single] = feeds
+    rs[single] = rest
+    bt = _run_times(pts, fv, settings, rs) if len(fv) else np.zeros(0)
     if len(bt):  # every run with motion ends in a stop: st_go_idle waits $1
-        run = np.cumsum(rest)
+        run = np.cumsum(rs)
         est.stops = len(np.unique(run[bt > 0]))
         est.idle = est.stops * settings.idle_delay
     bt = bt[bt > 0]  # the blocks GRBL keeps (zero-length ones take no time)

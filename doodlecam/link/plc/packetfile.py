@@ -31,6 +31,7 @@ import math
 import zlib
 from dataclasses import dataclass
 
+import numba
 import numpy as np
 
 from doodlecam.errors import InputError, OutputError
@@ -139,8 +140,27 @@ def whole_step_targets(velocity, steps_per_mm) -> np.ndarray:
     return np.diff(np.vstack([np.zeros((1, 2)), cum]), axis=0)
 
 
+@numba.njit(cache=True, nogil=True)
+def _whole_step_runs(velocity, steps_per_mm, off):  # pragma: no cover - compiled
+    """whole_step_targets of every stroke's velocity rows off[s]:off[s + 1] (concatenated), in one call: the
+    same products, running sums, roundings and differences, so the same numbers."""
+    out = np.empty_like(velocity)
+    for s in range(off.shape[0] - 1):
+        for a in range(2):
+            last = 0.0
+            acc = 0.0
+            for r in range(off[s], off[s + 1]):
+                x = velocity[r, a] * steps_per_mm[a]
+                acc = x if r == off[s] else acc + x
+                cum = np.rint(acc)
+                out[r, a] = cum - last
+                last = cum
+    return out
+
+
 def commands_array(job) -> tuple[PlcHeader, np.ndarray]:
-    """Like :func:`commands_from_job`, as a RECORD_DTYPE array (fast path)."""
+    """Like :func:`commands_from_job`, as a RECORD_DTYPE array (fast path: every stroke's commands placed by
+    array operations, the DRAW targets of all strokes from one compiled call)."""
     m = job.machine
     spm = np.array([m.x.steps_per_mm, m.y.steps_per_mm])
     if len(job.samples) != len(job.strokes):
@@ -151,26 +171,34 @@ def commands_array(job) -> tuple[PlcHeader, np.ndarray]:
     dt = dts.pop() if dts else m.delta_time
     home = job.travels[-1].end if job.travels else np.asarray(m.home, dtype=float)
 
-    blocks = []
     changes = set(job.pen_pauses)  # each pen change, and the first pen when the machine has several
     pens = job.pen_numbers if changes else ()
-    for k, (s, lift) in enumerate(zip(job.samples, job.lifts)):
-        # no MOVE before a stroke that goes on from the last one's end: the pen stays down
-        move = np.round(np.asarray(s.start) * spm)[None] if lift else np.zeros((0, 2))
-        blocks.append((pens[k] if k in changes else 0, move, whole_step_targets(s.velocity, spm)))
-    n = sum(len(mv) + len(d) for _, mv, d in blocks) + len(changes) + 1
+    ns = len(job.samples)
+    vel = [np.asarray(s.velocity, float).reshape(-1, 2) for s in job.samples]
+    counts = np.array([len(v) for v in vel], np.int64)
+    off = np.concatenate([[0], np.cumsum(counts)]).astype(np.int64)
+    draws = _whole_step_runs(np.concatenate(vel) if ns else np.zeros((0, 2)), spm, off)
+    # per stroke: a PAUSE where a pen change comes before it (at rest, the pen lifts, the operator fits pen
+    # pens[k]), a MOVE to its start unless it goes on from the last one's end (the pen stays down), its DRAWs
+    pause = np.zeros(ns, np.int64)
+    pause[sorted(k for k in changes if k < ns and pens[k])] = 1
+    lift = np.array(job.lifts[:ns], bool).astype(np.int64)
+    size = pause + lift + counts
+    first = np.concatenate([[0], np.cumsum(size)]).astype(np.int64)  # each stroke's first row
+    n = int(first[-1]) + 1
     out = np.zeros(n, RECORD_DTYPE)
     xy = np.empty((n, 2))
     types = np.full(n, DRAW, dtype=np.uint16)
-    i = 0
-    for pen, move, draws in blocks:
-        if pen:  # a pen change before this stroke: at rest, the pen lifts, the operator fits pen `pen`
-            types[i], xy[i] = PAUSE, (pen, 0)
-            i += 1
-        if len(move):
-            types[i], xy[i] = MOVE, move[0]
-        xy[i + len(move):i + len(move) + len(draws)] = draws
-        i += len(move) + len(draws)
+    k = np.flatnonzero(pause)
+    types[first[k]] = PAUSE
+    xy[first[k]] = np.column_stack([[pens[i] for i in k.tolist()], np.zeros(len(k))]) if len(k) else np.zeros((0, 2))
+    k = np.flatnonzero(lift)
+    rows = first[k] + pause[k]
+    types[rows] = MOVE
+    xy[rows] = np.round(np.array([job.samples[i].start for i in k.tolist()], float).reshape(-1, 2) * spm)
+    # the DRAWs: row r of stroke s goes to first[s] + pause[s] + lift[s] + (r - off[s])
+    xy[np.repeat(first[:-1] + pause + lift - off[:-1], counts) + np.arange(int(off[-1]))] = draws
+    i = n - 1
     types[i], xy[i] = MOVE, np.round(np.asarray(home) * spm)
     if np.abs(xy).max(initial=0) > _I32.max:
         raise OutputError("a PLC command exceeds the int32 range; check steps_per_mm and the work area in the machine profile")
