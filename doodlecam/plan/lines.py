@@ -31,6 +31,19 @@ def eligible(ctx, stroke) -> bool:
             and sp.straight)
 
 
+def eligible_all(ctx, strokes) -> list[int]:
+    """The indices of the ``eligible`` strokes, their splines' straightness found all at once
+    (model.prime_splines)."""
+    from doodlecam.model import prime_splines
+
+    if ctx.solver != "reach" or ctx.nonlinear:
+        return []
+    splines = [s.spline for s in strokes]
+    prime_splines(splines)
+    return [i for i, sp in enumerate(splines)
+            if sp.degree >= 2 and sp.straight and bool(np.isfinite(sp.control).all())]
+
+
 def plan_lines(ctx, strokes: list, pens: list) -> list:
     """For every stroke (all ``eligible``), what plan_one finds for it: (the planned stroke, its
     (acceleration, velocity) ratios, samples, per-period deviation), or None where the general pass is

@@ -198,18 +198,20 @@ def plan_strokes(ctx: Context, strokes: list[Stroke], pens: list, workers: int =
     """plan_one for every stroke, in order; with ``workers`` > 1 (and enough strokes) in
     that many processes, each taking CHUNK strokes at a time. ``progress(k)``: called
     as strokes finish."""
-    from doodlecam.plan.lines import eligible, plan_lines
+    from doodlecam.model import prime_splines
+    from doodlecam.plan.lines import eligible_all, plan_lines
 
     total = len(strokes)
     # straight strokes in closed form, all at once; the rest (and any of those the closed forms
     # do not cover) one by one
-    lines = [i for i, s in enumerate(strokes) if eligible(ctx, s)]
+    lines = eligible_all(ctx, strokes)
     done = {i: Outcome(*o, replans=0, slowed_for_ramps=False, ramp=0.0, slowed=1.0)
             for i, o in zip(lines, plan_lines(ctx, [strokes[i] for i in lines], [pens[i] for i in lines]))
             if o is not None}
     if progress and done:
         progress(len(done))
     items = [(n, s, pen) for n, (s, pen) in enumerate(zip(strokes, pens), 1) if n - 1 not in done]
+    prime_splines([s.spline for _, s, _ in items], lengths=True)  # _least_time's and the sampler's lengths
     rest = _plan_each(ctx, items, total, workers, progress)
     return [done[i] if i in done else next(rest) for i in range(total)]
 
