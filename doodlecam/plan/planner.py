@@ -57,6 +57,36 @@ class Limits:
         M = None if kinematics.linear_map is None else np.asarray(kinematics.linear_map, dtype=float)
         return cls(np.asarray(vmax, float), np.asarray(amax, float), M, machine.pen.max_speed, kinematics)
 
+    @functools.cached_property  # checked once per Limits, not once per stroke planned with them
+    def problem(self) -> str:
+        """Why these limits cannot be planned with (one line), or "" when they can."""
+        for name, x in (("velocity", self.vmax), ("acceleration", self.amax)):
+            x = np.atleast_1d(np.asarray(x, float))
+            if x.size == 0 or not _finite(x) or (x <= 0).any():
+                return f"every actuator {name} limit must be a positive finite number, got {x.tolist()}; fix the machine profile"
+        if self.M is not None:
+            M = np.asarray(self.M, float)
+            if M.ndim != 2 or M.shape != (len(np.atleast_1d(self.vmax)), 2) or not _finite(M) or not M.any(axis=1).all():
+                return "the kinematics' linear map must be a finite (actuators x 2) matrix with a non-zero row per actuator; fix the kinematics"
+            if len(np.atleast_1d(self.amax)) != M.shape[0]:
+                return "the kinematics give different numbers of velocity and acceleration limits; fix the kinematics"
+        elif self.kinematics is None:
+            return "nonlinear limits need the kinematics (Limits.kinematics); build them with Limits.from_machine"
+        if self.pen_speed is not None and not (math.isfinite(self.pen_speed) and self.pen_speed > 0):
+            return f"the pen-speed cap must be a positive finite number, got {self.pen_speed!r}; fix [pen] max_speed"
+        return ""
+
+    @functools.cached_property
+    def easiest(self) -> tuple[float, float]:
+        """(speed mm/s, acceleration mm/s^2) in the most favourable direction (linear kinematics),
+        generously: actuator units per mm there halved (a direction may share the motion
+        between actuators); the pen-speed cap kept (stroke._least_time)."""
+        gain = float(np.min(np.abs(np.asarray(self.M, float)).max(axis=0))) / 2
+        v, a = float(np.max(self.vmax)) / gain, float(np.max(self.amax)) / gain
+        if self.pen_speed is not None:
+            v = min(v, float(self.pen_speed))
+        return v, a
+
     def derivatives(self, spline: Spline, u: np.ndarray):
         """theta'(u), theta''(u), each (len(u), n_act), and |q'(u)|."""
         d1, d2 = spline(u, 1), spline(u, 2)
@@ -197,28 +227,16 @@ def check_inputs(spline: Spline, limits: Limits, v_start: float = 0.0, v_end: fl
     if spline.degree < 1:
         raise PlanError(f"a degree-{spline.degree} spline has no velocity; fit the stroke with degree 1 or more")
     c = np.asarray(spline.control, float)
-    lo, hi = c.min(axis=0), c.max(axis=0)  # (NaN propagates into both)
-    if not (np.isfinite(lo).all() and np.isfinite(hi).all()):
+    lo, hi = c.min(axis=0).tolist(), c.max(axis=0).tolist()  # (NaN propagates into both)
+    if not all(map(math.isfinite, lo + hi)):
         raise PlanError("the stroke has non-finite control points (NaN or infinity); fix the drawing")
-    tiny = 1e-9 * max(1.0, float(np.abs(lo).max()), float(np.abs(hi).max()))
-    if float((hi - lo).max()) <= tiny:
+    tiny = 1e-9 * max(1.0, *map(abs, lo + hi))
+    if max(h - l for l, h in zip(lo, hi)) <= tiny:
         raise PlanError("the stroke has zero length (all control points equal); drop it or draw a dot")
     if spline.degree == 1 and (np.linalg.norm(np.diff(c, axis=0), axis=1) <= tiny).any():
         raise PlanError("the degree-1 stroke repeats a control point (a span without length); remove repeated points")
-    for name, x in (("velocity", limits.vmax), ("acceleration", limits.amax)):
-        x = np.atleast_1d(np.asarray(x, float))
-        if x.size == 0 or not _finite(x) or (x <= 0).any():
-            raise PlanError(f"every actuator {name} limit must be a positive finite number, got {x.tolist()}; fix the machine profile")
-    if limits.M is not None:
-        M = np.asarray(limits.M, float)
-        if M.ndim != 2 or M.shape != (len(np.atleast_1d(limits.vmax)), 2) or not _finite(M) or not M.any(axis=1).all():
-            raise PlanError("the kinematics' linear map must be a finite (actuators x 2) matrix with a non-zero row per actuator; fix the kinematics")
-        if len(np.atleast_1d(limits.amax)) != M.shape[0]:
-            raise PlanError("the kinematics give different numbers of velocity and acceleration limits; fix the kinematics")
-    elif limits.kinematics is None:
-        raise PlanError("nonlinear limits need the kinematics (Limits.kinematics); build them with Limits.from_machine")
-    if limits.pen_speed is not None and not (math.isfinite(limits.pen_speed) and limits.pen_speed > 0):
-        raise PlanError(f"the pen-speed cap must be a positive finite number, got {limits.pen_speed!r}; fix [pen] max_speed")
+    if limits.problem:
+        raise PlanError(limits.problem)
     for name, v in (("start", v_start), ("end", v_end)):
         if not (math.isfinite(v) and v >= 0):
             raise PlanError(f"the {name} speed must be a non-negative finite number of mm/s, got {v!r}")

@@ -163,12 +163,7 @@ def _least_time(spline, limits) -> float:
     allows, plus accelerating to it and stopping (the path at its easiest everywhere)."""
     if limits.M is None:
         return np.inf  # nonlinear kinematics: no such bound here (the guard is off)
-    # actuator units per mm in the most favourable direction, doubled to be generous (a
-    # direction may share the motion between actuators)
-    gain = float(np.min(np.abs(np.asarray(limits.M, float)).max(axis=0))) / 2
-    v, a = float(np.max(limits.vmax)) / gain, float(np.max(limits.amax)) / gain
-    if limits.pen_speed is not None:
-        v = min(v, float(limits.pen_speed))
+    v, a = limits.easiest
     length = spline.length
     return length / v + 2 * np.sqrt(length / a)
 
