@@ -39,6 +39,7 @@ CHECK_REFINE = 20  # the verification grid is this many times finer
 # bound: drawing 83 s -> 70 s). Re-solving with b_hat = the last b alone gains nothing:
 # the last solution is then the greatest feasible one.
 JERK_GROW = (1.0, 2.0)
+_JERK_GROW = np.array(JERK_GROW)
 
 
 @dataclass(frozen=True)
@@ -349,6 +350,58 @@ def plan_stroke(spline: Spline, limits: Limits, solver: str = "reach", spacing: 
         u = make_grid(spline, spacing, n_points=n_points, span_polys=sp)
     base = solver if solver.startswith(("reach", "lp")) else "reach"
     nonlinear = limits.M is None and mode != "collocation"
+    done = None
+    if base == "reach" and mode == "bernstein" and limits.M is not None and spline.degree >= 3 and max_rounds >= 1:
+        done = _compiled_rounds(spline, u, limits, sp, b0, bN, max_rounds, adaptive)  # no knot caps at degree 3
+    if done is not None:
+        u, b, rows = done
+    else:
+        u, b, rows = _rounds(spline, u, limits, sp, b0, bN, max_rounds, adaptive, mode, base, jerk_max, period)
+    if jerk_max:
+        base_rows = rows
+        coefficients = constraints.jerk_coefficients(spline, u)
+        jm = constraints.jerk_bound(coefficients, jerk_max)
+        if base == "reach":
+            rows, b = _jerk_solves(base_rows, coefficients, u, jm, b, b0, bN)
+        else:
+            rows, b = _jerk_python(base_rows, coefficients, u, jm, b, b0, bN, base)
+    if solver.startswith("qp"):
+        backend = solver.partition(":")[2] or "clarabel"
+        b = convex.solve_smooth(rows, u, smoothing if smoothing > 0 else 1.0, b, b0, bN, backend)
+    b = _certify(spline, u, b, limits, b0, bN, rows if not nonlinear else None)
+    a = np.diff(b) / (2 * np.diff(u))
+    t = profile_times(u, b)
+    if not np.all(np.isfinite(t)):
+        raise PlanError("the planned profile stops mid-stroke (a limit forces zero speed); check the machine's limits")
+    return Profile(u=u, b=b, a=a, t=t, solver=solver)
+
+
+def _compiled_rounds(spline: Spline, u, limits: Limits, sp: constraints.Spans, b0, bN, max_rounds: int, adaptive: bool):
+    """_rounds in one compiled call (kernels.plan_rounds) where the rows have no knot caps, the
+    same (u, b, rows); None where b is not finite (_rounds handles a standing-still span)."""
+    from doodlecam.plan.kernels import plan_rounds
+
+    p, pen = spline.degree, limits.pen_speed
+    M = np.ascontiguousarray(limits.M, float)
+    R = M.shape[0] * 4 * p + (2 * p if pen is not None else 0)  # as constraints.bernstein_rows
+    c = spline.derivative_controls
+    status, u, b, tot, beta, gamma = plan_rounds(
+        sp.T, sp.bp, sp.mid, np.asarray(u, float), M, np.asarray(limits.vmax, float), np.asarray(limits.amax, float),
+        float(pen) ** 2 if pen is not None else 0.0, R, constraints._b_matrix(p - 1), constraints._b_matrix(2 * p - 1),
+        c[1], c[2], p, len(spline.control) - p, _taus(8), float(pen or 0.0), float(b0), float(bN), max_rounds,
+        bool(adaptive))
+    if status == -2:
+        return None
+    if status != 0:
+        raise PlanError(reach.message(status))
+    return u, b, constraints.Rows(tot, beta, gamma, np.full(len(u), np.inf))
+
+
+def _rounds(spline, u, limits, sp, b0, bN, max_rounds, adaptive, mode, base, jerk_max, period):
+    """Solve on the grid u and, while it pays (``adaptive``), refine it where a row binds but
+    its bound is loose (linear kinematics) or the check finds a limit passed (nonlinear):
+    (u, b, rows) of the last solve."""
+    nonlinear = limits.M is None and mode != "collocation"
     best_t = np.inf
     for round_ in range(max_rounds):
         rows = _capped(build_rows(spline, u, limits, mode, sp), knot_caps(spline, u, jerk_max, period))
@@ -371,28 +424,34 @@ def plan_stroke(spline: Spline, limits: Limits, solver: str = "reach", spacing: 
         if not split.any() or len(u) + split.sum() > 200_000 or round_ == max_rounds - 1:
             break  # (u and b stay in step: split only when another solve follows)
         u = _split(u, split)
-    if jerk_max:
-        base_rows = rows
-        coefficients = constraints.jerk_coefficients(spline, u)
-        jm = constraints.jerk_bound(coefficients, jerk_max)
-        b_free = b
-        for grow in JERK_GROW:
-            # b <= b_hat keeps sqrt(b) below the sqrt(b_hat) the rows were made with
-            b_hat = np.minimum(b_free, grow * b) * (1 + 1e-12)
-            rows = constraints.with_jerk(base_rows, coefficients, u, b_hat, jm)
-            first = base_rows.tot.shape[1]  # the jerk rows
-            if grow == JERK_GROW[0] and constraints.worst_ratios(rows, b_free, first).max(initial=0.0) <= 1.0:
-                break  # the plan already keeps the bound (a straight stroke, say): it is the answer
-            b = _solve(rows, u, base, b0, bN)
-    if solver.startswith("qp"):
-        backend = solver.partition(":")[2] or "clarabel"
-        b = convex.solve_smooth(rows, u, smoothing if smoothing > 0 else 1.0, b, b0, bN, backend)
-    b = _certify(spline, u, b, limits, b0, bN, rows if not nonlinear else None)
-    a = np.diff(b) / (2 * np.diff(u))
-    t = profile_times(u, b)
-    if not np.all(np.isfinite(t)):
-        raise PlanError("the planned profile stops mid-stroke (a limit forces zero speed); check the machine's limits")
-    return Profile(u=u, b=b, a=a, t=t, solver=solver)
+    return u, b, rows
+
+
+def _jerk_python(base_rows, coefficients, u, jm, b, b0, bN, base):
+    """The solves with the jerk rows (``JERK_GROW``): (rows, b) of the last."""
+    b_free = b
+    for grow in JERK_GROW:
+        # b <= b_hat keeps sqrt(b) below the sqrt(b_hat) the rows were made with
+        b_hat = np.minimum(b_free, grow * b) * (1 + 1e-12)
+        rows = constraints.with_jerk(base_rows, coefficients, u, b_hat, jm)
+        first = base_rows.tot.shape[1]  # the jerk rows
+        if grow == JERK_GROW[0] and constraints.worst_ratios(rows, b_free, first).max(initial=0.0) <= 1.0:
+            break  # the plan already keeps the bound (a straight stroke, say): it is the answer
+        b = _solve(rows, u, base, b0, bN)
+    return rows, b
+
+
+def _jerk_solves(base_rows, coefficients, u, jm, b, b0, bN):
+    """_jerk_python for the reach solver in one compiled call (kernels.jerk_solves), the same (rows, b)."""
+    from doodlecam.plan.kernels import jerk_solves
+
+    taus, _, c1, c2 = coefficients
+    status, b, tot, beta, gamma, ub = jerk_solves(
+        base_rows.tot, base_rows.beta, base_rows.gamma, np.asarray(base_rows.ub, float), c1, c2, taus,
+        np.asarray(u, float), jm, np.asarray(b, float), _JERK_GROW, float(b0), float(bN))
+    if status != 0:
+        raise PlanError(reach.message(status))
+    return constraints.Rows(tot, beta, gamma, ub), b
 
 
 def is_straight(spline: Spline, limits: Limits) -> bool:
