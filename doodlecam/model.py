@@ -236,6 +236,14 @@ class Stroke:
     def duration(self) -> float:
         return self.profile.duration if self.profile is not None else 0.0
 
+    def with_profile(self, profile: Profile | None) -> "Stroke":
+        """This stroke planned with ``profile``: dataclasses.replace(self, profile=profile), without
+        its walk over the fields (the planner makes one per stroke, 10^4-10^5 per job)."""
+        new = object.__new__(type(self))
+        new.__dict__.update(self.__dict__)
+        new.__dict__["profile"] = profile
+        return new
+
 
 @dataclass(frozen=True)
 class Travel:
@@ -409,10 +417,10 @@ def _prime_group(g: _KnotTable, n: int, degree: int, group: list, lengths: bool)
             d["derivative_controls"] = [s.control, *(c[i] for c in levels[1:])]
             d["straight"] = bool(flat[i])
     if lengths and degree >= 1:
-        ev, u = _eval(), g.gauss_u
-        speed = np.empty((len(group), len(u), 2))
-        for i, s in enumerate(group):
-            ev(s.derivative_controls[1], degree - 1, n - degree, u, speed[i])
+        from doodlecam.plan.kernels import bspline_eval_rows
+
+        speed = np.empty((len(group), len(g.gauss_u), 2))
+        bspline_eval_rows(levels[1], degree - 1, n - degree, g.gauss_u, speed)
         speed = np.linalg.norm(speed.reshape(-1, 2), axis=1).reshape(len(group), *g.gauss_shape)
         total = (g.gauss_half * speed * _GAUSS8[1]).reshape(len(group), -1).sum(axis=1)
         for s, length in zip(group, total.tolist()):

@@ -49,8 +49,6 @@ def plan_lines(ctx, strokes: list, pens: list) -> list:
     """For every stroke (all ``eligible``), what plan_one finds for it: (the planned stroke, its
     (acceleration, velocity) ratios, samples, per-period deviation), or None where the general pass is
     needed."""
-    from dataclasses import replace
-
     n = len(strokes)
     if n == 0:
         return []
@@ -112,7 +110,7 @@ def plan_lines(ctx, strokes: list, pens: list) -> list:
         prof = Profile(u=u[i, :q], b=b[i, :q], a=acc[i, :q - 1], t=t[i, :q], solver="reach")
         smp = StrokeSamples(start=start[i], velocity=vel[o:o + m], delta_time=dt, time_scale=ts,
                             sample_u=su[o + i:o + i + m + 1])
-        out[i] = (replace(strokes[i], profile=prof), (ra, rv), smp, dev[o:o + m].copy())
+        out[i] = (strokes[i].with_profile(prof), (ra, rv), smp, dev[o:o + m].copy())
     return out
 
 

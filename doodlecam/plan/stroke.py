@@ -86,7 +86,7 @@ def plan_one(ctx: Context, n: int, total: int, stroke: Stroke, pen) -> Outcome:
                                grid=grid, jerk_period=ctx.delta_time)
         except PlanError as e:
             raise PlanError(f"stroke {n} of {total}: {e}") from None
-        return replace(stroke, profile=prof), check_profile(stroke.spline, prof, limits)
+        return stroke.with_profile(prof), check_profile(stroke.spline, prof, limits)
 
     def sample(s):
         return sample_stroke(s, ctx.delta_time, limits, ctx.steps, follow=ctx.jerk is not None,
