@@ -417,10 +417,10 @@ def _prime_group(g: _KnotTable, n: int, degree: int, group: list, lengths: bool)
             d["derivative_controls"] = [s.control, *(c[i] for c in levels[1:])]
             d["straight"] = bool(flat[i])
     if lengths and degree >= 1:
-        from doodlecam.plan.kernels import bspline_eval_rows
-
-        speed = np.empty((len(group), len(g.gauss_u), 2))
-        bspline_eval_rows(levels[1], degree - 1, n - degree, g.gauss_u, speed)
+        ev, u = _eval(), g.gauss_u
+        speed = np.empty((len(group), len(u), 2))
+        for i in range(len(group)):
+            ev(levels[1][i], degree - 1, n - degree, u, speed[i])
         speed = np.linalg.norm(speed.reshape(-1, 2), axis=1).reshape(len(group), *g.gauss_shape)
         total = (g.gauss_half * speed * _GAUSS8[1]).reshape(len(group), -1).sum(axis=1)
         for s, length in zip(group, total.tolist()):

@@ -9,7 +9,7 @@ planned (numba's import costs ~0.3 s).
 import numba
 import numpy as np
 
-from doodlecam.geometry.kernels import _point, bspline_eval, span_at
+from doodlecam.geometry.kernels import _point, span_at
 
 _EPS = 1e-12
 
@@ -940,9 +940,3 @@ def executed_deviation(c0, c1, c2, k, nseg, start, velocity, half_dt, tau, c, su
             x[i, d] = start[d] + (run if i > 0 else 0.0)
     period_deviation(c0, c1, c2, k, nseg, x, v, tau, c, su, candidates, iterations, out)
 
-
-@numba.njit(cache=True, nogil=True)
-def bspline_eval_rows(C, k, nseg, x, out):  # pragma: no cover - compiled
-    """bspline_eval of each spline C[i] (all of one shape) at x into out[i] (model.prime_splines)."""
-    for i in range(C.shape[0]):
-        bspline_eval(C[i], k, nseg, x, out[i])
