@@ -212,14 +212,16 @@ class Profile:
 
     def state_at(self, t) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """(u, u-dot, u-ddot) at times ``t`` (s), exact for this profile."""
-        t = np.clip(np.asarray(t, dtype=float), 0.0, self.duration)
-        k = np.clip(np.searchsorted(self.t, t, side="right") - 1, 0, len(self.a) - 1)
+        # np.clip's values bit for bit (signed zeros and NaN too), without its Python wrapper
+        t = np.minimum(self.t[-1], np.maximum(0.0, np.asarray(t, dtype=float)))
+        k = np.minimum(len(self.a) - 1, np.maximum(0, np.searchsorted(self.t, t, side="right") - 1))
         tau = t - self.t[k]
         v0 = np.sqrt(np.maximum(self.b[k], 0.0))
         a = self.a[k]
         ud = np.maximum(v0 + a * tau, 0.0)
         u = np.minimum(self.u[k] + v0 * tau + 0.5 * a * tau * tau, self.u[k + 1])
-        return u, ud, np.broadcast_to(a, u.shape).copy()
+        # a: a fresh array already where t is one (fancy indexing copies)
+        return u, ud, a if isinstance(a, np.ndarray) and a.shape == u.shape else np.broadcast_to(a, u.shape).copy()
 
 
 @dataclass(frozen=True)
