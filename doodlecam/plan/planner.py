@@ -113,7 +113,7 @@ def _span_measures(spline: Spline, span_polys: constraints.Spans | None = None):
     sp = span_polys if span_polys is not None else constraints.spans(spline)
     x, w = _GAUSS
     length, turning = np.empty(len(sp.mid)), np.empty(len(sp.mid))
-    span_measures(sp.T, np.diff(sp.bp) / 2, x, w, length, turning)
+    span_measures(sp.T, (sp.bp[1:] - sp.bp[:-1]) / 2, x, w, length, turning)
     return length, turning
 
 
@@ -135,13 +135,15 @@ def make_grid(spline: Spline, spacing: float = 0.5, turn_step: float = 0.05, n_p
             n[order[: min(short, len(n))]] += 1
             n[0] += max(short - len(n), 0)
     else:
-        n = np.clip(np.ceil(weight).astype(int), min_per_span, None)
-        if n.sum() > max_points:
-            n = np.maximum((n * max_points / n.sum()).astype(int), 1)
+        n = np.maximum(np.ceil(weight).astype(int), min_per_span)  # np.clip's values for integers
+        total = int(n.sum())
+        if total > max_points:
+            n = np.maximum((n * max_points / total).astype(int), 1)
     from doodlecam.plan.kernels import grid_fill
 
+    n = n.astype(np.int64, copy=False)
     u = np.empty(int(n.sum()) + 1)
-    grid_fill(bp, n.astype(np.int64), u)
+    grid_fill(bp, n, u)
     return u
 
 
@@ -337,9 +339,10 @@ def plan_stroke(spline: Spline, limits: Limits, solver: str = "reach", spacing: 
         if g.ndim != 1 or len(g) < 2 or not _finite(g) or g[0] != 0.0 or g[-1] != 1.0 or (np.diff(g) <= 0).any():
             raise PlanError("a planning grid must rise strictly from 0 to 1; pass the u of an earlier plan")
     d1 = spline.derivative_controls[1]
-    speed_ends = np.sqrt((d1[[0, -1]] ** 2).sum(axis=1))  # |q'(0)|, |q'(1)|: a clamped spline's end controls
-    b0 = (v_start / max(speed_ends[0], 1e-300)) ** 2
-    bN = (v_end / max(speed_ends[1], 1e-300)) ** 2
+    (x0, y0), (x1, y1) = d1[0].tolist(), d1[-1].tolist()
+    # |q'(0)|, |q'(1)|: a clamped spline's end controls (x^2 + y^2 as numpy sums a pair)
+    b0 = (v_start / max(math.sqrt(x0 * x0 + y0 * y0), 1e-300)) ** 2
+    bN = (v_end / max(math.sqrt(x1 * x1 + y1 * y1), 1e-300)) ** 2
     period = jerk_period if jerk_max else None
     if solver == "reach" and mode == "bernstein" and grid is None and n_points is None and is_straight(spline, limits):
         return _trapezoid(spline, limits, b0, bN)
@@ -369,9 +372,9 @@ def plan_stroke(spline: Spline, limits: Limits, solver: str = "reach", spacing: 
         backend = solver.partition(":")[2] or "clarabel"
         b = convex.solve_smooth(rows, u, smoothing if smoothing > 0 else 1.0, b, b0, bN, backend)
     b = _certify(spline, u, b, limits, b0, bN, rows if not nonlinear else None)
-    a = np.diff(b) / (2 * np.diff(u))
+    a = (b[1:] - b[:-1]) / (2 * (u[1:] - u[:-1]))  # np.diff's subtraction, without its wrapper
     t = profile_times(u, b)
-    if not np.all(np.isfinite(t)):
+    if not np.isfinite(t).all():
         raise PlanError("the planned profile stops mid-stroke (a limit forces zero speed); check the machine's limits")
     return Profile(u=u, b=b, a=a, t=t, solver=solver)
 
