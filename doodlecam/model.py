@@ -7,7 +7,7 @@ Arrays are float64 NumPy arrays and are not mutated after construction.
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from functools import cached_property
+from functools import cached_property, lru_cache
 from typing import Any
 
 import numpy as np
@@ -69,6 +69,43 @@ class Drawing:
         return sum(polyline_length(p) for p in self.polylines)
 
 
+@lru_cache(maxsize=None)
+def _eval():
+    """geometry.kernels.bspline_eval, imported on first use (numba's import is slow)."""
+    from doodlecam.geometry.kernels import bspline_eval
+
+    return bspline_eval
+
+
+@dataclass(frozen=True)
+class _KnotTable:
+    """What every clamped uniform spline with the same number of control points and degree
+    shares (not to be written to; writeable, as the compiled kernels they are passed to
+    were compiled for): knots, breakpoints, the knot steps each derivative's controls are
+    divided by ((m, 1) each), and the Gauss points and half-widths of Spline.length."""
+
+    knots: np.ndarray
+    breakpoints: np.ndarray
+    steps: tuple[np.ndarray, ...]
+    gauss_u: np.ndarray
+    gauss_half: np.ndarray
+    gauss_shape: tuple[int, int]
+
+
+@lru_cache(maxsize=4096)
+def _knot_table(n_control: int, degree: int) -> _KnotTable:
+    t = Spline.uniform_knots(n_control, degree)
+    bp = np.unique(t)
+    steps, tt, k = [], t, degree
+    for _ in range(degree):
+        steps.append((tt[k + 1 : -1] - tt[1 : -k - 1])[:, None])
+        tt, k = tt[1:-1], k - 1
+    x, _ = _GAUSS8
+    lo, hi = bp[:-1, None], bp[1:, None]
+    u = (lo + hi) / 2 + (hi - lo) / 2 * x
+    return _KnotTable(t, bp, tuple(steps), u.ravel(), (hi - lo) / 2, u.shape)
+
+
 @dataclass(frozen=True)
 class Spline:
     """A clamped uniform B-spline q(u), u in [0, 1], in millimetres.
@@ -93,22 +130,22 @@ class Spline:
 
     @cached_property
     def knots(self) -> np.ndarray:
-        return self.uniform_knots(len(self.control), self.degree)
+        return _knot_table(len(self.control), self.degree).knots
 
     @cached_property
     def breakpoints(self) -> np.ndarray:
         """Distinct knots: the curve is one polynomial between neighbours."""
-        return np.unique(self.knots)
+        return _knot_table(len(self.control), self.degree).breakpoints
 
     @cached_property
     def derivative_controls(self) -> list[np.ndarray]:
         """Control points of q, q', ..., q^(degree): each a clamped uniform spline
         over the same knot spans, one degree lower than the last."""
-        t, c, k = self.knots, np.ascontiguousarray(self.control), self.degree
+        c, k = np.ascontiguousarray(self.control), self.degree
         out = [c]
-        for _ in range(self.degree):
-            c = k * np.diff(c, axis=0) / (t[k + 1 : -1] - t[1 : -k - 1])[:, None]
-            t, k = t[1:-1], k - 1
+        for den in _knot_table(len(self.control), self.degree).steps:
+            c = k * (c[1:] - c[:-1]) / den
+            k -= 1
             out.append(c)
         return out
 
@@ -123,25 +160,20 @@ class Spline:
 
     def __call__(self, u, der: int = 0) -> np.ndarray:
         """q^(der)(u) for u in [0, 1]; shape (len(u), 2). Units mm / u^der."""
-        from doodlecam.geometry.kernels import bspline_eval
-
         u = np.asarray(u, dtype=float)
         if der > self.degree:
             return np.zeros(u.shape + (2,))
         out = np.empty((u.size, 2))
         nseg = len(self.control) - self.degree
-        bspline_eval(self.derivative_controls[der], self.degree - der, nseg, u.reshape(-1), out)  # clipped to [0, 1] there
+        _eval()(self.derivative_controls[der], self.degree - der, nseg, u.reshape(-1), out)  # clipped to [0, 1] there
         return out.reshape(u.shape + (2,))
 
     @cached_property
     def length(self) -> float:
         """Arc length in mm (Gauss-Legendre per knot span; exact to ~1e-9 rel)."""
-        x, w = _GAUSS8
-        bp = self.breakpoints
-        lo, hi = bp[:-1, None], bp[1:, None]
-        u = (lo + hi) / 2 + (hi - lo) / 2 * x
-        speed = np.linalg.norm(self(u.ravel(), 1), axis=1).reshape(u.shape)
-        return float(((hi - lo) / 2 * speed * w).sum())
+        g = _knot_table(len(self.control), self.degree)
+        speed = np.linalg.norm(self(g.gauss_u, 1), axis=1).reshape(g.gauss_shape)
+        return float((g.gauss_half * speed * _GAUSS8[1]).sum())
 
     @property
     def start(self) -> np.ndarray:
@@ -180,14 +212,16 @@ class Profile:
 
     def state_at(self, t) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """(u, u-dot, u-ddot) at times ``t`` (s), exact for this profile."""
-        t = np.clip(np.asarray(t, dtype=float), 0.0, self.duration)
-        k = np.clip(np.searchsorted(self.t, t, side="right") - 1, 0, len(self.a) - 1)
+        # np.clip's values bit for bit (signed zeros and NaN too), without its Python wrapper
+        t = np.minimum(self.t[-1], np.maximum(0.0, np.asarray(t, dtype=float)))
+        k = np.minimum(len(self.a) - 1, np.maximum(0, np.searchsorted(self.t, t, side="right") - 1))
         tau = t - self.t[k]
         v0 = np.sqrt(np.maximum(self.b[k], 0.0))
         a = self.a[k]
         ud = np.maximum(v0 + a * tau, 0.0)
         u = np.minimum(self.u[k] + v0 * tau + 0.5 * a * tau * tau, self.u[k + 1])
-        return u, ud, np.broadcast_to(a, u.shape).copy()
+        # a: a fresh array already where t is one (fancy indexing copies)
+        return u, ud, a if isinstance(a, np.ndarray) and a.shape == u.shape else np.broadcast_to(a, u.shape).copy()
 
 
 @dataclass(frozen=True)
@@ -203,6 +237,14 @@ class Stroke:
     @property
     def duration(self) -> float:
         return self.profile.duration if self.profile is not None else 0.0
+
+    def with_profile(self, profile: Profile | None) -> "Stroke":
+        """This stroke planned with ``profile``: dataclasses.replace(self, profile=profile), without
+        its walk over the fields (the planner makes one per stroke, 10^4-10^5 per job)."""
+        new = object.__new__(type(self))
+        new.__dict__.update(self.__dict__)
+        new.__dict__["profile"] = profile
+        return new
 
 
 @dataclass(frozen=True)
@@ -342,3 +384,46 @@ class Job:
         pens = [number(k) if number else m.pen for k in self.pen_numbers] if self.strokes else []
         pen = sum(p.down_delay + p.up_delay for p, lift in zip(pens, self.lifts) if lift)
         return self.draw_time + sum(t.duration for t in self.travels) + pen
+
+
+def prime_splines(splines, lengths: bool = False) -> None:
+    """Fill the cached derivative controls and ``straight`` (and with ``lengths`` the
+    length) of many splines at once, the same values each would compute: splines of
+    one shape (number of control points, degree) in one numpy pass, not ~10 small
+    calls each (a generated drawing's 10^4 strokes come in a few dozen shapes)."""
+    groups: dict[tuple[int, int], list[Spline]] = {}
+    for s in splines:
+        if "derivative_controls" not in s.__dict__ or (lengths and "length" not in s.__dict__):
+            groups.setdefault((len(s.control), s.degree), []).append(s)
+    with np.errstate(invalid="ignore", over="ignore"):  # non-finite strokes: planning says what is wrong
+        for (n, degree), group in groups.items():
+            _prime_group(_knot_table(n, degree), n, degree, group, lengths)
+
+
+def _prime_group(g: _KnotTable, n: int, degree: int, group: list, lengths: bool) -> None:
+    """prime_splines for splines of one shape: each level of derivative controls of the whole
+    group in one step (the same divisions as Spline.derivative_controls)."""
+    levels = [np.stack([s.control for s in group])]
+    k = degree
+    for den in g.steps:
+        levels.append(k * (levels[-1][:, 1:] - levels[-1][:, :-1]) / den)
+        k -= 1
+    if degree >= 2:
+        scale = np.abs(levels[1][:, 0]).max(axis=1)
+        flat = (scale > 1e-9) & (np.abs(levels[2]).reshape(len(group), -1).max(axis=1) <= 1e-9 * scale)
+    else:
+        flat = np.full(len(group), n == 2)
+    for i, s in enumerate(group):
+        d = s.__dict__
+        if "derivative_controls" not in d:
+            d["derivative_controls"] = [s.control, *(c[i] for c in levels[1:])]
+            d["straight"] = bool(flat[i])
+    if lengths and degree >= 1:
+        ev, u = _eval(), g.gauss_u
+        speed = np.empty((len(group), len(u), 2))
+        for i in range(len(group)):
+            ev(levels[1][i], degree - 1, n - degree, u, speed[i])
+        speed = np.linalg.norm(speed.reshape(-1, 2), axis=1).reshape(len(group), *g.gauss_shape)
+        total = (g.gauss_half * speed * _GAUSS8[1]).reshape(len(group), -1).sum(axis=1)
+        for s, length in zip(group, total.tolist()):
+            s.__dict__.setdefault("length", length)

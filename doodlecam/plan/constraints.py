@@ -182,6 +182,13 @@ def sampled_rows(spline: Spline, u: np.ndarray, kinematics, vmax, amax, pen_spee
     return Rows(tot, beta, gamma, np.full(len(u), np.inf))
 
 
+@lru_cache(maxsize=16)
+def _taus_and_ends(taus: tuple) -> tuple[np.ndarray, np.ndarray]:
+    """The taus as an array and where they are >= 1 (jerk_coefficients; shared, not written to)."""
+    t = np.asarray(taus, float)
+    return t, t >= 1
+
+
 def jerk_coefficients(spline: Spline, u: np.ndarray, taus=(0.0, 0.5, 1.0)):
     """(taus (T,), u there (T, K), c1 (T, K), c2 (T, K)) on the K intervals of the grid u,
     the pen's jerk across the path being sqrt(b) (c1 a + c2 b) there (see with_jerk):
@@ -189,10 +196,11 @@ def jerk_coefficients(spline: Spline, u: np.ndarray, taus=(0.0, 0.5, 1.0)):
     kappa = q' x q'' / |q'|^3 and dkappa/ds = (q' x q''' |q'|^2 - 3 q' x q'' q'.q'') / |q'|^6."""
     from doodlecam.plan.kernels import jerk_finish, jerk_terms
 
-    h = np.diff(u)
-    taus = np.asarray(taus, float)
+    h = u[1:] - u[:-1]
+    taus, ends = _taus_and_ends(tuple(taus))
     uu = (u[:-1, None] + taus[None, :] * h[:, None]).T  # (len(taus), K): all at once
-    uu[taus >= 1] = np.nextafter(u[1:], -np.inf)  # the interval's own side of a knot (degree 2)
+    if ends.any():
+        uu[ends] = np.nextafter(u[1:], -np.inf)  # the interval's own side of a knot (degree 2)
     sp, c12, c13, dot12 = (np.empty(uu.shape) for _ in range(4))
     d = spline.derivative_controls
     k = spline.degree

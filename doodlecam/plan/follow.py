@@ -22,6 +22,7 @@ is lowered there (``JerkBound.tightened``) and it is planned again
 from __future__ import annotations
 
 from dataclasses import dataclass
+from functools import lru_cache
 
 import numpy as np
 
@@ -81,6 +82,13 @@ def distance_to_stretch(spline: Spline, x: np.ndarray, lo: np.ndarray, hi: np.nd
     return out
 
 
+@lru_cache(maxsize=64)
+def _period_times(dt: float, sub: int) -> tuple[np.ndarray, np.ndarray]:
+    """sub + 1 times across a period dT and tau^2 / 2 dT there (path_deviation; shared, not written to)."""
+    tau = np.linspace(0.0, dt, sub + 1)
+    return tau, tau ** 2 / (2 * dt)
+
+
 def path_deviation(spline: Spline, samples: StrokeSamples, sub: int = SUB) -> np.ndarray:
     """Per period, the largest distance (mm) of the executed parabola from the spline.
 
@@ -95,14 +103,12 @@ def path_deviation(spline: Spline, samples: StrokeSamples, sub: int = SUB) -> np
     if not spline.straight:  # the points, their distances and the peaks in one compiled pass
         from doodlecam.plan import kernels
 
-        x = samples.integrate()
-        v = np.vstack([np.zeros((1, 2)), samples.velocity])
-        tau = np.linspace(0.0, samples.delta_time, sub + 1)
+        tau, c2dt = _period_times(float(samples.delta_time), sub)
         c = spline.derivative_controls
-        out = np.empty(len(x) - 1)
-        kernels.period_deviation(c[0], c[1], c[min(2, spline.degree)], spline.degree,
-                                 len(spline.control) - spline.degree, x, v, tau, tau ** 2 / (2 * samples.delta_time),
-                                 np.asarray(su, float), CANDIDATES, 4, out)
+        out = np.empty(len(samples.velocity))
+        kernels.executed_deviation(c[0], c[1], c[min(2, spline.degree)], spline.degree,
+                                   len(spline.control) - spline.degree, samples.start, samples.velocity,
+                                   0.5 * samples.delta_time, tau, c2dt, np.asarray(su, float), CANDIDATES, 4, out)
         return out
     pts = executed_points(samples, sub)
     m = len(pts)

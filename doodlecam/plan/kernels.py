@@ -918,3 +918,108 @@ def sample_qp(tang, p, v_plan, shifted, nrm, w, lam, tol, L, end, M, amax, vmax,
                 b[o] = trust[j]
                 o += 1
     return H, g, C, b, T
+
+
+@numba.njit(cache=True, nogil=True)
+def plan_rounds(T, bp, mid, u, M, vmax, amax, pen2, R, B1, B2, c1, c2, k, nseg, tau, pen, b0, bN, max_rounds,
+                adaptive):  # pragma: no cover - compiled
+    """planner.plan_stroke's rounds for linear kinematics, the reach solver and Bernstein rows
+    with no knot caps (degree >= 3): rows on the grid u (bernstein_rows), solve (reach_passes),
+    and while refining pays, split the intervals where a row binds but the bound is loose.
+    The same kernels and numpy's operations in the same order, so the same plan. Returns
+    (status, u, b, tot, beta, gamma): status 0, reach_passes' status (!= 0) where it fails, or
+    -2 where b is not finite (a standing-still span: planner's Python path handles it).
+    R: rows per interval (constraints.bernstein_rows)."""
+    best_t = np.inf
+    K = u.shape[0] - 1
+    tot = np.empty((K, R))
+    beta = np.empty((K, R))
+    gamma = np.empty((K, R))
+    b = np.empty(K + 1)
+    for round_ in range(max_rounds):
+        K = u.shape[0] - 1
+        tot = np.empty((K, R))
+        beta = np.empty((K, R))
+        gamma = np.empty((K, R))
+        bernstein_rows(T, bp, mid, u, M, vmax, amax, pen2, B1, B2, tot, beta, gamma)
+        ub = np.full(K + 1, np.inf)
+        b = np.empty(K + 1)
+        status = reach_passes(tot, beta, gamma, ub, b0, bN, b, np.empty(K + 1), np.empty(K + 1))
+        if status != 0:
+            return status, u, b, tot, beta, gamma
+        if not np.isfinite(b).all():
+            return -2, u, b, tot, beta, gamma
+        if not adaptive:
+            break
+        wa, wv, wp = spline_interval_worst(c1, c2, k, nseg, u, tau, b, M, amax, vmax, pen)
+        worst = np.maximum(np.maximum(wa, wv), wp)
+        used = np.empty(K)
+        row_ratios(tot, beta, gamma, b, 0, used)
+        t = np.empty(K + 1)
+        times(u, b, t)
+        if not np.isfinite(t[K]) or t[K] > best_t * (1 - 1e-4):
+            break  # refinement no longer pays
+        best_t = t[K]
+        split = (used > 1 - 1e-6) & (worst < 1 - 2e-3)  # binding, but the bound is loose
+        if not split.any() or u.shape[0] + split.sum() > 200_000 or round_ == max_rounds - 1:
+            break
+        u = np.sort(np.concatenate((u, ((u[:-1] + u[1:])[split]) / 2)))
+    return 0, u, b, tot, beta, gamma
+
+
+@numba.njit(cache=True, nogil=True)
+def jerk_solves(tot0, beta0, gamma0, ub0, c1, c2, taus, u, jm, b, grows, b0, bN):  # pragma: no cover - compiled
+    """planner.plan_stroke's solves with the jerk rows (reach solver): for each grow, b_hat =
+    min(b_free, grow b) (1 + 1e-12), the rows tot0.. and the jerk rows (with_jerk_rows), the
+    node bounds min(ub0, b_hat), and solve; the first grow ends it where b_free keeps the jerk
+    rows already. Returns (status, b, tot, beta, gamma, ub): the last rows made."""
+    K, R0 = tot0.shape
+    R = R0 + 2 * taus.shape[0]
+    tot = np.empty((K, R))
+    beta = np.empty((K, R))
+    gamma = np.empty((K, R))
+    ub = ub0.copy()
+    b_free = b
+    for g in range(grows.shape[0]):
+        b_hat = np.minimum(b_free, grows[g] * b) * (1 + 1e-12)
+        with_jerk_rows(tot0, beta0, gamma0, c1, c2, taus, u, b_hat, jm, tot, beta, gamma)
+        ub = np.minimum(ub0, b_hat)
+        if g == 0:
+            used = np.empty(K)
+            row_ratios(tot, beta, gamma, b_free, R0, used)
+            top = 0.0  # numpy's max(initial=0.0): NaN wins
+            for x in used:
+                if x != x:
+                    top = x
+                    break
+                if x > top:
+                    top = x
+            if top <= 1.0:
+                break  # the plan already keeps the bound
+        bn = np.empty(K + 1)
+        status = reach_passes(tot, beta, gamma, ub, b0, bN, bn, np.empty(K + 1), np.empty(K + 1))
+        if status != 0:
+            return status, b, tot, beta, gamma, ub
+        b = bn
+    return 0, b, tot, beta, gamma, ub
+
+
+@numba.njit(cache=True, nogil=True)
+def executed_deviation(c0, c1, c2, k, nseg, start, velocity, half_dt, tau, c, su, candidates, iterations,
+                       out):  # pragma: no cover - compiled
+    """period_deviation of the samples (start, velocity) as executed: the instants' positions
+    StrokeSamples.integrate makes (start + the running sum of half_dt (v_j + v_j+1), v_0 = 0)
+    and the targets after a zero, made here instead of by five numpy calls per stroke."""
+    m = velocity.shape[0]
+    v = np.zeros((m + 1, 2))
+    v[1:] = velocity
+    x = np.empty((m + 1, 2))
+    for d in range(2):
+        run = 0.0
+        for i in range(m + 1):
+            if i > 0:
+                step = half_dt * (v[i, d] + v[i - 1, d])
+                run = step if i == 1 else run + step  # numpy's cumsum starts from the first step
+            x[i, d] = start[d] + (run if i > 0 else 0.0)
+    period_deviation(c0, c1, c2, k, nseg, x, v, tau, c, su, candidates, iterations, out)
+

@@ -19,6 +19,7 @@ import numba
 import numpy as np
 
 from doodlecam.model import Profile, StrokeSamples
+from doodlecam.plan.kernels import times
 from doodlecam.plan.sample import TRACKING_STEPS, straight_bound
 
 SUB = 16  # follow.SUB: points per period of the executed-path check
@@ -31,14 +32,23 @@ def eligible(ctx, stroke) -> bool:
             and sp.straight)
 
 
+def eligible_all(ctx, strokes) -> list[int]:
+    """The indices of the ``eligible`` strokes, their splines' straightness found all at once
+    (model.prime_splines)."""
+    from doodlecam.model import prime_splines
+
+    if ctx.solver != "reach" or ctx.nonlinear:
+        return []
+    splines = [s.spline for s in strokes]
+    prime_splines(splines)
+    return [i for i, sp in enumerate(splines)
+            if sp.degree >= 2 and sp.straight and bool(np.isfinite(sp.control).all())]
+
+
 def plan_lines(ctx, strokes: list, pens: list) -> list:
     """For every stroke (all ``eligible``), what plan_one finds for it: (the planned stroke, its
     (acceleration, velocity) ratios, samples, per-period deviation), or None where the general pass is
     needed."""
-    from dataclasses import replace
-
-    from doodlecam.plan.kernels import times
-
     n = len(strokes)
     if n == 0:
         return []
@@ -89,19 +99,28 @@ def plan_lines(ctx, strokes: list, pens: list) -> list:
             worst[has] = np.maximum.reduceat(dev, offs[:-1][has])
         ok &= worst <= ctx.path_tolerance
     out: list = [None] * n
-    for i in np.flatnonzero(ok):
-        m, o = int(periods[i]), int(offs[i])
-        q = nodes[i]
-        ui, bi = u[i, :q].copy(), b[i, :q].copy()
-        t = np.empty(q)
-        times(ui, bi, t)
-        prof = Profile(u=ui, b=bi, a=np.diff(bi) / (2 * np.diff(ui)), t=t, solver="reach")
-        start = np.round(a0[i] * k) / k
-        smp = StrokeSamples(start=start, velocity=vel[o:o + m], delta_time=dt, time_scale=float(scale[i]),
+    # every profile's a and t, and every start in whole steps, at once (each row as for one stroke)
+    with np.errstate(invalid="ignore", divide="ignore"):  # (the padding of 3-node rows and the rows not kept)
+        acc = (b[:, 1:] - b[:, :-1]) / (2 * (u[:, 1:] - u[:, :-1]))
+    t = np.zeros((n, 4))
+    _times(u, b, nodes, ok, t)
+    start = np.round(a0 * k) / k
+    for i, q, m, o, ts, (ra, rv) in zip(np.flatnonzero(ok).tolist(), nodes[ok].tolist(), periods[ok].tolist(),
+                                         offs[:-1][ok].tolist(), scale[ok].tolist(), ratios[ok].tolist()):
+        prof = Profile(u=u[i, :q], b=b[i, :q], a=acc[i, :q - 1], t=t[i, :q], solver="reach")
+        smp = StrokeSamples(start=start[i], velocity=vel[o:o + m], delta_time=dt, time_scale=ts,
                             sample_u=su[o + i:o + i + m + 1])
-        out[i] = (replace(strokes[i], profile=prof), (float(ratios[i, 0]), float(ratios[i, 1])), smp,
-                  dev[o:o + m].copy())
+        out[i] = (strokes[i].with_profile(prof), (ra, rv), smp, dev[o:o + m].copy())
     return out
+
+
+@numba.njit(cache=True, nogil=True)
+def _times(u, b, nodes, ok, t):  # pragma: no cover - compiled
+    """kernels.times of every kept row's nodes."""
+    for i in range(u.shape[0]):
+        if ok[i]:
+            q = nodes[i]
+            times(u[i, :q], b[i, :q], t[i, :q])
 
 
 @numba.njit(cache=True, nogil=True)

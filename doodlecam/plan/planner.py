@@ -39,6 +39,7 @@ CHECK_REFINE = 20  # the verification grid is this many times finer
 # bound: drawing 83 s -> 70 s). Re-solving with b_hat = the last b alone gains nothing:
 # the last solution is then the greatest feasible one.
 JERK_GROW = (1.0, 2.0)
+_JERK_GROW = np.array(JERK_GROW)
 
 
 @dataclass(frozen=True)
@@ -56,6 +57,36 @@ class Limits:
         vmax, amax = kinematics.actuator_limits()
         M = None if kinematics.linear_map is None else np.asarray(kinematics.linear_map, dtype=float)
         return cls(np.asarray(vmax, float), np.asarray(amax, float), M, machine.pen.max_speed, kinematics)
+
+    @functools.cached_property  # checked once per Limits, not once per stroke planned with them
+    def problem(self) -> str:
+        """Why these limits cannot be planned with (one line), or "" when they can."""
+        for name, x in (("velocity", self.vmax), ("acceleration", self.amax)):
+            x = np.atleast_1d(np.asarray(x, float))
+            if x.size == 0 or not _finite(x) or (x <= 0).any():
+                return f"every actuator {name} limit must be a positive finite number, got {x.tolist()}; fix the machine profile"
+        if self.M is not None:
+            M = np.asarray(self.M, float)
+            if M.ndim != 2 or M.shape != (len(np.atleast_1d(self.vmax)), 2) or not _finite(M) or not M.any(axis=1).all():
+                return "the kinematics' linear map must be a finite (actuators x 2) matrix with a non-zero row per actuator; fix the kinematics"
+            if len(np.atleast_1d(self.amax)) != M.shape[0]:
+                return "the kinematics give different numbers of velocity and acceleration limits; fix the kinematics"
+        elif self.kinematics is None:
+            return "nonlinear limits need the kinematics (Limits.kinematics); build them with Limits.from_machine"
+        if self.pen_speed is not None and not (math.isfinite(self.pen_speed) and self.pen_speed > 0):
+            return f"the pen-speed cap must be a positive finite number, got {self.pen_speed!r}; fix [pen] max_speed"
+        return ""
+
+    @functools.cached_property
+    def easiest(self) -> tuple[float, float]:
+        """(speed mm/s, acceleration mm/s^2) in the most favourable direction (linear kinematics),
+        generously: actuator units per mm there halved (a direction may share the motion
+        between actuators); the pen-speed cap kept (stroke._least_time)."""
+        gain = float(np.min(np.abs(np.asarray(self.M, float)).max(axis=0))) / 2
+        v, a = float(np.max(self.vmax)) / gain, float(np.max(self.amax)) / gain
+        if self.pen_speed is not None:
+            v = min(v, float(self.pen_speed))
+        return v, a
 
     def derivatives(self, spline: Spline, u: np.ndarray):
         """theta'(u), theta''(u), each (len(u), n_act), and |q'(u)|."""
@@ -82,7 +113,7 @@ def _span_measures(spline: Spline, span_polys: constraints.Spans | None = None):
     sp = span_polys if span_polys is not None else constraints.spans(spline)
     x, w = _GAUSS
     length, turning = np.empty(len(sp.mid)), np.empty(len(sp.mid))
-    span_measures(sp.T, np.diff(sp.bp) / 2, x, w, length, turning)
+    span_measures(sp.T, (sp.bp[1:] - sp.bp[:-1]) / 2, x, w, length, turning)
     return length, turning
 
 
@@ -104,13 +135,15 @@ def make_grid(spline: Spline, spacing: float = 0.5, turn_step: float = 0.05, n_p
             n[order[: min(short, len(n))]] += 1
             n[0] += max(short - len(n), 0)
     else:
-        n = np.clip(np.ceil(weight).astype(int), min_per_span, None)
-        if n.sum() > max_points:
-            n = np.maximum((n * max_points / n.sum()).astype(int), 1)
+        n = np.maximum(np.ceil(weight).astype(int), min_per_span)  # np.clip's values for integers
+        total = int(n.sum())
+        if total > max_points:
+            n = np.maximum((n * max_points / total).astype(int), 1)
     from doodlecam.plan.kernels import grid_fill
 
+    n = n.astype(np.int64, copy=False)
     u = np.empty(int(n.sum()) + 1)
-    grid_fill(bp, n.astype(np.int64), u)
+    grid_fill(bp, n, u)
     return u
 
 
@@ -197,28 +230,16 @@ def check_inputs(spline: Spline, limits: Limits, v_start: float = 0.0, v_end: fl
     if spline.degree < 1:
         raise PlanError(f"a degree-{spline.degree} spline has no velocity; fit the stroke with degree 1 or more")
     c = np.asarray(spline.control, float)
-    lo, hi = c.min(axis=0), c.max(axis=0)  # (NaN propagates into both)
-    if not (np.isfinite(lo).all() and np.isfinite(hi).all()):
+    lo, hi = c.min(axis=0).tolist(), c.max(axis=0).tolist()  # (NaN propagates into both)
+    if not all(map(math.isfinite, lo + hi)):
         raise PlanError("the stroke has non-finite control points (NaN or infinity); fix the drawing")
-    tiny = 1e-9 * max(1.0, float(np.abs(lo).max()), float(np.abs(hi).max()))
-    if float((hi - lo).max()) <= tiny:
+    tiny = 1e-9 * max(1.0, *map(abs, lo + hi))
+    if max(h - l for l, h in zip(lo, hi)) <= tiny:
         raise PlanError("the stroke has zero length (all control points equal); drop it or draw a dot")
     if spline.degree == 1 and (np.linalg.norm(np.diff(c, axis=0), axis=1) <= tiny).any():
         raise PlanError("the degree-1 stroke repeats a control point (a span without length); remove repeated points")
-    for name, x in (("velocity", limits.vmax), ("acceleration", limits.amax)):
-        x = np.atleast_1d(np.asarray(x, float))
-        if x.size == 0 or not _finite(x) or (x <= 0).any():
-            raise PlanError(f"every actuator {name} limit must be a positive finite number, got {x.tolist()}; fix the machine profile")
-    if limits.M is not None:
-        M = np.asarray(limits.M, float)
-        if M.ndim != 2 or M.shape != (len(np.atleast_1d(limits.vmax)), 2) or not _finite(M) or not M.any(axis=1).all():
-            raise PlanError("the kinematics' linear map must be a finite (actuators x 2) matrix with a non-zero row per actuator; fix the kinematics")
-        if len(np.atleast_1d(limits.amax)) != M.shape[0]:
-            raise PlanError("the kinematics give different numbers of velocity and acceleration limits; fix the kinematics")
-    elif limits.kinematics is None:
-        raise PlanError("nonlinear limits need the kinematics (Limits.kinematics); build them with Limits.from_machine")
-    if limits.pen_speed is not None and not (math.isfinite(limits.pen_speed) and limits.pen_speed > 0):
-        raise PlanError(f"the pen-speed cap must be a positive finite number, got {limits.pen_speed!r}; fix [pen] max_speed")
+    if limits.problem:
+        raise PlanError(limits.problem)
     for name, v in (("start", v_start), ("end", v_end)):
         if not (math.isfinite(v) and v >= 0):
             raise PlanError(f"the {name} speed must be a non-negative finite number of mm/s, got {v!r}")
@@ -318,9 +339,10 @@ def plan_stroke(spline: Spline, limits: Limits, solver: str = "reach", spacing: 
         if g.ndim != 1 or len(g) < 2 or not _finite(g) or g[0] != 0.0 or g[-1] != 1.0 or (np.diff(g) <= 0).any():
             raise PlanError("a planning grid must rise strictly from 0 to 1; pass the u of an earlier plan")
     d1 = spline.derivative_controls[1]
-    speed_ends = np.sqrt((d1[[0, -1]] ** 2).sum(axis=1))  # |q'(0)|, |q'(1)|: a clamped spline's end controls
-    b0 = (v_start / max(speed_ends[0], 1e-300)) ** 2
-    bN = (v_end / max(speed_ends[1], 1e-300)) ** 2
+    (x0, y0), (x1, y1) = d1[0].tolist(), d1[-1].tolist()
+    # |q'(0)|, |q'(1)|: a clamped spline's end controls (x^2 + y^2 as numpy sums a pair)
+    b0 = (v_start / max(math.sqrt(x0 * x0 + y0 * y0), 1e-300)) ** 2
+    bN = (v_end / max(math.sqrt(x1 * x1 + y1 * y1), 1e-300)) ** 2
     period = jerk_period if jerk_max else None
     if solver == "reach" and mode == "bernstein" and grid is None and n_points is None and is_straight(spline, limits):
         return _trapezoid(spline, limits, b0, bN)
@@ -330,6 +352,58 @@ def plan_stroke(spline: Spline, limits: Limits, solver: str = "reach", spacing: 
     else:
         u = make_grid(spline, spacing, n_points=n_points, span_polys=sp)
     base = solver if solver.startswith(("reach", "lp")) else "reach"
+    nonlinear = limits.M is None and mode != "collocation"
+    done = None
+    if base == "reach" and mode == "bernstein" and limits.M is not None and spline.degree >= 3 and max_rounds >= 1:
+        done = _compiled_rounds(spline, u, limits, sp, b0, bN, max_rounds, adaptive)  # no knot caps at degree 3
+    if done is not None:
+        u, b, rows = done
+    else:
+        u, b, rows = _rounds(spline, u, limits, sp, b0, bN, max_rounds, adaptive, mode, base, jerk_max, period)
+    if jerk_max:
+        base_rows = rows
+        coefficients = constraints.jerk_coefficients(spline, u)
+        jm = constraints.jerk_bound(coefficients, jerk_max)
+        if base == "reach":
+            rows, b = _jerk_solves(base_rows, coefficients, u, jm, b, b0, bN)
+        else:
+            rows, b = _jerk_python(base_rows, coefficients, u, jm, b, b0, bN, base)
+    if solver.startswith("qp"):
+        backend = solver.partition(":")[2] or "clarabel"
+        b = convex.solve_smooth(rows, u, smoothing if smoothing > 0 else 1.0, b, b0, bN, backend)
+    b = _certify(spline, u, b, limits, b0, bN, rows if not nonlinear else None)
+    a = (b[1:] - b[:-1]) / (2 * (u[1:] - u[:-1]))  # np.diff's subtraction, without its wrapper
+    t = profile_times(u, b)
+    if not np.isfinite(t).all():
+        raise PlanError("the planned profile stops mid-stroke (a limit forces zero speed); check the machine's limits")
+    return Profile(u=u, b=b, a=a, t=t, solver=solver)
+
+
+def _compiled_rounds(spline: Spline, u, limits: Limits, sp: constraints.Spans, b0, bN, max_rounds: int, adaptive: bool):
+    """_rounds in one compiled call (kernels.plan_rounds) where the rows have no knot caps, the
+    same (u, b, rows); None where b is not finite (_rounds handles a standing-still span)."""
+    from doodlecam.plan.kernels import plan_rounds
+
+    p, pen = spline.degree, limits.pen_speed
+    M = np.ascontiguousarray(limits.M, float)
+    R = M.shape[0] * 4 * p + (2 * p if pen is not None else 0)  # as constraints.bernstein_rows
+    c = spline.derivative_controls
+    status, u, b, tot, beta, gamma = plan_rounds(
+        sp.T, sp.bp, sp.mid, np.asarray(u, float), M, np.asarray(limits.vmax, float), np.asarray(limits.amax, float),
+        float(pen) ** 2 if pen is not None else 0.0, R, constraints._b_matrix(p - 1), constraints._b_matrix(2 * p - 1),
+        c[1], c[2], p, len(spline.control) - p, _taus(8), float(pen or 0.0), float(b0), float(bN), max_rounds,
+        bool(adaptive))
+    if status == -2:
+        return None
+    if status != 0:
+        raise PlanError(reach.message(status))
+    return u, b, constraints.Rows(tot, beta, gamma, np.full(len(u), np.inf))
+
+
+def _rounds(spline, u, limits, sp, b0, bN, max_rounds, adaptive, mode, base, jerk_max, period):
+    """Solve on the grid u and, while it pays (``adaptive``), refine it where a row binds but
+    its bound is loose (linear kinematics) or the check finds a limit passed (nonlinear):
+    (u, b, rows) of the last solve."""
     nonlinear = limits.M is None and mode != "collocation"
     best_t = np.inf
     for round_ in range(max_rounds):
@@ -353,28 +427,34 @@ def plan_stroke(spline: Spline, limits: Limits, solver: str = "reach", spacing: 
         if not split.any() or len(u) + split.sum() > 200_000 or round_ == max_rounds - 1:
             break  # (u and b stay in step: split only when another solve follows)
         u = _split(u, split)
-    if jerk_max:
-        base_rows = rows
-        coefficients = constraints.jerk_coefficients(spline, u)
-        jm = constraints.jerk_bound(coefficients, jerk_max)
-        b_free = b
-        for grow in JERK_GROW:
-            # b <= b_hat keeps sqrt(b) below the sqrt(b_hat) the rows were made with
-            b_hat = np.minimum(b_free, grow * b) * (1 + 1e-12)
-            rows = constraints.with_jerk(base_rows, coefficients, u, b_hat, jm)
-            first = base_rows.tot.shape[1]  # the jerk rows
-            if grow == JERK_GROW[0] and constraints.worst_ratios(rows, b_free, first).max(initial=0.0) <= 1.0:
-                break  # the plan already keeps the bound (a straight stroke, say): it is the answer
-            b = _solve(rows, u, base, b0, bN)
-    if solver.startswith("qp"):
-        backend = solver.partition(":")[2] or "clarabel"
-        b = convex.solve_smooth(rows, u, smoothing if smoothing > 0 else 1.0, b, b0, bN, backend)
-    b = _certify(spline, u, b, limits, b0, bN, rows if not nonlinear else None)
-    a = np.diff(b) / (2 * np.diff(u))
-    t = profile_times(u, b)
-    if not np.all(np.isfinite(t)):
-        raise PlanError("the planned profile stops mid-stroke (a limit forces zero speed); check the machine's limits")
-    return Profile(u=u, b=b, a=a, t=t, solver=solver)
+    return u, b, rows
+
+
+def _jerk_python(base_rows, coefficients, u, jm, b, b0, bN, base):
+    """The solves with the jerk rows (``JERK_GROW``): (rows, b) of the last."""
+    b_free = b
+    for grow in JERK_GROW:
+        # b <= b_hat keeps sqrt(b) below the sqrt(b_hat) the rows were made with
+        b_hat = np.minimum(b_free, grow * b) * (1 + 1e-12)
+        rows = constraints.with_jerk(base_rows, coefficients, u, b_hat, jm)
+        first = base_rows.tot.shape[1]  # the jerk rows
+        if grow == JERK_GROW[0] and constraints.worst_ratios(rows, b_free, first).max(initial=0.0) <= 1.0:
+            break  # the plan already keeps the bound (a straight stroke, say): it is the answer
+        b = _solve(rows, u, base, b0, bN)
+    return rows, b
+
+
+def _jerk_solves(base_rows, coefficients, u, jm, b, b0, bN):
+    """_jerk_python for the reach solver in one compiled call (kernels.jerk_solves), the same (rows, b)."""
+    from doodlecam.plan.kernels import jerk_solves
+
+    taus, _, c1, c2 = coefficients
+    status, b, tot, beta, gamma, ub = jerk_solves(
+        base_rows.tot, base_rows.beta, base_rows.gamma, np.asarray(base_rows.ub, float), c1, c2, taus,
+        np.asarray(u, float), jm, np.asarray(b, float), _JERK_GROW, float(b0), float(bN))
+    if status != 0:
+        raise PlanError(reach.message(status))
+    return constraints.Rows(tot, beta, gamma, ub), b
 
 
 def is_straight(spline: Spline, limits: Limits) -> bool:

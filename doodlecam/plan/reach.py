@@ -33,8 +33,13 @@ def solve(tot: np.ndarray, beta: np.ndarray, gamma: np.ndarray, ub: np.ndarray, 
     status = reach_passes(np.ascontiguousarray(tot, float), np.ascontiguousarray(beta, float),
                           np.ascontiguousarray(gamma, float), np.ascontiguousarray(ub, float),
                           float(b0), float(bN), b, lo, hi)
-    if status == -1:
-        raise ValueError("the requested start speed is too high to stop in time")
-    if status > 0:
-        raise ValueError(f"no feasible speed at grid interval {status - 1}")
+    if status != 0:
+        raise ValueError(message(status))
     return b
+
+
+def message(status: int) -> str:
+    """What a reach_passes status other than 0 means."""
+    if status == -1:
+        return "the requested start speed is too high to stop in time"
+    return f"no feasible speed at grid interval {status - 1}"

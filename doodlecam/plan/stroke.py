@@ -86,7 +86,7 @@ def plan_one(ctx: Context, n: int, total: int, stroke: Stroke, pen) -> Outcome:
                                grid=grid, jerk_period=ctx.delta_time)
         except PlanError as e:
             raise PlanError(f"stroke {n} of {total}: {e}") from None
-        return replace(stroke, profile=prof), check_profile(stroke.spline, prof, limits)
+        return stroke.with_profile(prof), check_profile(stroke.spline, prof, limits)
 
     def sample(s):
         return sample_stroke(s, ctx.delta_time, limits, ctx.steps, follow=ctx.jerk is not None,
@@ -163,12 +163,7 @@ def _least_time(spline, limits) -> float:
     allows, plus accelerating to it and stopping (the path at its easiest everywhere)."""
     if limits.M is None:
         return np.inf  # nonlinear kinematics: no such bound here (the guard is off)
-    # actuator units per mm in the most favourable direction, doubled to be generous (a
-    # direction may share the motion between actuators)
-    gain = float(np.min(np.abs(np.asarray(limits.M, float)).max(axis=0))) / 2
-    v, a = float(np.max(limits.vmax)) / gain, float(np.max(limits.amax)) / gain
-    if limits.pen_speed is not None:
-        v = min(v, float(limits.pen_speed))
+    v, a = limits.easiest
     length = spline.length
     return length / v + 2 * np.sqrt(length / a)
 
@@ -198,18 +193,20 @@ def plan_strokes(ctx: Context, strokes: list[Stroke], pens: list, workers: int =
     """plan_one for every stroke, in order; with ``workers`` > 1 (and enough strokes) in
     that many processes, each taking CHUNK strokes at a time. ``progress(k)``: called
     as strokes finish."""
-    from doodlecam.plan.lines import eligible, plan_lines
+    from doodlecam.model import prime_splines
+    from doodlecam.plan.lines import eligible_all, plan_lines
 
     total = len(strokes)
     # straight strokes in closed form, all at once; the rest (and any of those the closed forms
     # do not cover) one by one
-    lines = [i for i, s in enumerate(strokes) if eligible(ctx, s)]
+    lines = eligible_all(ctx, strokes)
     done = {i: Outcome(*o, replans=0, slowed_for_ramps=False, ramp=0.0, slowed=1.0)
             for i, o in zip(lines, plan_lines(ctx, [strokes[i] for i in lines], [pens[i] for i in lines]))
             if o is not None}
     if progress and done:
         progress(len(done))
     items = [(n, s, pen) for n, (s, pen) in enumerate(zip(strokes, pens), 1) if n - 1 not in done]
+    prime_splines([s.spline for _, s, _ in items], lengths=True)  # _least_time's and the sampler's lengths
     rest = _plan_each(ctx, items, total, workers, progress)
     return [done[i] if i in done else next(rest) for i in range(total)]
 

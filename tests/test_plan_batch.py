@@ -1,0 +1,113 @@
+"""The plan's batched and compiled shortcuts give what the one-at-a-time code gives, bit for bit.
+
+model.prime_splines fills many splines' caches at once; plan_stroke's rounds and jerk solves run
+in compiled calls (kernels.plan_rounds, jerk_solves) that must find the plans the Python loop
+finds; path_deviation builds the executed positions inside its compiled pass; Profile.state_at
+clips without np.clip. Each is compared here with the plain version.
+"""
+
+import numpy as np
+import pytest
+
+from doodlecam.model import Profile, Spline, Stroke, prime_splines
+from doodlecam.plan import kernels, planner
+from doodlecam.plan.follow import CANDIDATES, JerkBound, jerk_limit, path_deviation
+from doodlecam.plan.sample import sample_stroke
+
+
+def random_splines(seed, n=60):
+    rng = np.random.default_rng(seed)
+    out = []
+    for i in range(n):
+        degree = int(rng.integers(1, 4))
+        m = degree + 1 + int(rng.integers(0, 6))
+        if i % 4 == 0:  # a fitted line: evenly spaced control points on a segment
+            a, b = rng.normal(0, 50, 2), rng.normal(0, 50, 2)
+            c = a + np.linspace(0.0, 1.0, m)[:, None] * (b - a)
+        else:
+            c = rng.normal(0, 30, (m, 2))
+        out.append(Spline(degree, c))
+    return out
+
+
+def test_prime_splines_fills_what_each_spline_computes():
+    fresh, primed = random_splines(1), random_splines(1)
+    prime_splines(primed, lengths=True)
+    for a, b in zip(fresh, primed):
+        assert "length" in b.__dict__ and "straight" in b.__dict__
+        assert a.straight == b.straight and a.length == b.length
+        assert len(a.derivative_controls) == len(b.derivative_controls)
+        for x, y in zip(a.derivative_controls, b.derivative_controls):
+            assert np.array_equal(x, y)
+    assert any(s.straight for s in fresh if s.degree >= 2) and not all(s.straight for s in fresh)
+
+
+def test_prime_splines_keeps_what_is_cached():
+    s = random_splines(2, 1)[0]
+    d = s.derivative_controls
+    prime_splines([s])
+    assert s.derivative_controls is d
+
+
+def python_only(monkeypatch):
+    monkeypatch.setattr(planner, "_compiled_rounds", lambda *a: None)
+    monkeypatch.setattr(planner, "_jerk_solves", lambda rows, co, u, jm, b, b0, bN:
+                        planner._jerk_python(rows, co, u, jm, b, b0, bN, "reach"))
+
+
+@pytest.mark.parametrize("jerk", [False, True])
+def test_compiled_rounds_plan_what_the_python_rounds_plan(limits, monkeypatch, jerk):
+    splines = [s for s in random_splines(3, 40) if s.degree == 3 and not s.straight]
+    bound = JerkBound(jerk_limit(0.1, 0.04)) if jerk else None
+    compiled = [planner.plan_stroke(s, limits, jerk_max=bound, jerk_period=0.04) for s in splines]
+    python_only(monkeypatch)
+    plain = [planner.plan_stroke(s, limits, jerk_max=bound, jerk_period=0.04) for s in splines]
+    assert len(splines) > 10
+    for p, q in zip(compiled, plain):
+        for name in "uabt":
+            assert np.array_equal(getattr(p, name), getattr(q, name))
+    assert any(len(p.u) > 20 for p in compiled)  # the rounds refined somewhere
+
+
+def test_path_deviation_is_the_kernel_on_the_integrated_samples(limits):
+    for s in [s for s in random_splines(4, 16) if s.degree == 3 and not s.straight]:
+        smp = sample_stroke(Stroke(s, planner.plan_stroke(s, limits)), 0.04, limits, (80, 80))
+        x, v = smp.integrate(), np.vstack([np.zeros((1, 2)), smp.velocity])
+        tau = np.linspace(0.0, smp.delta_time, 17)
+        c = s.derivative_controls
+        want = np.empty(len(x) - 1)
+        kernels.period_deviation(c[0], c[1], c[2], 3, len(s.control) - 3, x, v, tau, tau ** 2 / (2 * smp.delta_time),
+                                 np.asarray(smp.sample_u, float), CANDIDATES, 4, want)
+        assert np.array_equal(path_deviation(s, smp), want)
+
+
+def test_state_at_is_the_clipped_formula():
+    rng = np.random.default_rng(5)
+    u = np.concatenate([[0.0], np.sort(rng.random(30)), [1.0]])
+    b = rng.random(32) * 4
+    b[0] = b[-1] = 0.0
+    t = np.empty(32)
+    kernels.times(u, b, t)
+    p = Profile(u=u, b=b, a=np.diff(b) / (2 * np.diff(u)), t=t)
+    q = np.concatenate([rng.uniform(-1, t[-1] + 1, 200), t, [-0.0, 0.0, t[-1], np.inf, -np.inf]])
+    # the previous formula, with np.clip
+    tt = np.clip(q, 0.0, p.duration)
+    k = np.clip(np.searchsorted(p.t, tt, side="right") - 1, 0, len(p.a) - 1)
+    tau = tt - p.t[k]
+    v0 = np.sqrt(np.maximum(p.b[k], 0.0))
+    want_u = np.minimum(p.u[k] + v0 * tau + 0.5 * p.a[k] * tau * tau, p.u[k + 1])
+    got_u, got_ud, got_a = p.state_at(q)
+    assert np.array_equal(got_u.view(np.int64), want_u.view(np.int64))
+    assert np.array_equal(got_ud, np.maximum(v0 + p.a[k] * tau, 0.0)) and np.array_equal(got_a, p.a[k])
+    assert isinstance(p.state_at(0.3)[2], np.ndarray)  # a scalar time: a 0-d array, as before
+
+
+def test_with_profile_is_replace():
+    from dataclasses import replace
+
+    s = Stroke(random_splines(6, 1)[0], None, source_index=7, fit_error=0.01, layer="red")
+    prof = Profile(u=[0.0, 1.0], b=[0.0, 0.0], a=[0.0], t=[0.0, 1.0])
+    got, want = s.with_profile(prof), replace(s, profile=prof)
+    assert type(got) is Stroke and s.profile is None
+    assert all(getattr(got, f) is getattr(want, f) for f in ("spline", "profile", "source_index", "fit_error", "layer"))
+
