@@ -141,6 +141,9 @@ class Spline:
     def derivative_controls(self) -> list[np.ndarray]:
         """Control points of q, q', ..., q^(degree): each a clamped uniform spline
         over the same knot spans, one degree lower than the last."""
+        return self._levels()
+
+    def _levels(self) -> list[np.ndarray]:
         c, k = np.ascontiguousarray(self.control), self.degree
         out = [c]
         for den in _knot_table(len(self.control), self.degree).steps:
@@ -148,6 +151,22 @@ class Spline:
             k -= 1
             out.append(c)
         return out
+
+    def controls_of(self, der: int) -> np.ndarray:
+        """The control points of q^(der) (derivative_controls[der]), without caching them once
+        ``forget_derivatives`` was called."""
+        if der == 0:
+            return self.control
+        if self.__dict__.get("_forgotten"):
+            return self._levels()[der]
+        return self.derivative_controls[der]
+
+    def forget_derivatives(self) -> None:
+        """Drop the cached derivative controls and make them on demand from here, unkept: a
+        planned job of 10^5 strokes is written from the curves (and their first derivative at a
+        few points), and the cached controls hold ~1 KB a stroke."""
+        self.__dict__.pop("derivative_controls", None)
+        self.__dict__["_forgotten"] = True
 
     @cached_property
     def straight(self) -> bool:
@@ -165,7 +184,7 @@ class Spline:
             return np.zeros(u.shape + (2,))
         out = np.empty((u.size, 2))
         nseg = len(self.control) - self.degree
-        _eval()(self.derivative_controls[der], self.degree - der, nseg, u.reshape(-1), out)  # clipped to [0, 1] there
+        _eval()(self.controls_of(der), self.degree - der, nseg, u.reshape(-1), out)  # clipped to [0, 1] there
         return out.reshape(u.shape + (2,))
 
     @cached_property

@@ -452,6 +452,8 @@ def convert(path: str | Path, outdir: str | Path, settings: Settings, progress: 
                    smoothing=settings.smoothing, order=settings.order, workers=settings.workers,
                    progress=progress)
     timings.update(job.meta["timings"])
+    for s in job.strokes:  # planned: written from the curves alone (memory at 10^5 paths)
+        s.spline.forget_derivatives()
     meta = dict(drawing_mm.meta, units_in=units_in, strokes_traced=traced)
     del drawing_mm  # planned: only the job is written from here
     over = over_bounds(job)

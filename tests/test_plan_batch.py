@@ -111,3 +111,28 @@ def test_with_profile_is_replace():
     assert type(got) is Stroke and s.profile is None
     assert all(getattr(got, f) is getattr(want, f) for f in ("spline", "profile", "source_index", "fit_error", "layer"))
 
+
+
+def test_forgotten_derivatives_give_the_same_bits_and_stay_unkept():
+    """A planned job's splines drop their derivative controls before the posts (memory at 10^5
+    strokes): evaluating them afterwards gives the same numbers and keeps nothing."""
+    from doodlecam.geometry.spline_batch import eval_many
+    from doodlecam.model import Spline
+
+    rng = np.random.default_rng(5)
+    splines = [Spline(3, rng.normal(size=(int(rng.integers(4, 12)), 2)) * 20) for _ in range(30)]
+    u = np.linspace(0, 1, 17)
+    before = [(s(u), s(u, 1), s(u, 2), s.length) for s in splines]
+    batch = [eval_many(splines, [u] * len(splines), d) for d in (0, 1)]
+    fresh = [Spline(s.degree, s.control) for s in splines]
+    for s in fresh:
+        s.forget_derivatives()
+    for s, (q, d1, d2, length) in zip(fresh, before):
+        np.testing.assert_array_equal(s(u), q)
+        np.testing.assert_array_equal(s(u, 1), d1)
+        np.testing.assert_array_equal(s(u, 2), d2)
+        assert s.length == length
+        assert "derivative_controls" not in s.__dict__
+    for d in (0, 1):
+        np.testing.assert_array_equal(eval_many(fresh, [u] * len(fresh), d), batch[d])
+    assert all("derivative_controls" not in s.__dict__ for s in fresh)

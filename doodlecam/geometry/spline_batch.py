@@ -30,7 +30,7 @@ def offsets(lengths) -> np.ndarray:
 
 def eval_many(splines, us, der: int = 0) -> np.ndarray:
     """[spline(u, der) for spline, u in zip(splines, us)] concatenated (all of degree >= der)."""
-    ctrl = [s.derivative_controls[der] for s in splines]
+    ctrl = [s.controls_of(der) for s in splines]
     if not ctrl:
         return np.zeros((0, 2))
     return points_at(np.ascontiguousarray(np.concatenate(ctrl), dtype=float), offsets([len(c) for c in ctrl]),
