@@ -50,6 +50,7 @@ CHORD_LEVEL = 2 ** -0.25
 MIN_LEVEL_STEPS = 0.15  # the finest level's tolerance, in motor steps
 START_LEVEL_STEPS = 0.3  # the level the search starts from, in motor steps
 CAP_CHUNK = 4000  # feeds = cap: curved strokes searched together (memory, not the chords: each search is its own)
+G1_CHUNK = 2000  # strokes whose G1 lines are formatted together (memory: a line's string lives until its stroke's is joined)
 _ENDS = np.array([0.0, 1.0])  # a straight stroke's chord: its ends
 MAX_LINE = 79  # GRBL's line buffer is 80 bytes including the terminating NUL
 
@@ -324,14 +325,19 @@ class _CapWalk:
 
 
 def _g1_text(paths, num) -> dict[int, tuple]:
-    """The G1 lines of every path (points, feeds mm/min, arcs) without arcs, all formatted at once:
-    {path: (lines, F words)}. A line moves to a point after the first; an F word is printed on a path's first
-    line and where the printed feed changes. The F words (NaN where none) go to the GRBL estimate with the
-    points (timing.estimate_program's "G1*" runs), so no Python tuple is made per vertex. ``num``: _num,
-    cached."""
+    """The G1 lines of every path (points, feeds mm/min, arcs) without arcs, formatted G1_CHUNK paths at a
+    time: {path: (its lines joined by newlines, F words)}. A line moves to a point after the first; an F word
+    is printed on a path's first line and where the printed feed changes. The F words (NaN where none) go to
+    the GRBL estimate with the points (timing.estimate_program's "G1*" runs), so no Python tuple is made per
+    vertex. One string per path, not per line: 10^5 strokes have millions of lines. ``num``: _num, cached."""
     which = [n for n, (_, f, arc) in enumerate(paths) if not arc and len(f)]
-    if not which:
-        return {}
+    out: dict[int, tuple] = {}
+    for c0 in range(0, len(which), G1_CHUNK):
+        out.update(_g1_chunk(paths, which[c0:c0 + G1_CHUNK], num))
+    return out
+
+
+def _g1_chunk(paths, which, num) -> dict[int, tuple]:
     pts = np.concatenate([paths[n][0][1:] for n in which])
     f = np.maximum(np.concatenate([paths[n][1] for n in which]), 0.1)  # never print F0
     off = np.concatenate([[0], np.cumsum([len(paths[n][1]) for n in which])])
@@ -350,7 +356,7 @@ def _g1_text(paths, num) -> dict[int, tuple]:
     fw[ks] = np.array([float(t) for t in printed])[inv.reshape(-1)[ks]]
     for k, t in zip(ks.tolist(), inv.reshape(-1)[ks].tolist()):
         lines[k] += f" F{printed[t]}"
-    return {n: (lines[a:b], fw[a:b]) for n, a, b in zip(which, off[:-1].tolist(), off[1:].tolist())}
+    return {n: ("\n".join(lines[a:b]), fw[a:b]) for n, a, b in zip(which, off[:-1].tolist(), off[1:].tolist())}
 
 
 class GcodePost(PostProcessor):
@@ -689,8 +695,8 @@ class GcodePost(PostProcessor):
                         program.append(("G1", x, y, None, float(fs) if fword else None))
                     last_f = fs
             elif n in g1:
-                lines, fw = g1[n]
-                body.extend(lines)
+                text, fw = g1.pop(n)
+                body.append(text)
                 program.append(("G1*", p[1:], fw))
             if lifts[n + 1]:
                 pen(options["pen_up"], tool.up_delay)
