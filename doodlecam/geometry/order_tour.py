@@ -97,10 +97,7 @@ def entry(pent, pext, g, q, N):  # pragma: no cover - compiled
 @numba.njit(cache=True, nogil=True)
 def exit_(pent, pext, g, q, N):  # pragma: no cover - compiled
     """Where the pen leaves node q: (x, y)."""
-    s = slot(g[0], g[1], q, N)
-    if g[2]:
-        return pent[s, 0], pent[s, 1]
-    return pext[s, 0], pext[s, 1]
+    return entry(pext, pent, g, q, N)
 
 
 @numba.njit(cache=True, nogil=True)
@@ -129,9 +126,17 @@ def tour_get(pseq, pflip, g, q0, m, N, out_s, out_f, at):  # pragma: no cover - 
 def tour_write(P0, P1, home, pseq, pflip, pent, pext, pos, g, q0, m, buf_s, buf_f):  # pragma: no cover - compiled
     """Nodes q0 .. q0 + m - 1 become buf_s / buf_f[:m] (tour flips); home may move."""
     N = pseq.shape[0]
-    s = slot(g[0], g[1], q0 % N, N)
-    d = g[1]
-    r = g[2] == 1
+    h = _store(P0, P1, home, pseq, pflip, pent, pext, pos, slot(g[0], g[1], q0 % N, N), g[1], g[2] == 1, m,
+               buf_s, buf_f)
+    if h >= 0:
+        g[0] = h
+
+
+@numba.njit(cache=True, nogil=True)
+def _store(P0, P1, home, pseq, pflip, pent, pext, pos, s, d, r, m, buf_s, buf_f):  # pragma: no cover - compiled
+    """Slots s, s + d, ... (m of them) get buf_s / buf_f[:m] (tour flips, reversal bit r).
+    Returns the slot home went to, -1 if not among them."""
+    N = pseq.shape[0]
     h = -1
     for t in range(m):  # written out: a call per stroke costs more than the store
         i = buf_s[t]
@@ -153,8 +158,7 @@ def tour_write(P0, P1, home, pseq, pflip, pent, pext, pos, g, q0, m, buf_s, buf_
             s = 0
         elif s < 0:
             s = N - 1
-    if h >= 0:
-        g[0] = h
+    return h
 
 
 @numba.njit(cache=True, nogil=True)
@@ -276,38 +280,14 @@ def tour_move(P0, P1, home, pseq, pflip, pent, pext, pos, g, s, e, k, rev, buf_s
     m = e - s + 1
     ly = (k - e) % N
     lz = (s - 1 - k) % N
-    rs = np.empty(3, np.int64)
-    rf = np.empty(3, np.bool_)
-    rp = np.empty((3, 4))
     d = g[1]
-    a = slot(g[0], d, s, N)
-    for t in range(m):  # keep the run
-        rs[t], rf[t] = pseq[a], pflip[a]
-        rp[t, 0], rp[t, 1], rp[t, 2], rp[t, 3] = pent[a, 0], pent[a, 1], pext[a, 0], pext[a, 1]
-        a += d
-        if a == N:
-            a = 0
-        elif a < 0:
-            a = N - 1
+    tour_get(pseq, pflip, g, s, m, N, buf_s, buf_f, 0)  # keep the run
+    if rev:
+        _turn(buf_s, buf_f, 0, m)
     if ly <= lz:
         a = slot(g[0], d, (s + ly) % N, N)  # where the run goes, before home may move
         _shift(pseq, pflip, pent, pext, pos, g, e + 1, ly, -m)
     else:
         a = slot(g[0], d, (k + 1) % N, N)
         _shift(pseq, pflip, pent, pext, pos, g, k + 1, lz, m)
-    for t in range(m):
-        u = m - 1 - t if rev else t
-        i = rs[u]
-        pseq[a] = i
-        pos[i] = a
-        if rev:
-            pflip[a] = not rf[u]
-            pent[a, 0], pent[a, 1], pext[a, 0], pext[a, 1] = rp[u, 2], rp[u, 3], rp[u, 0], rp[u, 1]
-        else:
-            pflip[a] = rf[u]
-            pent[a, 0], pent[a, 1], pext[a, 0], pext[a, 1] = rp[u, 0], rp[u, 1], rp[u, 2], rp[u, 3]
-        a += d
-        if a == N:
-            a = 0
-        elif a < 0:
-            a = N - 1
+    _store(P0, P1, home, pseq, pflip, pent, pext, pos, a, g[1], g[2] == 1, m, buf_s, buf_f)  # the run: no home
