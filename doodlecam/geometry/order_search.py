@@ -280,12 +280,27 @@ def full_two_opt(P0, P1, seq, flip, home, max_passes):  # pragma: no cover - com
             old_a = _e(ex, en, off, d, lo - 1, lo, n, free)
             best = _EPS
             best_hi = -1
+            # the same sums as _e / _xx / _nn, walking the ring's slots (hi's: s, hi + 1's: t)
+            a = slot(off, d, lo - 1, n + 1)
+            s = slot(off, d, lo, n + 1)
+            ax, ay, bx, by = ex[a, 0], ex[a, 1], en[s, 0], en[s, 1]
+            head = free and lo == 1  # legs to an absent home cost nothing
             for hi in range(lo, n + 1):
-                g_ = (old_a + _e(ex, en, off, d, hi, hi + 1, n, free)
-                      - _xx(ex, off, d, lo - 1, hi, n, free) - _nn(en, off, d, lo, hi + 1, n, free))
+                t = s + d
+                if t > n:
+                    t = 0
+                elif t < 0:
+                    t = n
+                xx = 0.0 if head else _dist(ax, ay, ex[s, 0], ex[s, 1])
+                if free and hi == n:
+                    g_ = old_a + 0.0 - xx - 0.0
+                else:
+                    g_ = (old_a + _dist(ex[s, 0], ex[s, 1], en[t, 0], en[t, 1])
+                          - xx - _dist(bx, by, en[t, 0], en[t, 1]))
                 if g_ > best:
                     best = g_
                     best_hi = hi
+                s = t
             if best_hi > 0:
                 tour_reverse(P0, P1, home, pseq, pflip, pent, pext, pos, g, lo, best_hi, buf_s, buf_f)
                 off, d, rv, ex, en = _view(pent, pext, g)

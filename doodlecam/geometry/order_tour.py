@@ -57,7 +57,7 @@ def tour_read(pseq, pflip, g, seq, flip):  # pragma: no cover - compiled
     tour_get(pseq, pflip, g, 1, n, n + 1, seq, flip, 0)
 
 
-@numba.njit(cache=True, nogil=True)
+@numba.njit(cache=True, nogil=True, inline="always")
 def slot(off, d, q, N):  # pragma: no cover - compiled
     """The slot of node q (0 <= q < 2N; node N is home again); off, d: g[0], g[1].
 
