@@ -10,6 +10,7 @@ strokes doodlecam orders, timed inside that process on the same machine):
     .venv/bin/python benchmarks/bench_order.py                      # looks for /tmp/vpype-venv
     .venv/bin/python benchmarks/bench_order.py --vpype-python PATH  # another vpype interpreter
     .venv/bin/python benchmarks/bench_order.py --no-vpype           # doodlecam only
+    .venv/bin/python benchmarks/bench_order.py --scale 20000 100000 # generated drawings, CPU s
 
 Stroke sets: the `edges` strokes of every sample picture and the `hatch`
 strokes of camera (pixel units, as traced), and 5 000 random strokes.
@@ -110,12 +111,41 @@ def stroke_sets() -> dict[str, list[np.ndarray]]:
     return sets
 
 
+def scale(sizes: list[int]) -> None:
+    """Order generated drawings of many paths as a conversion does; CPU time (process_time)."""
+    import sys
+
+    sys.path.insert(0, str(ROOT / "tests"))
+    from generated_art import generated_svg
+
+    from doodlecam.geometry.order import _compile_once, order_strokes
+    from doodlecam.plugins.vector import VectorTracer
+
+    _compile_once()  # numba's compile or cache load, outside the timings
+    print("| paths | strokes | greedy travel mm | travel mm | moves | kicks | rounds | order s CPU |")
+    print("|---|---|---|---|---|---|---|---|")
+    for n in sizes:
+        with tempfile.TemporaryDirectory() as tmp:
+            path = Path(tmp) / "art.svg"
+            path.write_text(generated_svg(n, "mixed", seed=1))
+            polys = list(VectorTracer().trace(path, {}).polylines)
+        t = time.process_time()
+        o = order_strokes(polys, (0.0, 0.0), budget=None)
+        dt = time.process_time() - t
+        m = o.meta
+        print(f"| {n} | {len(polys)} | {m['greedy_travel']:.1f} | {o.travel:.1f} | {m['moves']} | {m['kicks']} | "
+              f"{m['rounds']} | {dt:.2f} |", flush=True)
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--vpype-python", type=Path, default=DEFAULT_VPYPE)
     ap.add_argument("--no-vpype", action="store_true")
     ap.add_argument("--repeat", type=int, default=3)
     ap.add_argument("--budget", type=float, default=1.0, help="doodlecam's improvement budget, s (the default)")
+    ap.add_argument("--scale", type=int, nargs="+", metavar="N",
+                    help="only order generated drawings of N paths (tests/generated_art.py, 'mixed', read by the vector "
+                         "tracer) from home with no clock (budget=None), as a conversion does: CPU s, travel, moves")
     ap.add_argument("--vpype-worker", help=argparse.SUPPRESS)
     ap.add_argument("--fresh-worker", help=argparse.SUPPRESS)
     args = ap.parse_args()
@@ -124,6 +154,9 @@ def main() -> None:
         return
     if args.fresh_worker:
         fresh_worker(args.fresh_worker)
+        return
+    if args.scale:
+        scale(args.scale)
         return
     from doodlecam.geometry.order import order_strokes, travel_length
 

@@ -172,3 +172,22 @@ def test_a_cold_numba_cache_does_not_change_the_order(tmp_path):
     env = {**__import__("os").environ, "NUMBA_CACHE_DIR": str(tmp_path)}  # empty: everything compiles
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, env=env, check=True).stdout.split()
     assert out == ["True", "True"]  # the first call took longer than its budget, and still ordered the same
+
+
+def test_neighbour_lists_are_made_again_only_for_moved_ends(monkeypatch):
+    """Each round after the first makes the lists again only if re-starting a
+    loop moved an end; the lists then match the ends the search starts from."""
+    import doodlecam.geometry.order as order
+
+    calls = []
+    real = order._neighbours
+
+    def spy(p0, p1, k):
+        calls.append(np.concatenate([p0, p1]))
+        return real(p0, p1, k)
+
+    monkeypatch.setattr(order, "_neighbours", spy)
+    rng = np.random.default_rng(3)
+    o = order_strokes(_strokes(rng, 300, loops=0.6), (0.0, 0.0), budget=None)
+    assert o.meta["rounds"] >= 2 and 1 <= len(calls) <= o.meta["rounds"]
+    assert all(not np.array_equal(a, b) for a, b in zip(calls, calls[1:]))  # no list made twice for the same ends

@@ -195,8 +195,11 @@ def _improve(tour: dict, allow_reverse: bool, deadline: float, k_near: int, max_
     # Few strokes: look further (every move is cheap); many: the k nearest ends suffice.
     k = min(max(k_near, 3000 // max(n, 1)), 2 * n - 1, 16)
     cost = tour_cost(p0, p1, seq, flip, home)
+    seen = None  # the stroke ends the neighbour lists were made for
     while True:
-        nbr = _neighbours(p0, p1, k)
+        if seen is None or not (np.array_equal(seen[0], p0) and np.array_equal(seen[1], p1)):
+            nbr = _neighbours(p0, p1, k)  # again only if a loop's start moved
+            seen = (p0.copy(), p1.copy())
         before = cost
         chunk = min(5 * n + 100, 5000)  # moves per call: the budget is checked between calls
         while True:

@@ -11,7 +11,8 @@ between, each drawn the other way; Or-opt: move a run of one to three
 strokes there, forwards or reversed) and the best is applied at once
 (first improvement). Strokes near a change are looked at again ("don't look
 bits"), the rest are not, until nothing gains. A move costs O(1) to score
-and O(moved strokes) to apply, so thousands of strokes settle in
+and O(shorter side of the tour it changes) to apply (``order_tour``: the
+tour is a ring read in either direction), so thousands of strokes settle in
 milliseconds where a Python loop would take seconds. Compiled by numba on
 first use and cached on disk; imported only when strokes are ordered.
 """
@@ -19,37 +20,18 @@ first use and cached on disk; imported only when strokes are ordered.
 import numba
 import numpy as np
 
+from doodlecam.geometry.order_tour import (
+    node,
+    slot,
+    tour_get,
+    tour_move,
+    tour_read,
+    tour_reverse,
+    tour_ring,
+    tour_write,
+)
+
 _EPS = 1e-9
-
-
-@numba.njit(cache=True, nogil=True)
-def _reverse(seq, flip, s, e):  # pragma: no cover - compiled
-    """Reverse positions s..e of the tour: their order, and each one's direction."""
-    while s < e:
-        t = seq[s]
-        seq[s] = seq[e]
-        seq[e] = t
-        tf = flip[s]
-        flip[s] = not flip[e]
-        flip[e] = not tf
-        s += 1
-        e -= 1
-    if s == e:
-        flip[s] = not flip[s]
-
-
-@numba.njit(cache=True, nogil=True)
-def _refresh(P0, P1, seq, flip, pos, ent, ext, lo, hi):  # pragma: no cover - compiled
-    """Entry / exit points and positions of tour positions lo..hi (node p + 1 in ent / ext)."""
-    for p in range(lo, hi + 1):
-        i = seq[p]
-        pos[i] = p
-        if flip[p]:
-            ent[p + 1, 0], ent[p + 1, 1] = P1[i, 0], P1[i, 1]
-            ext[p + 1, 0], ext[p + 1, 1] = P0[i, 0], P0[i, 1]
-        else:
-            ent[p + 1, 0], ent[p + 1, 1] = P0[i, 0], P0[i, 1]
-            ext[p + 1, 0], ext[p + 1, 1] = P1[i, 0], P1[i, 1]
 
 
 @numba.njit(cache=True, nogil=True)
@@ -62,7 +44,7 @@ def local_search(P0, P1, seq, flip, home, nbr, allow_reverse, max_moves, seeds):
     look at first (empty: all). Nodes: 0 is home, p + 1 the stroke at tour
     position p, n + 1 home again.
     """
-    pos, ent, ext, free, buf_s, buf_f, active, stack = _state(P0, P1, seq, flip, home)
+    pseq, pflip, pent, pext, pos, g, free, buf_s, buf_f, active, stack = _state(P0, P1, seq, flip, home)
     n = seq.shape[0]
     top = 0
     if seeds.shape[0] == 0:
@@ -76,35 +58,45 @@ def local_search(P0, P1, seq, flip, home, nbr, allow_reverse, max_moves, seeds):
                 stack[top] = i
                 top += 1
                 active[i] = True
-    return _search(P0, P1, seq, flip, nbr, allow_reverse, max_moves, n,
-                   pos, ent, ext, free, buf_s, buf_f, active, stack, top)[0]
+    moves = _search(P0, P1, home, nbr, allow_reverse, max_moves, n,
+                    pseq, pflip, pent, pext, pos, g, free, buf_s, buf_f, active, stack, top)[0]
+    tour_read(pseq, pflip, g, seq, flip)
+    return moves
 
 
 @numba.njit(cache=True, nogil=True)
 def _state(P0, P1, seq, flip, home):  # pragma: no cover - compiled
-    """Working arrays of the search: positions, entry / exit point of every node, buffers."""
+    """Working state of the search: the tour's ring (``order_tour``), buffers."""
     n = seq.shape[0]
-    ent = np.empty((n + 2, 2))
-    ext = np.empty((n + 2, 2))
-    ent[0], ext[0], ent[n + 1], ext[n + 1] = home, home, home, home
-    pos = np.empty(n, np.int64)
-    _refresh(P0, P1, seq, flip, pos, ent, ext, 0, n - 1)
+    pseq, pflip, pent, pext, pos, g = tour_ring(P0, P1, seq, flip, home)
     free = home[0] != home[0]
-    return (pos, ent, ext, free, np.empty(n, np.int64), np.empty(n, np.bool_), np.zeros(n, np.bool_),
-            np.empty(4 * n + 16, np.int64))
+    return (pseq, pflip, pent, pext, pos, g, free, np.empty(n + 4, np.int64), np.empty(n + 4, np.bool_),
+            np.zeros(n, np.bool_), np.empty(4 * n + 16, np.int64))
+
+
+@numba.njit(cache=True, nogil=True)
+def _view(pent, pext, g):  # pragma: no cover - compiled
+    """How the scoring reads the ring: home's slot, direction, reversal bit,
+    exit and entry points by slot (a reversed ring swaps them)."""
+    rv = g[2] == 1
+    if rv:
+        return g[0], g[1], rv, pent, pext
+    return g[0], g[1], rv, pext, pent
 
 
 @numba.njit(cache=True, nogil=True, inline="always")  # a call of its own runs at half speed
-def _search(P0, P1, seq, flip, nbr, allow_reverse, max_moves, max_span,
-            pos, ent, ext, free, buf_s, buf_f, active, stack, top):  # pragma: no cover - compiled
+def _search(P0, P1, home, nbr, allow_reverse, max_moves, max_span,
+            pseq, pflip, pent, pext, pos, g, free, buf_s, buf_f, active, stack, top):  # pragma: no cover - compiled
     """The local search on the state from ``_state``, from the ``top`` strokes on
     its stack, with moves between tour positions at most ``max_span`` apart.
     Returns (moves, travel saved, first and last tour position changed)."""
-    n = seq.shape[0]
+    n = pos.shape[0]
+    N = n + 1
     moves = 0
     gain = 0.0
     lo_t = n
     hi_t = -1
+    off, d, rv, ex, en = _view(pent, pext, g)
     while top > 0 and moves < max_moves:
         top -= 1
         i = stack[top]
@@ -114,13 +106,13 @@ def _search(P0, P1, seq, flip, nbr, allow_reverse, max_moves, max_span,
             found = False
             for side in range(2):
                 a = 2 * i + side
-                pa = pos[i] + 1  # nodes
-                a_exit = (side == 1) != flip[pa - 1]
+                pa = node(off, d, pos[i], N)
+                a_exit = (side == 1) != (pflip[pos[i]] != rv)
                 # Neighbour-list pruning (as in Lin-Kernighan): a move that adds the
                 # edge a-b is looked for only while b is closer than the pen-up edge
                 # a has now; the lists are sorted, so the first farther b ends the scan.
                 ax, ay = (P1[i, 0], P1[i, 1]) if side == 1 else (P0[i, 0], P0[i, 1])
-                reach = _e(ext, ent, pa, pa + 1, n, free) if a_exit else _e(ext, ent, pa - 1, pa, n, free)
+                reach = _e(ex, en, off, d, pa, pa + 1, n, free) if a_exit else _e(ex, en, off, d, pa - 1, pa, n, free)
                 for kk in range(nbr.shape[1]):
                     b = nbr[a, kk]
                     if b < 0:
@@ -133,10 +125,10 @@ def _search(P0, P1, seq, flip, nbr, allow_reverse, max_moves, max_span,
                             break
                     elif _dist(ax, ay, P0[j, 0], P0[j, 1]) >= reach:
                         break
-                    pb = pos[j] + 1
-                    if abs(pa - pb) > max_span:  # applying it would shift that many positions
+                    pb = node(off, d, pos[j], N)
+                    if abs(pa - pb) > max_span:  # a kick's repair stays near the kick
                         continue
-                    b_exit = (b % 2 == 1) != flip[pb - 1]
+                    b_exit = (b % 2 == 1) != (pflip[pos[j]] != rv)
                     best = _EPS
                     kind = 0
                     x1 = 0
@@ -149,68 +141,48 @@ def _search(P0, P1, seq, flip, nbr, allow_reverse, max_moves, max_span,
                             # 2-opt: reverse nodes lo..hi, new edges exit(lo-1)-exit(hi), entry(lo)-entry(hi+1)
                             lo, hi = (pa + 1, pb) if pa < pb else (pb + 1, pa)
                             if lo <= hi:
-                                g = _rev_gain(ext, ent, lo, hi, n, free)
-                                if g > best:
-                                    best, kind, x1, x2 = g, 1, lo, hi
+                                g_ = _rev_gain(ex, en, off, d, lo, hi, n, free)
+                                if g_ > best:
+                                    best, kind, x1, x2 = g_, 1, lo, hi
                             for L in range(1, 4):
-                                g = _gor(ext, ent, pb - L + 1, pb, pa, True, n, free)
-                                if g > best:
-                                    best, kind, x1, x2, x3, xr = g, 2, pb - L + 1, pb, pa, True
-                                g = _gor(ext, ent, pa - L + 1, pa, pb, True, n, free)
-                                if g > best:
-                                    best, kind, x1, x2, x3, xr = g, 2, pa - L + 1, pa, pb, True
+                                g_ = _gor(ex, en, off, d, pb - L + 1, pb, pa, True, n, free)
+                                if g_ > best:
+                                    best, kind, x1, x2, x3, xr = g_, 2, pb - L + 1, pb, pa, True
+                                g_ = _gor(ex, en, off, d, pa - L + 1, pa, pb, True, n, free)
+                                if g_ > best:
+                                    best, kind, x1, x2, x3, xr = g_, 2, pa - L + 1, pa, pb, True
                     elif a_exit or b_exit:  # exit(px) - entry(qn)
                         px, qn = (pa, pb) if a_exit else (pb, pa)
                         for L in range(1, 4):
-                            g = _gor(ext, ent, qn, qn + L - 1, px, False, n, free)
-                            if g > best:
-                                best, kind, x1, x2, x3, xr = g, 2, qn, qn + L - 1, px, False
-                            g = _gor(ext, ent, px - L + 1, px, qn - 1, False, n, free)
-                            if g > best:
-                                best, kind, x1, x2, x3, xr = g, 2, px - L + 1, px, qn - 1, False
+                            g_ = _gor(ex, en, off, d, qn, qn + L - 1, px, False, n, free)
+                            if g_ > best:
+                                best, kind, x1, x2, x3, xr = g_, 2, qn, qn + L - 1, px, False
+                            g_ = _gor(ex, en, off, d, px - L + 1, px, qn - 1, False, n, free)
+                            if g_ > best:
+                                best, kind, x1, x2, x3, xr = g_, 2, px - L + 1, px, qn - 1, False
                     elif allow_reverse:  # entry - entry
                         lo, hi = (pa, pb - 1) if pa < pb else (pb, pa - 1)
                         if lo <= hi:
-                            g = _rev_gain(ext, ent, lo, hi, n, free)
-                            if g > best:
-                                best, kind, x1, x2 = g, 1, lo, hi
+                            g_ = _rev_gain(ex, en, off, d, lo, hi, n, free)
+                            if g_ > best:
+                                best, kind, x1, x2 = g_, 1, lo, hi
                         for L in range(1, 4):
-                            g = _gor(ext, ent, pb, pb + L - 1, pa - 1, True, n, free)
-                            if g > best:
-                                best, kind, x1, x2, x3, xr = g, 2, pb, pb + L - 1, pa - 1, True
-                            g = _gor(ext, ent, pa, pa + L - 1, pb - 1, True, n, free)
-                            if g > best:
-                                best, kind, x1, x2, x3, xr = g, 2, pa, pa + L - 1, pb - 1, True
+                            g_ = _gor(ex, en, off, d, pb, pb + L - 1, pa - 1, True, n, free)
+                            if g_ > best:
+                                best, kind, x1, x2, x3, xr = g_, 2, pb, pb + L - 1, pa - 1, True
+                            g_ = _gor(ex, en, off, d, pa, pa + L - 1, pb - 1, True, n, free)
+                            if g_ > best:
+                                best, kind, x1, x2, x3, xr = g_, 2, pa, pa + L - 1, pb - 1, True
                     if kind == 0:
                         continue
-                    if kind == 1:  # reverse positions x1-1..x2-1
-                        _reverse(seq, flip, x1 - 1, x2 - 1)
+                    # lo_p..hi_p: the tour positions whose stroke changed
+                    if kind == 1:  # reverse nodes x1..x2
+                        tour_reverse(P0, P1, home, pseq, pflip, pent, pext, pos, g, x1, x2, buf_s, buf_f)
                         lo_p, hi_p = x1 - 1, x2 - 1
-                    else:  # move positions x1-1..x2-1 after position x3-1
-                        s, e, k = x1 - 1, x2 - 1, x3 - 1
-                        m = 0
-                        if k < s:
-                            lo_p, hi_p = k + 1, e
-                        else:
-                            lo_p, hi_p = s, k
-                            for p in range(e + 1, k + 1):
-                                buf_s[m] = seq[p]
-                                buf_f[m] = flip[p]
-                                m += 1
-                        for t in range(e - s + 1):
-                            p = e - t if xr else s + t
-                            buf_s[m] = seq[p]
-                            buf_f[m] = (not flip[p]) if xr else flip[p]
-                            m += 1
-                        if k < s:
-                            for p in range(k + 1, s):
-                                buf_s[m] = seq[p]
-                                buf_f[m] = flip[p]
-                                m += 1
-                        for t in range(m):
-                            seq[lo_p + t] = buf_s[t]
-                            flip[lo_p + t] = buf_f[t]
-                    _refresh(P0, P1, seq, flip, pos, ent, ext, lo_p, hi_p)
+                    else:  # move nodes x1..x2 after node x3
+                        tour_move(P0, P1, home, pseq, pflip, pent, pext, pos, g, x1, x2, x3, xr, buf_s, buf_f)
+                        lo_p, hi_p = (x3, x2 - 1) if x3 < x1 else (x1 - 1, x3 - 1)
+                    off, d, rv, ex, en = _view(pent, pext, g)
                     moves += 1
                     gain += best
                     lo_t = min(lo_t, lo_p)
@@ -219,7 +191,7 @@ def _search(P0, P1, seq, flip, nbr, allow_reverse, max_moves, max_span,
                     # wake the strokes beside every changed edge
                     for p in (lo_p - 1, lo_p, hi_p, hi_p + 1, x1 - 2, x1 - 1, x2 - 1, x2, x3 - 1, x3):
                         if 0 <= p < n:
-                            w = seq[p]
+                            w = pseq[slot(off, d, p + 1, N)]
                             if not active[w] and top < stack.shape[0]:
                                 active[w] = True
                                 stack[top] = w
@@ -232,6 +204,7 @@ def _search(P0, P1, seq, flip, nbr, allow_reverse, max_moves, max_span,
         active[stack[top]] = False
     return moves, gain, lo_t, hi_t
 
+
 @numba.njit(cache=True, nogil=True)
 def _dist(ax, ay, bx, by):  # pragma: no cover - compiled
     dx = ax - bx
@@ -240,46 +213,53 @@ def _dist(ax, ay, bx, by):  # pragma: no cover - compiled
 
 
 @numba.njit(cache=True, nogil=True)
-def _e(ext, ent, p, q, n, free):  # pragma: no cover - compiled
+def _e(ex, en, off, d, p, q, n, free):  # pragma: no cover - compiled
     """exit(node p) -> entry(node q)."""
     if free and (p == 0 or p == n + 1 or q == 0 or q == n + 1):
         return 0.0
-    return _dist(ext[p, 0], ext[p, 1], ent[q, 0], ent[q, 1])
+    a = slot(off, d, p, n + 1)
+    b = slot(off, d, q, n + 1)
+    return _dist(ex[a, 0], ex[a, 1], en[b, 0], en[b, 1])
 
 
 @numba.njit(cache=True, nogil=True)
-def _xx(ext, p, q, n, free):  # pragma: no cover - compiled
+def _xx(ex, off, d, p, q, n, free):  # pragma: no cover - compiled
     """exit(node p) -> exit(node q)."""
     if free and (p == 0 or p == n + 1 or q == 0 or q == n + 1):
         return 0.0
-    return _dist(ext[p, 0], ext[p, 1], ext[q, 0], ext[q, 1])
+    a = slot(off, d, p, n + 1)
+    b = slot(off, d, q, n + 1)
+    return _dist(ex[a, 0], ex[a, 1], ex[b, 0], ex[b, 1])
 
 
 @numba.njit(cache=True, nogil=True)
-def _nn(ent, p, q, n, free):  # pragma: no cover - compiled
+def _nn(en, off, d, p, q, n, free):  # pragma: no cover - compiled
     """entry(node p) -> entry(node q)."""
     if free and (p == 0 or p == n + 1 or q == 0 or q == n + 1):
         return 0.0
-    return _dist(ent[p, 0], ent[p, 1], ent[q, 0], ent[q, 1])
+    a = slot(off, d, p, n + 1)
+    b = slot(off, d, q, n + 1)
+    return _dist(en[a, 0], en[a, 1], en[b, 0], en[b, 1])
 
 
 @numba.njit(cache=True, nogil=True, inline="always")
-def _rev_gain(ext, ent, lo, hi, n, free):  # pragma: no cover - compiled
+def _rev_gain(ex, en, off, d, lo, hi, n, free):  # pragma: no cover - compiled
     """Travel saved by reversing nodes lo..hi (2-opt): edges (lo-1, lo) and (hi, hi+1)
     become exit(lo-1) -> exit(hi) and entry(lo) -> entry(hi+1)."""
-    return (_e(ext, ent, lo - 1, lo, n, free) + _e(ext, ent, hi, hi + 1, n, free)
-            - _xx(ext, lo - 1, hi, n, free) - _nn(ent, lo, hi + 1, n, free))
+    return (_e(ex, en, off, d, lo - 1, lo, n, free) + _e(ex, en, off, d, hi, hi + 1, n, free)
+            - _xx(ex, off, d, lo - 1, hi, n, free) - _nn(en, off, d, lo, hi + 1, n, free))
 
 
 @numba.njit(cache=True, nogil=True)
-def _gor(ext, ent, s, e, k, rev, n, free):  # pragma: no cover - compiled
+def _gor(ex, en, off, d, s, e, k, rev, n, free):  # pragma: no cover - compiled
     """Travel saved by moving nodes s..e between nodes k and k + 1 (reversed if rev)."""
     if s < 1 or e > n or s > e or k < 0 or k > n or (s - 1 <= k and k <= e):
         return -1.0
-    g = _e(ext, ent, s - 1, s, n, free) + _e(ext, ent, e, e + 1, n, free) - _e(ext, ent, s - 1, e + 1, n, free) + _e(ext, ent, k, k + 1, n, free)
+    g_ = (_e(ex, en, off, d, s - 1, s, n, free) + _e(ex, en, off, d, e, e + 1, n, free)
+          - _e(ex, en, off, d, s - 1, e + 1, n, free) + _e(ex, en, off, d, k, k + 1, n, free))
     if rev:
-        return g - _xx(ext, k, e, n, free) - _nn(ent, s, k + 1, n, free)
-    return g - _e(ext, ent, k, s, n, free) - _e(ext, ent, e, k + 1, n, free)
+        return g_ - _xx(ex, off, d, k, e, n, free) - _nn(en, off, d, s, k + 1, n, free)
+    return g_ - _e(ex, en, off, d, k, s, n, free) - _e(ex, en, off, d, e, k + 1, n, free)
 
 
 @numba.njit(cache=True, nogil=True)
@@ -291,27 +271,44 @@ def full_two_opt(P0, P1, seq, flip, home, max_passes):  # pragma: no cover - com
     Returns the number of moves made.
     """
     n = seq.shape[0]
-    pos, ent, ext, free = _state(P0, P1, seq, flip, home)[:4]
+    pseq, pflip, pent, pext, pos, g, free, buf_s, buf_f = _state(P0, P1, seq, flip, home)[:9]
+    off, d, rv, ex, en = _view(pent, pext, g)
     moves = 0
     for _ in range(max_passes):
         improved = False
         for lo in range(1, n + 1):  # reverse nodes lo..hi: edges (lo-1, lo) and (hi, hi+1) change
-            old_a = _e(ext, ent, lo - 1, lo, n, free)
+            old_a = _e(ex, en, off, d, lo - 1, lo, n, free)
             best = _EPS
             best_hi = -1
+            # the same sums as _e / _xx / _nn, walking the ring's slots (hi's: s, hi + 1's: t)
+            a = slot(off, d, lo - 1, n + 1)
+            s = slot(off, d, lo, n + 1)
+            ax, ay, bx, by = ex[a, 0], ex[a, 1], en[s, 0], en[s, 1]
+            head = free and lo == 1  # legs to an absent home cost nothing
             for hi in range(lo, n + 1):
-                g = (old_a + _e(ext, ent, hi, hi + 1, n, free)
-                     - _xx(ext, lo - 1, hi, n, free) - _nn(ent, lo, hi + 1, n, free))
-                if g > best:
-                    best = g
+                t = s + d
+                if t > n:
+                    t = 0
+                elif t < 0:
+                    t = n
+                xx = 0.0 if head else _dist(ax, ay, ex[s, 0], ex[s, 1])
+                if free and hi == n:
+                    g_ = old_a + 0.0 - xx - 0.0
+                else:
+                    g_ = (old_a + _dist(ex[s, 0], ex[s, 1], en[t, 0], en[t, 1])
+                          - xx - _dist(bx, by, en[t, 0], en[t, 1]))
+                if g_ > best:
+                    best = g_
                     best_hi = hi
+                s = t
             if best_hi > 0:
-                _reverse(seq, flip, lo - 1, best_hi - 1)
-                _refresh(P0, P1, seq, flip, pos, ent, ext, lo - 1, best_hi - 1)
+                tour_reverse(P0, P1, home, pseq, pflip, pent, pext, pos, g, lo, best_hi, buf_s, buf_f)
+                off, d, rv, ex, en = _view(pent, pext, g)
                 moves += 1
                 improved = True
         if not improved:
             break
+    tour_read(pseq, pflip, g, seq, flip)
     return moves
 
 
@@ -349,10 +346,11 @@ def perturb(P0, P1, seq, flip, home, nbr, allow_reverse, iterations, window, see
     rejected kick restores only the positions it touched.
     Returns (kicks made, travel saved, kicks in a row without gain)."""
     n = seq.shape[0]
+    N = n + 1
     if n < 8:
         return 0, 0.0, since
     np.random.seed(seed)
-    pos, ent, ext, free, buf_s, buf_f, active, stack = _state(P0, P1, seq, flip, home)
+    pseq, pflip, pent, pext, pos, g, free, buf_s, buf_f, active, stack = _state(P0, P1, seq, flip, home)
     keep_s = seq.copy()
     keep_f = flip.copy()
     saved = 0.0
@@ -360,6 +358,7 @@ def perturb(P0, P1, seq, flip, home, nbr, allow_reverse, iterations, window, see
     while it < iterations and since < stall:
         it += 1
         since += 1
+        off, d, rv, ex, en = _view(pent, pext, g)
         span = min(window, n - 1)
         a = np.random.randint(1, n - span + 1) if n - span >= 1 else 1
         b = a + np.random.randint(1, span - 1)
@@ -370,42 +369,32 @@ def perturb(P0, P1, seq, flip, home, nbr, allow_reverse, iterations, window, see
             continue
         # node p + 1 is position p: edges (a-1, a), (b-1, b), (c-1, c) are replaced
         # by (a-1, b), (c-1, a), (b-1, c)
-        delta = (_e(ext, ent, a, b + 1, n, free) + _e(ext, ent, c, a + 1, n, free) + _e(ext, ent, b, c + 1, n, free)
-                 - _e(ext, ent, a, a + 1, n, free) - _e(ext, ent, b, b + 1, n, free) - _e(ext, ent, c, c + 1, n, free))
-        m = 0
-        for p in range(b, c):
-            buf_s[m] = seq[p]
-            buf_f[m] = flip[p]
-            m += 1
-        for p in range(a, b):
-            buf_s[m] = seq[p]
-            buf_f[m] = flip[p]
-            m += 1
-        for t in range(m):
-            seq[a + t] = buf_s[t]
-            flip[a + t] = buf_f[t]
-        _refresh(P0, P1, seq, flip, pos, ent, ext, a, c - 1)
+        delta = (_e(ex, en, off, d, a, b + 1, n, free) + _e(ex, en, off, d, c, a + 1, n, free)
+                 + _e(ex, en, off, d, b, c + 1, n, free) - _e(ex, en, off, d, a, a + 1, n, free)
+                 - _e(ex, en, off, d, b, b + 1, n, free) - _e(ex, en, off, d, c, c + 1, n, free))
+        tour_get(pseq, pflip, g, b + 1, c - b, N, buf_s, buf_f, 0)
+        tour_get(pseq, pflip, g, a + 1, b - a, N, buf_s, buf_f, c - b)
+        tour_write(P0, P1, home, pseq, pflip, pent, pext, pos, g, a + 1, c - a, buf_s, buf_f)
         top = 0
         for p in (a - 1, a, a + c - b - 1, a + c - b, c - 1, min(c, n - 1)):
-            w = seq[p]
+            w = pseq[slot(off, d, p + 1, N)]
             if not active[w]:
                 active[w] = True
                 stack[top] = w
                 top += 1
-        _, g, lo, hi = _search(P0, P1, seq, flip, nbr, allow_reverse, 20 * window + 100, max_span,
-                               pos, ent, ext, free, buf_s, buf_f, active, stack, top)
+        _, gain, lo, hi = _search(P0, P1, home, nbr, allow_reverse, 20 * window + 100, max_span,
+                                  pseq, pflip, pent, pext, pos, g, free, buf_s, buf_f, active, stack, top)
         lo = min(lo, a)
         hi = max(hi, c - 1)
-        if g - delta > 1e-9:
-            saved += g - delta
+        if gain - delta > 1e-9:
+            saved += gain - delta
             since = 0
-            keep_s[lo:hi + 1] = seq[lo:hi + 1]
-            keep_f[lo:hi + 1] = flip[lo:hi + 1]
+            tour_get(pseq, pflip, g, lo + 1, hi - lo + 1, N, keep_s, keep_f, lo)
         else:
-            seq[lo:hi + 1] = keep_s[lo:hi + 1]
-            flip[lo:hi + 1] = keep_f[lo:hi + 1]
-            _refresh(P0, P1, seq, flip, pos, ent, ext, lo, hi)
+            tour_write(P0, P1, home, pseq, pflip, pent, pext, pos, g, lo + 1, hi - lo + 1, keep_s[lo:], keep_f[lo:])
+    tour_read(pseq, pflip, g, seq, flip)
     return it, saved, since
+
 
 
 @numba.njit(cache=True, nogil=True)
