@@ -143,10 +143,11 @@ class Spline:
         over the same knot spans, one degree lower than the last."""
         return self._levels()
 
-    def _levels(self) -> list[np.ndarray]:
+    def _levels(self, top: int | None = None) -> list[np.ndarray]:
+        """derivative_controls up to q^(top) (all by default)."""
         c, k = np.ascontiguousarray(self.control), self.degree
         out = [c]
-        for den in _knot_table(len(self.control), self.degree).steps:
+        for den in _knot_table(len(self.control), self.degree).steps[:top]:
             c = k * (c[1:] - c[:-1]) / den
             k -= 1
             out.append(c)
@@ -158,7 +159,7 @@ class Spline:
         if der == 0:
             return self.control
         if self.__dict__.get("_forgotten"):
-            return self._levels()[der]
+            return self._levels(der)[der]
         return self.derivative_controls[der]
 
     def forget_derivatives(self) -> None:

@@ -27,7 +27,7 @@ from doodlecam.errors import (
 )
 from doodlecam.machine import Machine
 from doodlecam.memory import memory_mb
-from doodlecam.model import Drawing, Job, Stroke
+from doodlecam.model import Drawing, Job, Stroke, prime_splines
 from doodlecam.options import ConvertOptions
 from doodlecam.trace.raster import IMAGE_EXTENSIONS
 
@@ -452,6 +452,7 @@ def convert(path: str | Path, outdir: str | Path, settings: Settings, progress: 
                    smoothing=settings.smoothing, order=settings.order, workers=settings.workers,
                    progress=progress)
     timings.update(job.meta["timings"])
+    prime_splines([s.spline for s in job.strokes], lengths=True)  # the posts' lengths, at once
     for s in job.strokes:  # planned: written from the curves alone (memory at 10^5 paths)
         s.spline.forget_derivatives()
     meta = dict(drawing_mm.meta, units_in=units_in, strokes_traced=traced)
