@@ -23,7 +23,7 @@ from __future__ import annotations
 
 import argparse
 import json
-import resource
+import os
 import shutil
 import subprocess
 import sys
@@ -37,16 +37,19 @@ DEFAULT_VPYPE = Path("/tmp/vpype-venv/bin/vpype")
 
 
 def _run(cmd) -> tuple[float, float, int, str]:
-    """(CPU s of the process and its children, wall s, peak RSS MB of the largest, stdout)."""
-    before = resource.getrusage(resource.RUSAGE_CHILDREN)
-    t = time.perf_counter()
-    p = subprocess.run(cmd, capture_output=True, text=True)
-    wall = time.perf_counter() - t
-    after = resource.getrusage(resource.RUSAGE_CHILDREN)
-    if p.returncode != 0:
-        raise SystemExit(f"{cmd[0]} failed: {p.stderr.strip()[-400:]}")
-    cpu = (after.ru_utime - before.ru_utime) + (after.ru_stime - before.ru_stime)
-    return cpu, wall, after.ru_maxrss // 1024, p.stdout
+    """(CPU s, wall s, peak RSS MB, stdout) of this one process and its children: os.wait4's own
+    rusage (RUSAGE_CHILDREN's ru_maxrss is the largest of every child so far, vpype's included)."""
+    with tempfile.TemporaryFile("w+") as out, tempfile.TemporaryFile("w+") as err:
+        t = time.perf_counter()
+        p = subprocess.Popen(cmd, stdout=out, stderr=err, text=True)
+        _, status, use = os.wait4(p.pid, 0)
+        p.returncode = os.waitstatus_to_exitcode(status)
+        wall = time.perf_counter() - t
+        out.seek(0)
+        err.seek(0)
+        if p.returncode != 0:
+            raise SystemExit(f"{cmd[0]} failed: {err.read().strip()[-400:]}")
+        return use.ru_utime + use.ru_stime, wall, use.ru_maxrss // 1024, out.read()
 
 
 def throughput() -> None:
@@ -101,21 +104,22 @@ def main() -> None:
         small.write_text(generated_svg(20, "mixed"))
         _run(dc + ["convert", str(small), "-o", str(tmp / "warm"), "--scale", "1"])  # compiled kernels cached
         print("| paths | SVG MB | doodlecam workers | doodlecam CPU s | wall s | peak MB (largest process) | strokes | pen lifts "
-              "| vpype CPU s | doodlecam / vpype (CPU) |\n|---|---|---|---|---|---|---|---|---|---|")
+              "| vpype CPU s | vpype peak MB | doodlecam / vpype (CPU) |\n|---|---|---|---|---|---|---|---|---|---|---|")
         for n in args.sizes:
             svg = tmp / f"art{n}.svg"
             svg.write_text(generated_svg(n, "mixed", seed=1))
             mb = svg.stat().st_size / 1e6
-            vp = None
+            vp = vp_rss = None
             if use_vpype:
-                vp = _run([str(args.vpype), "read", str(svg), "linemerge", "linesort", "write", str(tmp / f"vp{n}.svg")])[0]
+                vp, _, vp_rss, _ = _run([str(args.vpype), "read", str(svg), "linemerge", "linesort", "write",
+                                         str(tmp / f"vp{n}.svg")])
             for w in args.workers:
                 cpu, wall, rss, out = _run(dc + ["convert", str(svg), "-o", str(tmp / f"out{n}-{w}"), "--scale", "1",
                                                  "--json", "--workers", str(w)])
                 s = json.loads(out)
                 ratio = f"{cpu / vp:.2f}" if vp else "-"
                 print(f"| {n} | {mb:.1f} | {w} | {cpu:.1f} | {wall:.1f} | {rss} | {s['strokes']} | {s['pen_lifts']} | "
-                      f"{f'{vp:.1f}' if vp else '-'} | {ratio} |", flush=True)
+                      f"{f'{vp:.1f}' if vp else '-'} | {vp_rss or '-'} | {ratio} |", flush=True)
         if not args.no_throughput:
             throughput()
     finally:
