@@ -168,3 +168,25 @@ def test_a_degenerate_jerk_plan_is_replaced_by_a_bounded_one():
     least = stroke_plan._least_time(spline, Limits.from_machine(m, kinematics_for(m)))
     assert job.draw_time <= stroke_plan.ABSURD * least + 1.0 and job.draw_time < 10.0
     assert job.meta["max_between_samples_mm"] <= m.path_tolerance + 1e-9
+
+
+def test_a_conversion_collects_garbage_rarely_and_restores_the_collector(tmp_path, monkeypatch):
+    """convert raises the cyclic collector's thresholds while it runs (10^5 strokes' objects walked
+    again by every full collection) and puts the caller's back, also when it fails."""
+    import gc
+
+    from doodlecam import pipeline
+    from doodlecam.errors import InputError
+
+    seen = []
+    real = pipeline.trace
+    monkeypatch.setattr(pipeline, "trace", lambda *a: seen.append(gc.get_threshold()) or real(*a))
+    svg = tmp_path / "art.svg"
+    svg.write_text(generated_svg(20, "mixed", seed=3))
+    before = gc.get_threshold()
+    convert(svg, tmp_path / "out", Settings(machine=load_machine("doodlebot")))
+    assert seen == [pipeline.GC_THRESHOLDS] and gc.get_threshold() == before
+    svg.write_text("<svg xmlns='http://www.w3.org/2000/svg' width='10mm' height='10mm'/>")
+    with pytest.raises(InputError):
+        convert(svg, tmp_path / "out2", Settings(machine=load_machine("doodlebot")))
+    assert gc.get_threshold() == before
