@@ -76,6 +76,17 @@ def slot(off, d, q, N):  # pragma: no cover - compiled
     return s
 
 
+@numba.njit(cache=True, nogil=True, inline="always")
+def _next(s, d, N):  # pragma: no cover - compiled
+    """The slot one step (d = +1 or -1) from slot s around a ring of N."""
+    s += d
+    if s == N:
+        return 0
+    if s < 0:
+        return N - 1
+    return s
+
+
 @numba.njit(cache=True, nogil=True)
 def node(off, d, s, N):  # pragma: no cover - compiled
     """The node (0 = home .. n) held in slot s."""
@@ -115,11 +126,7 @@ def tour_get(pseq, pflip, g, q0, m, N, out_s, out_f, at):  # pragma: no cover - 
     for t in range(m):
         out_s[at + t] = pseq[s]
         out_f[at + t] = pflip[s] != r
-        s += d
-        if s == N:
-            s = 0
-        elif s < 0:
-            s = N - 1
+        s = _next(s, d, N)
 
 
 @numba.njit(cache=True, nogil=True)
@@ -153,11 +160,7 @@ def _store(P0, P1, home, pseq, pflip, pent, pext, pos, s, d, r, m, buf_s, buf_f)
                 pent[s, 0], pent[s, 1], pext[s, 0], pext[s, 1] = P1[i, 0], P1[i, 1], P0[i, 0], P0[i, 1]
             else:
                 pent[s, 0], pent[s, 1], pext[s, 0], pext[s, 1] = P0[i, 0], P0[i, 1], P1[i, 0], P1[i, 1]
-        s += d
-        if s == N:
-            s = 0
-        elif s < 0:
-            s = N - 1
+        s = _next(s, d, N)
     return h
 
 
@@ -203,16 +206,8 @@ def _flip_slots(pseq, pflip, pent, pext, pos, g, q0, m):  # pragma: no cover - c
             pos[j] = b
         else:
             h = b
-        a += d
-        b -= d
-        if a == N:
-            a = 0
-        elif a < 0:
-            a = N - 1
-        if b == N:
-            b = 0
-        elif b < 0:
-            b = N - 1
+        a = _next(a, d, N)
+        b = _next(b, -d, N)
     if m % 2 == 1:  # the middle one turns round where it is
         pflip[a] = not pflip[a]
         pent[a, 0], pent[a, 1], pext[a, 0], pext[a, 1] = pext[a, 0], pext[a, 1], pent[a, 0], pent[a, 1]
@@ -242,16 +237,8 @@ def _shift(pseq, pflip, pent, pext, pos, g, q0, m, by):  # pragma: no cover - co
             pos[i] = dst
         else:
             h = dst
-        src += step
-        dst += step
-        if src == N:
-            src = 0
-        elif src < 0:
-            src = N - 1
-        if dst == N:
-            dst = 0
-        elif dst < 0:
-            dst = N - 1
+        src = _next(src, step, N)
+        dst = _next(dst, step, N)
     if h >= 0:
         g[0] = h
 
