@@ -11,7 +11,7 @@ import numba
 import numpy as np
 
 from doodlecam.geometry.chords import greedy_chords, one_step_apart, snap_chords
-from doodlecam.geometry.kernels import _point
+from doodlecam.geometry.kernels import _point, bspline_eval
 
 _PROBES = 7  # interior probes per segment when refining: 1/8 .. 7/8 of it, as np.linspace(0, 1, 9)[1:-1]
 
@@ -27,13 +27,6 @@ def _grow(a, n):  # pragma: no cover - compiled
 
 
 @numba.njit(cache=True, nogil=True)
-def _eval(c, k, nseg, u, out, N, left, right):  # pragma: no cover - compiled
-    """out[j] = the spline at u[j] clipped to [0, 1] (as Spline.__call__)."""
-    for j in range(u.shape[0]):
-        out[j, 0], out[j, 1] = _point(c, k, nseg, min(max(u[j], 0.0), 1.0), N, left, right)
-
-
-@numba.njit(cache=True, nogil=True)
 def _refine_one(c, k, u, tol, max_rounds):  # pragma: no cover - compiled
     """u split at the middle of every segment whose chord strays more than ``tol`` from the spline (control
     points c, degree k), round after round (postprocessors.gcode._refine): (u, the spline at u). A segment
@@ -43,7 +36,7 @@ def _refine_one(c, k, u, tol, max_rounds):  # pragma: no cover - compiled
     N, left, right = np.empty(k + 1), np.empty(k + 1), np.empty(k + 1)
     done = np.zeros(u.shape[0] - 1, np.bool_)  # segment i is within tol
     p = np.empty((u.shape[0], 2))
-    _eval(c, k, nseg, u, p, N, left, right)
+    bspline_eval(c, k, nseg, u, p)  # as Spline.__call__
     for _ in range(max_rounds):
         n = u.shape[0]
         bad = np.zeros(n - 1, np.bool_)

@@ -1,11 +1,11 @@
 """Many splines evaluated in one compiled call (the posts write 10^4-10^5 strokes: one Spline.__call__ each
-cost more than the evaluation). Exactly Spline.__call__'s arithmetic (kernels._point), so the values are the
+cost more than the evaluation). Exactly Spline.__call__'s arithmetic (kernels.bspline_eval), so the values are the
 same to the bit."""
 
 import numba
 import numpy as np
 
-from doodlecam.geometry.kernels import _point
+from doodlecam.geometry.kernels import bspline_eval
 
 
 @numba.njit(cache=True, nogil=True)
@@ -15,11 +15,7 @@ def points_at(ctrl, coff, degree, u, uoff):  # pragma: no cover - compiled
     out = np.empty((u.shape[0], 2))
     for s in range(coff.shape[0] - 1):
         c = ctrl[coff[s]:coff[s + 1]]
-        k = degree[s]
-        nseg = c.shape[0] - k
-        N, left, right = np.empty(k + 1), np.empty(k + 1), np.empty(k + 1)
-        for j in range(uoff[s], uoff[s + 1]):
-            out[j, 0], out[j, 1] = _point(c, k, nseg, min(max(u[j], 0.0), 1.0), N, left, right)
+        bspline_eval(c, degree[s], c.shape[0] - degree[s], u[uoff[s]:uoff[s + 1]], out[uoff[s]:uoff[s + 1]])
     return out
 
 
