@@ -58,6 +58,7 @@ NORMAL_WEIGHT = 10.0
 TRUST_MM = 0.5
 # Up to this many instants the QP is solved densely (quadprog), past it by Clarabel.
 DENSE_INSTANTS = 40
+_NO_ROWS, _NONE = np.empty((0, 2)), np.empty(0)  # for the kernels' absent arguments
 
 
 class _Coo:
@@ -298,12 +299,11 @@ def _qp(p, tang, v_plan, end, dt, tol, limits, L, nrm=None, trust=None, crank=No
     # both ends holds throughout)
     from doodlecam.plan.kernels import qp_fill
 
-    empty = np.empty(0)
     qp_fill(tang, tagged, signs, inst, axes, A.data, P.indices, P.data, dx, dy, cross,
-            nrm if nrm is not None else np.empty((0, 2)), NORMAL_WEIGHT * (dt / 4) ** 2, lam, v_plan,
+            nrm if nrm is not None else _NO_ROWS, NORMAL_WEIGHT * (dt / 4) ** 2, lam, v_plan,
             shifted if shifted is not None else np.zeros(m), p, tol, L, np.asarray(end, float),
-            np.asarray(limits.amax, float) if limited else empty, np.asarray(limits.vmax, float) if limited else empty,
-            float(dt), trust if trust is not None else empty, float(limits.pen_speed) if pen else -1.0, q, b)
+            np.asarray(limits.amax, float) if limited else _NONE, np.asarray(limits.vmax, float) if limited else _NONE,
+            float(dt), trust if trust is not None else _NONE, float(limits.pen_speed) if pen else -1.0, q, b)
     n_tail = 0
     if crank is not None:
         import scipy.sparse as sp
@@ -341,8 +341,6 @@ def _dense_qp(p, tang, v_plan, end, dt, tol, limits, L, nrm, trust, shifted, lam
     v = z[:2 * n].reshape(2, n).T
     return v, T @ v, z[2 * n:]
 
-
-_NO_ROWS, _NONE = np.empty((0, 2)), np.empty(0)
 
 
 def whole_step_limits(limits, steps_per_mm, dt: float):
