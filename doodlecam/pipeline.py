@@ -98,7 +98,7 @@ def _quiet(stage: str, done: int = 0, total: int = 0) -> None:
 
 def plan_job(drawing: Drawing, machine: Machine, solver: str = "reach", plugin_dirs=(), order: dict | None = None,
              smoothing: float | None = None, fitted: list[Stroke] | None = None, workers: int = 1,
-             progress: Progress = _quiet) -> Job:
+             progress: Progress = _quiet, pens: dict[str, tuple[int, str]] | None = None) -> Job:
     """Order, fit, plan and sample a drawing already in machine millimetres.
 
     ``progress(stage, done, total)`` is told each stage ("ordering", "fitting", "planning":
@@ -108,6 +108,9 @@ def plan_job(drawing: Drawing, machine: Machine, solver: str = "reach", plugin_d
     ``order`` overrides the profile's [order] options (doodlecam.options.ORDER_DEFAULTS).
     ``fitted``: strokes already ordered and fitted (an edited job, e.g. from the
     studio): planned as given, without ordering or fitting ``drawing`` again.
+    ``pens``: with ``fitted``, the pen (number, why) each layer was given in the whole job, so that a few
+    edited strokes are planned with their own pen's limits (assigned afresh to these strokes' layers
+    alone, a layer could take another pen).
     ``workers``: processes that plan the strokes (doodlecam.plan.stroke; the job is the
     same with any number).
     """
@@ -152,7 +155,7 @@ def plan_job(drawing: Drawing, machine: Machine, solver: str = "reach", plugin_d
     t0 = time.perf_counter()
     strokes = [] if fitted is None else [Stroke(spline=s.spline, source_index=s.source_index, fit_error=s.fit_error,
                                                 layer=s.layer) for s in fitted]
-    if fitted is not None:  # an edited job keeps its order of layers
+    if fitted is not None and pens is None:  # an edited job keeps its order of layers
         pens = machine.assign_pens([*drawing.layers, *(s.layer for s in strokes)], colours)
     # A tracer may ask for its strokes to be cut where they turn sharper than an angle (the
     # vector tracer's corners, joined hatching's zig-zags): each piece is fitted on its own, so

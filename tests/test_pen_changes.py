@@ -360,3 +360,22 @@ def test_one_pen_profiles_ask_for_no_first_pen(tmp_path):
     res, m0, pauses = _four(tmp_path, m)
     assert res.job.layers == ("outline", "roses", "leaves", "shadow") and res.job.pen_pauses == res.job.pen_changes
     assert len(m0) == len(pauses) == 3 and pauses[0][0] > 0 and res.summary()["first_pen_prompt"] is None
+
+
+def test_a_studio_edit_keeps_the_strokes_layer_and_pen(machine):
+    """A stroke edited in the studio stays on its layer and is re-planned within its own pen's caps: the red
+    circle is the brush's (40 mm/s), though re-planned alone its layer would take the first spare pen."""
+    from doodlecam.studio.session import Session
+
+    session = Session(Settings(machine=machine))
+    session.load("layers.svg", LAYERS_SVG.read_bytes(), background=False)
+    job = session.job
+    k = next(i for i, st in enumerate(job.strokes) if st.layer == "red" and len(st.spline.control) > 4)
+    assert job.pen_numbers[k] == 2
+    control = np.array(job.strokes[k].spline.control)
+    control[2] += 0.2
+    session.edit("move", k, control=control.tolist())
+    new = session.job
+    assert new.strokes[k].layer == "red" and new.pen_numbers == job.pen_numbers and new.pen_changes == job.pen_changes
+    speed = np.linalg.norm(new.samples[k].velocity, axis=1).max()
+    assert 30.0 < speed <= 40.0 * (1 + 1e-9)

@@ -251,8 +251,11 @@ class Session:
             return [], []
         s = self.settings
         drawing = _curves(strokes)
+        job = self._require()  # its strokes keep the pens the whole job gave their layers
+        why = job.meta.get("pen_reasons") or {}
+        pens = {n: (int(k), why.get(n, "")) for n, k in job.layer_pens.items()}
         job = plan_job(drawing, self.machine, s.solver or self.machine.solver, s.plugin_dirs,
-                       smoothing=s.smoothing, fitted=strokes)
+                       smoothing=s.smoothing, fitted=strokes, pens=pens)
         return list(job.strokes), list(job.samples)
 
     def _rebuild(self, strokes: list[Stroke], samples: list, changed: set[int]) -> Job:
@@ -383,7 +386,7 @@ class Session:
                 if len(control) != len(ctrl):  # a move never changes their number (that is insert / delete_point)
                     raise InputError(f"move keeps the stroke's {len(ctrl)} control points (got {len(control)}); "
                                      "use insert or delete_point to change their number")
-                strokes[i] = Stroke(Spline(deg, control), source_index=st.source_index)
+                strokes[i] = Stroke(Spline(deg, control), source_index=st.source_index, layer=st.layer)
             elif op == "insert":  # a new point halfway between control points k and k + 1
                 k = self._index(kw.get("point"), len(ctrl), "control point")
                 if k == len(ctrl) - 1:
@@ -391,30 +394,30 @@ class Session:
                 if len(ctrl) >= MAX_STROKE_CONTROL:
                     raise InputError(f"a stroke has at most {MAX_STROKE_CONTROL} control points; refit it first")
                 strokes[i] = Stroke(Spline(deg, np.insert(ctrl, k + 1, (ctrl[k] + ctrl[k + 1]) / 2, axis=0)),
-                                    source_index=st.source_index)
+                                    source_index=st.source_index, layer=st.layer)
             elif op == "delete_point":
                 k = self._index(kw.get("point"), len(ctrl), "control point")
                 if len(ctrl) <= deg + 1:
                     raise InputError(f"a stroke needs at least {deg + 1} control points; delete the stroke instead")
-                strokes[i] = Stroke(Spline(deg, np.delete(ctrl, k, axis=0)), source_index=st.source_index)
+                strokes[i] = Stroke(Spline(deg, np.delete(ctrl, k, axis=0)), source_index=st.source_index, layer=st.layer)
             elif op == "delete":
                 del strokes[i], samples[i]
                 changed = set()
             elif op == "reverse":
-                strokes[i] = Stroke(st.spline.reversed(), source_index=st.source_index)
+                strokes[i] = Stroke(st.spline.reversed(), source_index=st.source_index, layer=st.layer)
             elif op == "split":  # at control point k: two strokes sharing it
                 k = self._index(kw.get("point"), len(ctrl), "control point")
                 if k < deg or len(ctrl) - k < deg + 1:
                     raise InputError(f"split at a control point with at least {deg} others on each side")
-                strokes[i:i + 1] = [Stroke(Spline(deg, ctrl[:k + 1]), source_index=st.source_index),
-                                    Stroke(Spline(deg, ctrl[k:]), source_index=st.source_index)]
+                strokes[i:i + 1] = [Stroke(Spline(deg, ctrl[:k + 1]), source_index=st.source_index, layer=st.layer),
+                                    Stroke(Spline(deg, ctrl[k:]), source_index=st.source_index, layer=st.layer)]
                 samples[i:i + 1] = [None, None]
                 changed = {i, i + 1}
             elif op == "refit":  # fewer control points: the curve refitted within a tolerance the user sets
                 tol = kw.get("tolerance")
                 if not isinstance(tol, (int, float)) or isinstance(tol, bool) or not 0.001 <= tol <= 10:
                     raise InputError("refit needs 'tolerance': the largest distance from the curve, 0.001 to 10 mm")
-                strokes[i] = Stroke(refit(st.spline, float(tol)), source_index=st.source_index)
+                strokes[i] = Stroke(refit(st.spline, float(tol)), source_index=st.source_index, layer=st.layer)
             elif op == "reorder":
                 to = self._index(kw.get("to"), len(strokes), "position")
                 strokes.insert(to, strokes.pop(i))
