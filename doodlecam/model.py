@@ -396,14 +396,72 @@ class Job:
             return sum(len(s.velocity) * s.delta_time for s in self.samples)
         return sum(s.duration for s in self.strokes)
 
-    @property
-    def duration(self) -> float:
-        """Planned job time: strokes, travels and pen up/down delays (one pair per lift)."""
+    @cached_property  # strokes, travels and samples never change: the studio asks often
+    def travel_time(self) -> float:
+        """Pen-up time: every travel's (s)."""
+        return sum(t.duration for t in self.travels)
+
+    @cached_property  # strokes, travels and samples never change: the studio asks often
+    def pen_delays(self) -> float:
+        """The pen's down and up delays of every lift, each with its pen's (s)."""
         m = self.machine
         number = getattr(m, "pen_number", None)  # each lift with its pen's delays ([[pen]])
         pens = [number(k) if number else m.pen for k in self.pen_numbers] if self.strokes else []
-        pen = sum(p.down_delay + p.up_delay for p, lift in zip(pens, self.lifts) if lift)
-        return self.draw_time + sum(t.duration for t in self.travels) + pen
+        return sum(p.down_delay + p.up_delay for p, lift in zip(pens, self.lifts) if lift)
+
+    @property
+    def duration(self) -> float:
+        """Planned job time: strokes, travels and pen up/down delays (one pair per lift)."""
+        return self.draw_time + self.travel_time + self.pen_delays
+
+    def replacing(self, strokes: dict[int, tuple[Stroke, StrokeSamples]], travels: dict[int, Travel],
+                  meta: dict[str, Any]) -> "Job":
+        """This job with the strokes (and their samples) and the travels at these positions replaced, on the
+        same layers, and ``meta``. The totals it already knows (lengths, times, lifts) are carried over by
+        the differences, so an edit of one stroke of 10^5 (the studio) costs what that stroke costs; they
+        may differ from a fresh sum over every stroke in the last bits."""
+        if any(st.layer != self.strokes[i].layer for i, (st, _) in strokes.items()):
+            raise ValueError("Job.replacing keeps each stroke's layer")
+        st, sa, tr = list(self.strokes), list(self.samples), list(self.travels)
+        for i, (s, m) in strokes.items():
+            st[i] = s
+            if sa:
+                sa[i] = m
+        for i, t in travels.items():
+            tr[i] = t
+        new = Job(self.machine, tuple(st), tuple(tr), tuple(sa), self.source, meta)
+        known, d = self.__dict__, new.__dict__
+
+        def carried(name: str, where, delta) -> None:  # the old total plus the differences at ``where``
+            if name in known:
+                d[name] = known[name] + sum(delta(i) for i in sorted(where))
+
+        carried("pen_down_length", strokes, lambda i: new.strokes[i].spline.length - self.strokes[i].spline.length)
+        if sa:
+            carried("draw_time", strokes, lambda i: len(new.samples[i].velocity) * new.samples[i].delta_time
+                    - len(self.samples[i].velocity) * self.samples[i].delta_time)
+        else:
+            carried("draw_time", strokes, lambda i: new.strokes[i].duration - self.strokes[i].duration)
+        carried("travel_length", travels, lambda i: new.travels[i].length - self.travels[i].length)
+        carried("travel_time", travels, lambda i: new.travels[i].duration - self.travels[i].duration)
+        if "layers" in known:
+            d["layers"] = known["layers"]
+        if "lifts" in known:  # a lift depends on the travel into its stroke (the layers are kept)
+            moved = [i for i in travels if i < len(st)]
+            lifts = list(known["lifts"])
+            for i in moved:
+                lifts[i] = i == 0 or st[i].layer != st[i - 1].layer or tr[i].length >= SAME_POINT
+            d["lifts"] = tuple(lifts)
+            if "pen_delays" in known:
+                pens = self.layer_pens
+                number = getattr(self.machine, "pen_number", None)
+
+                def delay(i: int) -> float:
+                    p = number(pens[st[i].layer]) if number else self.machine.pen
+                    return (p.down_delay + p.up_delay) * (d["lifts"][i] - known["lifts"][i])
+
+                carried("pen_delays", moved, delay)
+        return new
 
 
 def prime_splines(splines, lengths: bool = False) -> None:

@@ -379,3 +379,10 @@ def test_a_studio_edit_keeps_the_strokes_layer_and_pen(machine):
     assert new.strokes[k].layer == "red" and new.pen_numbers == job.pen_numbers and new.pen_changes == job.pen_changes
     speed = np.linalg.norm(new.samples[k].velocity, axis=1).max()
     assert 30.0 < speed <= 40.0 * (1 + 1e-9)
+    session.summary()
+    session.edit("reverse", k)  # its travels made again: the totals carried over equal a fresh job's
+    from doodlecam.model import Job
+
+    new = session.job
+    fresh = Job(new.machine, new.strokes, new.travels, new.samples, new.source, dict(new.meta))
+    assert new.pen_delays == pytest.approx(fresh.pen_delays) and new.duration == pytest.approx(fresh.duration, rel=1e-12)

@@ -175,6 +175,48 @@ def test_an_edit_replans_its_stroke_only_and_other_tabs_hear_of_it(monkeypatch):
     assert seen[0][1] == {"job": s["job"], "version": r.json()["version"], "planning": None}
 
 
+def test_edits_in_place_carry_the_totals_and_figures_of_a_fresh_job():
+    """An edit that replaces strokes in place (move, reverse, insert, delete_point) costs what its strokes cost:
+    the job's totals are the old ones plus the differences (Job.replacing) and its largest figures are kept
+    unless the edited stroke held one. Every figure must equal what a pass over the whole new job gives."""
+    from doodlecam.model import Job
+    from doodlecam.plan.travel import travel_time_by_law
+
+    _, session = client()
+    session.load("art.svg", generated_svg(200, "curves").encode(), background=False)
+    s = session.summary()  # the summary knows the totals: the edits carry them over
+    job = session.job
+    by_fit = max(range(len(job.strokes)), key=lambda i: job.strokes[i].fit_error)
+    second = max(st.fit_error for i, st in enumerate(job.strokes) if i != by_fit)
+    assert job.strokes[by_fit].fit_error > second > 0
+    k = len(job.strokes) // 3
+    for op, i, kw in [("move", by_fit, {"point": 1}), ("reverse", k, {}), ("insert", k, {"point": 1}),
+                      ("delete_point", k, {"point": 2}), ("move", k, {"point": 0})]:
+        old = session.job
+        if op == "move":
+            c = np.array(old.strokes[i].spline.control)
+            c[kw.pop("point")] += 0.3
+            kw["control"] = c.tolist()
+        s = session.edit(op, i, **kw)
+        new = session.job
+        assert all(a is b for n, (a, b) in enumerate(zip(old.strokes, new.strokes)) if n != i)
+        fresh = Job(new.machine, new.strokes, new.travels, new.samples, new.source, dict(new.meta))
+        for name in ("pen_down_length", "travel_length", "draw_time", "travel_time", "pen_delays", "duration"):
+            assert getattr(new, name) == pytest.approx(getattr(fresh, name), rel=1e-12, abs=1e-12), (op, name)
+        assert new.lifts == fresh.lifts and new.layers == fresh.layers
+        assert s["job_time_s"] == round(new.duration, 3) and s["pen_down_mm"] == round(new.pen_down_length, 3)
+        checks = [session.checks(st, sa) for st, sa in zip(new.strokes, new.samples)]
+        assert new.meta["worst_acceleration_ratio"] == max(c[0] for c in checks)
+        assert new.meta["worst_velocity_ratio"] == max(c[1] for c in checks)
+        assert new.meta["max_between_samples_mm"] == max(c[3] for c in checks)
+        assert new.meta["max_fit_error_mm"] == max(st.fit_error for st in new.strokes)
+        assert new.meta["control_points"] == sum(len(st.spline.control) for st in new.strokes)
+        law = travel_time_by_law(new.travels, new.machine)
+        assert new.meta["travel_time_by_law"] == pytest.approx(law, rel=1e-12)
+        if op == "move" and i == by_fit:  # the stroke of the largest fit error, edited: the next largest
+            assert new.meta["max_fit_error_mm"] == second
+
+
 def test_thin_paths_keep_ends_corners_and_shape():
     t = np.linspace(0, 2 * np.pi, 2000)
     paths = [np.c_[0.3 * np.cos(t), 0.3 * np.sin(t)] + 5,  # a tight circle, densely flattened

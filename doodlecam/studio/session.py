@@ -24,10 +24,13 @@ from doodlecam import registry
 from doodlecam.errors import DoodleError, InputError
 from doodlecam.model import Drawing, Job, Spline, Stroke
 from doodlecam.pipeline import Settings, plan_job, run_posts, trace
+from doodlecam.plan.travel import make_travel, travel_time_by_law
 
 JOB_FORMAT = "doodlecam-studio-job"
 JOB_VERSION = 1
 HISTORY = 100  # undo steps kept
+# an edited job's largest figures (meta), by the studio's checks of its strokes
+WORST = ("worst_acceleration_ratio", "worst_velocity_ratio", "max_between_samples_mm", "max_fit_error_mm")
 # a drawing of this many traced paths or more is planned in the background: the page shows its paths at once
 # and follows the planning through the event stream (planning is ~1.5 ms of CPU a stroke)
 BACKGROUND_MIN = 1000
@@ -65,6 +68,7 @@ class Session:
         self.undo_stack: list[Job] = []
         self.redo_stack: list[Job] = []
         self._checks: dict[int, tuple] = {}  # id(stroke) -> (stroke, acc ratio, vel ratio, deviation per period), cached
+        self._worst_of: tuple | None = None  # (job, its WORST figures by these checks), for the next edit
         self._views: dict[int, tuple] = {}  # id(stroke) -> (stroke, samples, its /api/view entry without "i"), cached
         self.last_changed: tuple[int, ...] = ()  # strokes the last edit re-planned (the count of strokes unchanged)
         # every job gets a fresh id and every change a new version: an edit made on an older view (another tab
@@ -122,6 +126,7 @@ class Session:
             self.tracer, self.tracer_options = tracer, dict(options or {})
             self._generation += 1
             self._checks.clear()
+            self._worst_of = None
             self._views.clear()
             self._previewed.clear()
             preview, planning = (drawing, {"stage": "ordering", "done": 0, "total": len(drawing.polylines)}) \
@@ -262,39 +267,89 @@ class Session:
         """The job with ``strokes`` in this order, re-planning those at ``changed``. Everything else is
         kept: a 10 000-stroke job re-plans one stroke, two travels and a few sums (no Python work per
         stroke beyond a lookup), so an edit costs what its own strokes cost."""
-        from doodlecam.plan.travel import travel_time_by_law
-
         idx = sorted(changed)
         planned, smp = self._plan_strokes([strokes[i] for i in idx])
         for i, st, sa in zip(idx, planned, smp):
             strokes[i], samples[i] = st, sa
-        m = self.machine
         old = self._require()
+        if idx and len(strokes) == len(old.strokes):  # the strokes at idx replaced, the others where they were
+            return self._replacing(old, {i: (strokes[i], samples[i]) for i in idx})
         travels, new_t, gone = self._keep_travels(old, strokes)
+        by_law = old.meta.get("travel_time_by_law")
+        by_law = travel_time_by_law(travels, self.machine) if by_law is None or len(new_t) + len(gone) > len(travels) \
+            else self._by_law(by_law, gone, new_t)
+        meta = {**old.meta, "control_points": sum(len(st.spline.control) for st in strokes),
+                **dict(zip(WORST, self._worst(strokes, samples))), "travel_time_by_law": by_law, "edited": True}
+        return replace(old, strokes=tuple(strokes), samples=tuple(samples), travels=travels, meta=meta)
+
+    def _replacing(self, old: Job, repl: dict[int, tuple]) -> Job:
+        """_rebuild for strokes replaced in place (a drag, an inserted point, a reversal...): only their
+        travels, checks and the job's totals by the differences (Job.replacing), so that an edit of one
+        stroke of 10^5 costs what that stroke costs, not a pass over all of them."""
+        home, n = np.asarray(self.machine.home, float), len(old.strokes)
+
+        def stroke(k: int) -> Stroke:
+            return repl[k][0] if k in repl else old.strokes[k]
+
+        def figures(st: Stroke, sa) -> tuple:  # as _worst takes them
+            acc, vel, _, between = self.checks(st, sa)
+            return acc, vel, between, st.fit_error
+
+        travels = {}
+        for t in sorted({k for i in repl for k in (i, i + 1)}):  # a travel whose ends did not move is kept
+            start, end = stroke(t - 1).spline.end if t else home, stroke(t).spline.start if t < n else home
+            was = old.travels[t]
+            if not (np.array_equal(was.start, start) and np.array_equal(was.end, end)):
+                travels[t] = make_travel(start, end, self.machine)
+        worst = self._worst(old.strokes, old.samples, old)
+        before = [figures(old.strokes[i], old.samples[i]) for i in repl]
+        after = [figures(st, sa) for st, sa in repl.values()]
+        if any(max(f[k] for f in before) >= w > max(f[k] for f in after) for k, w in enumerate(worst)):
+            # an edited stroke held a largest figure, now lower: over every stroke again
+            strokes, samples = list(old.strokes), list(old.samples)
+            for i, (st, sa) in repl.items():
+                strokes[i], samples[i] = st, sa
+            worst = self._worst(strokes, samples)
+        else:
+            worst = tuple(max(w, *(f[k] for f in after)) for k, w in enumerate(worst))
+        cp = old.meta.get("control_points")
+        cp = sum(len(s.spline.control) for s in old.strokes) if cp is None else cp
+        cp += sum(len(st.spline.control) - len(old.strokes[i].spline.control) for i, (st, _) in repl.items())
+        by_law = old.meta.get("travel_time_by_law")
+        if by_law is not None:
+            by_law = self._by_law(by_law, [old.travels[t] for t in travels], list(travels.values()))
+        meta = {**old.meta, "control_points": cp, **dict(zip(WORST, worst)), "travel_time_by_law": by_law,
+                "edited": True}
+        job = old.replacing(repl, travels, meta)
+        if by_law is None:
+            meta["travel_time_by_law"] = travel_time_by_law(job.travels, self.machine)
+        self._worst_of = (job, worst)
+        return job
+
+    def _worst(self, strokes, samples, job: Job | None = None) -> tuple[float, float, float, float]:
+        """The largest acceleration and velocity ratios, distance between samples and fit error over these
+        strokes (WORST), by the session's checks; ``job``: they are its strokes (remembered for the next edit)."""
+        if job is not None and self._worst_of is not None and self._worst_of[0] is job:
+            return self._worst_of[1]
         get = self._checks.get
         checks = [get(id(st)) for st in strokes]
         checks = [c[1:] if c is not None and c[0] is st else self.checks(st, sa)
                   for c, st, sa in zip(checks, strokes, samples)]
-        by_law = old.meta.get("travel_time_by_law")
-        if by_law is None or len(new_t) + len(gone) > len(travels):
-            by_law = travel_time_by_law(travels, m)
-        else:  # the old totals, less the travels gone, plus the new ones
-            minus, plus = travel_time_by_law(gone, m), travel_time_by_law(new_t, m)
-            by_law = {law: v - minus[law] + plus[law] for law, v in by_law.items()}
-        meta = {**old.meta, "control_points": sum(len(st.spline.control) for st in strokes),
-                "worst_acceleration_ratio": max((c[0] for c in checks), default=0.0),
-                "worst_velocity_ratio": max((c[1] for c in checks), default=0.0),
-                "max_between_samples_mm": max((c[3] for c in checks), default=0.0),
-                "max_fit_error_mm": max((st.fit_error for st in strokes), default=0.0),
-                "travel_time_by_law": by_law, "edited": True}
-        return replace(old, strokes=tuple(strokes), samples=tuple(samples), travels=travels, meta=meta)
+        worst = (max((c[0] for c in checks), default=0.0), max((c[1] for c in checks), default=0.0),
+                 max((c[3] for c in checks), default=0.0), max((st.fit_error for st in strokes), default=0.0))
+        if job is not None:
+            self._worst_of = (job, worst)
+        return worst
+
+    def _by_law(self, by_law: dict[str, float], gone: list, new: list) -> dict[str, float]:
+        """The travel time by law (s) of a job: another's, less the travels gone, plus the new ones."""
+        minus, plus = travel_time_by_law(gone, self.machine), travel_time_by_law(new, self.machine)
+        return {law: v - minus[law] + plus[law] for law, v in by_law.items()}
 
     def _keep_travels(self, old: Job, strokes: list[Stroke]) -> tuple[tuple, list, list]:
         """(travels, the new ones, the old ones gone) for ``strokes``: a travel between two strokes that
         were neighbours in ``old`` is kept, and so is one whose ends did not move (an interior control
         point dragged); only the others are made again."""
-        from doodlecam.plan.travel import make_travel
-
         home = np.asarray(self.machine.home, float)
         ids = [None, *map(id, strokes), None]  # travel i leads from ids[i] (None: home) to ids[i + 1]
         was = [None, *map(id, old.strokes), None]
@@ -326,8 +381,6 @@ class Session:
     def only_layers(self, job: Job, layers: Any) -> Job:
         """The job with only ``layers`` (names), its strokes in the same order and travels between them:
         what 'plot one layer' sends and exports."""
-        from doodlecam.plan.travel import make_travel, travel_time_by_law
-
         if not isinstance(layers, list) or not layers or not all(isinstance(n, str) for n in layers):
             raise InputError("layers must be a list of layer names, e.g. [\"red\"]")
         unknown = sorted(set(layers) - set(job.layers))
@@ -699,6 +752,7 @@ class Session:
             self.name, self.data = source or name, b""
             self._generation += 1  # a drawing still being planned in the background is dropped
             self._checks.clear()
+            self._worst_of = None
             self._views.clear()
             self._set(job, keep_history=False, preview=None, planning=None)
             self._check_later(job)
