@@ -59,6 +59,7 @@ TRUST_MM = 0.5
 # Up to this many instants the QP is solved densely (quadprog), past it by Clarabel.
 DENSE_INSTANTS = 40
 _NO_ROWS, _NONE = np.empty((0, 2)), np.empty(0)  # for the kernels' absent arguments
+_ZERO = np.zeros(1)
 
 
 class _Coo:
@@ -372,11 +373,13 @@ def whole_step_limits(limits, steps_per_mm, dt: float):
 class _Bounds:
     """What every solve reads of the lowered limits, as the kernels take it (made once per job)."""
 
-    __slots__ = ("pen_speed", "M", "key", "amax", "vmax")
+    __slots__ = ("pen_speed", "M", "key", "amax", "vmax", "too_low")
 
     def __init__(self, limits):
         self.pen_speed = limits.pen_speed
         limited = limits.M is not None
+        self.too_low = (limited and ((limits.vmax <= 0).any() or (limits.amax <= 0).any())) or \
+            (limits.pen_speed is not None and limits.pen_speed <= 0)
         self.M = np.asarray(limits.M, float) if limited else None
         self.key = tuple(self.M.ravel()) if limited else None  # _pattern's cache key
         self.amax = np.asarray(limits.amax, float) if limited else _NONE
@@ -426,8 +429,7 @@ def sample_stroke(stroke: Stroke, dt: float, limits, steps_per_mm=(80.0, 80.0), 
     if k.shape != (2,) or not np.all(np.isfinite(k)) or (k <= 0).any():
         raise PlanError(f"steps_per_mm must be two positive numbers, got {k.tolist()}; fix the machine profile")
     limits, bounds = _lowered(limits, k, dt)
-    if (limits.M is not None and ((limits.vmax <= 0).any() or (limits.amax <= 0).any())) or \
-            (limits.pen_speed is not None and limits.pen_speed <= 0):
+    if bounds.too_low:
         raise PlanError("the limits are below one machine step per sample period; raise them or steps_per_mm")
     start = np.round(spline.start * k) / k
     end = np.round(spline.end * k) / k - start
@@ -490,8 +492,9 @@ def sample_stroke(stroke: Stroke, dt: float, limits, steps_per_mm=(80.0, 80.0), 
                 anchor = u
         if not ok:
             return None
-        vel = np.vstack([v, np.zeros((1, 2))])
-        return StrokeSamples(start=start, velocity=vel, delta_time=dt, time_scale=c, sample_u=np.append(0.0, u))
+        vel = np.zeros((m, 2))
+        vel[:-1] = v
+        return StrokeSamples(start=start, velocity=vel, delta_time=dt, time_scale=c, sample_u=np.concatenate((_ZERO, u)))
 
     m0 = max(int(np.ceil(prof.duration / dt - 1e-9)), 2)  # up, then down to rest
     m, bad = m0, m0 - 1
