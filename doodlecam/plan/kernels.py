@@ -927,26 +927,26 @@ def relinearise(c0, c1, k, nseg, u, d, L, x, start, tol, pu, tang, nrm, trust, t
 
 
 @numba.njit(cache=True, nogil=True)
-def sample_qp(tang, p, v_plan, shifted, nrm, w, lam, tol, L, end, M, amax, vmax, dt,
-              trust):  # pragma: no cover - compiled
+def sample_qp(tang, p, v_plan, shifted, nrm, w, lam, tol, L, end, M, amax, vmax, dt, trust, H, g, C, b,
+              T):  # pragma: no cover - compiled
     """The sampler's linearised QP (sample._pattern, kernels.qp_fill: the same objective, rows and
     bounds) with the positions eliminated, x_i = dT (v_1 + ... + v_i-1) + dT / 2 v_i, as dense
     arrays for a dense solver: min 1/2 z'Hz + g'z, C[:2] z = b[:2], C[2:] z <= b[2:] over
     z = (vx, vy, d); T (m, n): x = T v per axis. Empty M: no actuator rows; empty trust: no
-    trust rows; empty nrm: no penalty across the curve. Returns (H, -g, -C, -b, T): quadprog's
-    arguments (min 1/2 z'Hz - a'z subject to C' z >= b; -C.T is its C, already in the column
-    order it copies)."""
+    trust rows; empty nrm: no penalty across the curve. Fills H (nz, nz), g (nz,), C (nc, nz),
+    b (nc,) and T (m, n) (nc: sample._dense_arrays) with H, -g, -C, -b and T: quadprog's arguments
+    (min 1/2 z'Hz - a'z subject to C' z >= b; C.T is its C, in the column order it copies).
+    Filled in place, as returning five new arrays costs more than building them."""
     m = p.shape[0]
     n = m - 1
-    nz = 2 * n + m
-    T = np.zeros((m, n))  # x_k+1 = T[k] . v per axis
+    T[:] = 0.0  # x_k+1 = T[k] . v per axis
     for k in range(m):
         for j in range(min(k, n)):
             T[k, j] = dt
         if k < n:
             T[k, k] = 0.5 * dt
-    H = np.zeros((nz, nz))
-    g = np.zeros(nz)
+    H[:] = 0.0
+    g[:] = 0.0
     for i in range(n):  # objective: as qp_fill, the 1e-12 on the positions carried through T
         for a in range(2):
             g[a * n + i] = -lam * v_plan[i, a]
@@ -965,9 +965,8 @@ def sample_qp(tang, p, v_plan, shifted, nrm, w, lam, tol, L, end, M, amax, vmax,
         H[2 * n + j, 2 * n + j] = 1.0 + 1e-12
         g[2 * n + j] = shifted[j]
     na = M.shape[0]
-    nc = 2 + 5 * (m - 1) + 2 * na * (m + n) + (2 * m if trust.shape[0] > 0 else 0)
-    C = np.zeros((nc, nz))
-    b = np.zeros(nc)
+    C[:] = 0.0
+    b[:] = 0.0
     for a in range(2):  # the end, reached exactly
         for j in range(n):
             C[a, a * n + j] = dt
@@ -1008,7 +1007,12 @@ def sample_qp(tang, p, v_plan, shifted, nrm, w, lam, tol, L, end, M, amax, vmax,
                 C[o, 2 * n + j] = sign
                 b[o] = trust[j]
                 o += 1
-    return H, -g, -C, -b, T
+    for i in range(g.shape[0]):  # quadprog's signs (exact)
+        g[i] = -g[i]
+    for i in range(b.shape[0]):
+        b[i] = -b[i]
+        for j in range(C.shape[1]):
+            C[i, j] = -C[i, j]
 
 
 @numba.njit(cache=True, nogil=True)

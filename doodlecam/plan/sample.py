@@ -56,8 +56,10 @@ TRACKING_STEPS = 0.4
 # shift at the instants); shifts per solve stay within ~TRUST_MM of arc.
 NORMAL_WEIGHT = 10.0
 TRUST_MM = 0.5
-# Up to this many instants the QP is solved densely (quadprog), past it by Clarabel.
-DENSE_INSTANTS = 40
+# Up to this many instants the QP is solved densely (quadprog), past it by Clarabel: the dense
+# method's cost grows as m^3 (~0.7 ms a solve at 20-24 instants, 2.9 ms at 35-40), Clarabel's
+# about as m (0.8 ms, 1.3 ms): benchmarks/bench_sample.py measures both by instants.
+DENSE_INSTANTS = 24
 _NO_ROWS, _NONE = np.empty((0, 2)), np.empty(0)  # for the kernels' absent arguments
 _ZERO = np.zeros(1)
 
@@ -328,10 +330,10 @@ def _dense_qp(p, tang, v_plan, end, dt, tol, bounds, L, nrm, trust, shifted, lam
 
     m = len(p)
     n = m - 1
-    H, a, C, b, T = sample_qp(tang, p, v_plan, shifted if shifted is not None else np.zeros(m),
-                              nrm if nrm is not None else _NO_ROWS, NORMAL_WEIGHT * (dt / 4) ** 2, lam, tol, L,
-                              end, bounds.M if bounds.M is not None else _NO_ROWS, bounds.amax, bounds.vmax,
-                              float(dt), trust if trust is not None else _NONE)
+    H, a, C, b, T = _dense_arrays(m, len(bounds.amax), trust is not None)
+    sample_qp(tang, p, v_plan, shifted if shifted is not None else np.zeros(m), nrm if nrm is not None else _NO_ROWS,
+              NORMAL_WEIGHT * (dt / 4) ** 2, lam, tol, L, end, bounds.M if bounds.M is not None else _NO_ROWS,
+              bounds.amax, bounds.vmax, float(dt), trust if trust is not None else _NONE, H, a, C, b, T)
     try:  # quadprog: min 1/2 z'Hz - a'z subject to C' z >= b, the first meq rows equalities
         z = quadprog.solve_qp(H, a, C.T, b, 2)[0]
     except ValueError as e:  # "constraints are inconsistent, no solution" is its verdict of infeasible
@@ -339,6 +341,21 @@ def _dense_qp(p, tang, v_plan, end, dt, tol, bounds, L, nrm, trust, shifted, lam
     v = z[:2 * n].reshape(2, n).T
     return v, T @ v, z[2 * n:]
 
+
+
+def _dense_arrays(m: int, na: int, trusted: bool):
+    """This thread's arrays for kernels.sample_qp of m instants, na actuators, with or without the
+    trust rows: quadprog copies what it is handed, and x = T v is taken before the next fill."""
+    cache = getattr(_WORK, "dense", None)
+    if cache is None:
+        cache = _WORK.dense = {}
+    key = (m, na, trusted)
+    got = cache.get(key)
+    if got is None:
+        n = m - 1
+        nz, nc = 2 * n + m, 2 + 5 * (m - 1) + 2 * na * (m + n) + (2 * m if trusted else 0)
+        got = cache[key] = (np.empty((nz, nz)), np.empty(nz), np.empty((nc, nz)), np.empty(nc), np.empty((m, n)))
+    return got
 
 
 def whole_step_limits(limits, steps_per_mm, dt: float):
