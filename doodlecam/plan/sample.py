@@ -343,7 +343,6 @@ def _dense_qp(p, tang, v_plan, end, dt, tol, bounds, L, nrm, trust, shifted, lam
     return v, T @ v, z[2 * n:]
 
 
-
 def _dense_arrays(m: int, na: int, trusted: bool):
     """This thread's arrays for kernels.sample_qp of m instants, na actuators, with or without the
     trust rows: quadprog copies what it is handed, and x = T v is taken before the next fill."""
