@@ -7,7 +7,8 @@ Converts the drawing once (doodlebot, --workers 1) recording every sample_stroke
 replays the calls twice in this process: with sample.DENSE_INSTANTS = 0 (every QP through
 Clarabel, as before the dense path) and as shipped. CPU time (process_time) of the replays
 only; also the periods per stroke (they must never be more) and the largest velocity change.
-Prints a Markdown table.
+Prints a Markdown table, then one of the QPs of the shipped replay by instants: CPU per solve
+with quadprog and with Clarabel, on up to 60 of each size (where DENSE_INSTANTS comes from).
 """
 
 from __future__ import annotations
@@ -42,6 +43,9 @@ def record(svg: Path, out: Path) -> list:
         sample.sample_stroke = real
     if rc:
         sys.exit(f"the convert failed (exit {rc})")
+    for a, _ in calls:  # sampled as in the convert: the curves' derivatives at hand (it drops them after)
+        a[0].spline.__dict__.pop("_forgotten", None)
+        a[0].spline.derivative_controls
     return calls
 
 
@@ -56,6 +60,46 @@ def replay(calls, dense: int):
         return time.process_time() - t, out
     finally:
         sample.DENSE_INSTANTS = keep
+
+
+def by_instants(calls, per_size: int = 60):
+    """CPU ms per solve of the shipped replay's QPs, dense (quadprog) and Clarabel, by instants."""
+    import numpy as np
+
+    from doodlecam.plan import sample
+
+    seen, real = {}, sample._qp
+
+    def keep(*a):
+        got = real(*a)
+        if a[10] is None and a[6].pen_speed is None:  # no nonlinear rows, no pen-speed cones: either method
+            seen.setdefault(len(a[0]), []).append(tuple(x.copy() if isinstance(x, np.ndarray) else x for x in a))
+        return got
+
+    sample._qp = keep
+    try:
+        for a, kw in calls:
+            sample.sample_stroke(*a, **kw)
+    finally:
+        sample._qp = real
+    keep_dense, rows = sample.DENSE_INSTANTS, []
+    try:
+        for lo, hi in ((2, 5), (5, 10), (10, 15), (15, 20), (20, 25), (25, 30), (30, 35), (35, 41), (41, 60)):
+            probs = [p for m in range(lo, hi) for p in seen.get(m, [])]
+            if not probs:
+                continue
+            probs = probs[:: max(1, len(probs) // per_size)][:per_size]
+            ms = []
+            for dense in (10**6, 0):
+                sample.DENSE_INSTANTS = dense
+                t = time.process_time()
+                for p in probs:
+                    real(*p)
+                ms.append((time.process_time() - t) / len(probs) * 1e3)
+            rows.append((f"{lo}-{hi - 1}", sum(len(seen.get(m, [])) for m in range(lo, hi)), *ms))
+    finally:
+        sample.DENSE_INSTANTS = keep_dense
+    return rows
 
 
 def main() -> None:
@@ -86,6 +130,11 @@ def main() -> None:
     print("|---|---|---|---|---|---|---|")
     print(f"| {len(calls)} | {po.sum()} / {pn.sum()} | {(pn > po).sum()} / {(pn < po).sum()} | {dv:.3g} "
           f"| {t_old:.2f} | {t_new:.2f} | {t_old / t_new:.2f}x |")
+    print()
+    print("| instants | solves (shipped replay) | CPU ms a solve, quadprog | CPU ms a solve, Clarabel |")
+    print("|---|---|---|---|")
+    for size, count, dense, clar in by_instants(calls):
+        print(f"| {size} | {count} | {dense:.3f} | {clar:.3f} |")
 
 
 if __name__ == "__main__":

@@ -803,11 +803,13 @@ def qp_fill(tang, tagged, signs, inst, axes, adata, pind, pdata, dx, dy, cross, 
 
 
 @numba.njit(cache=True, nogil=True)
-def curve_frame(c0, c1, k, nseg, u, start, L, pu, tang, nrm, trust, trust_mm):  # pragma: no cover - compiled
+def curve_frame(c0, c1, k, nseg, u, start, L, pu, tang, nrm, trust, trust_mm, speed,
+                v_plan):  # pragma: no cover - compiled
     """What the sampler linearises at the parameters u (clipped to [0, 1] as Spline.__call__
     clips them), in one pass with the same bits as its array steps: pu = (q(u) - start, u),
     tang = q'(u) / L and, where nrm has rows, the unit normal q'^perp / |q'| (|q'| at least
-    1e-12) and trust = trust_mm L / |q'|. c0, c1: the control points of q and q' (degree k)."""
+    1e-12) and trust = trust_mm L / |q'|; where speed has entries (du/dt), the velocity
+    v_plan = q'(u) speed. c0, c1: the control points of q and q' (degree k)."""
     N = np.empty(k + 1)
     left = np.empty(k + 1)
     right = np.empty(k + 1)
@@ -835,27 +837,116 @@ def curve_frame(c0, c1, k, nseg, u, start, L, pu, tang, nrm, trust, trust_mm):  
             nrm[j, 0] = -d1y / sp
             nrm[j, 1] = d1x / sp
             trust[j] = trust_mm * L / sp
+        if speed.shape[0] > 0:
+            v_plan[j, 0] = d1x * speed[j]
+            v_plan[j, 1] = d1y * speed[j]
+
+
+@numba.njit(cache=True, nogil=True, inline="always")
+def _np_max(x, y):  # pragma: no cover - compiled
+    """numpy.maximum's element: NaN wins, else y unless x > y (so the sign of an equal zero is y's)."""
+    if x != x:
+        return x
+    return x if x > y else y
+
+
+@numba.njit(cache=True, nogil=True, inline="always")
+def _np_min(x, y):  # pragma: no cover - compiled
+    """numpy.minimum's element, likewise."""
+    if x != x:
+        return x
+    return x if x < y else y
 
 
 @numba.njit(cache=True, nogil=True)
-def sample_qp(tang, p, v_plan, shifted, nrm, w, lam, tol, L, end, M, amax, vmax, dt,
-              trust):  # pragma: no cover - compiled
+def sample_aim(pt, pu_, pb, pa, c, dt, c0, c1, k, nseg, start, L, u, v_plan, pu, tang, nrm, trust,
+               trust_mm):  # pragma: no cover - compiled
+    """The sampler's first linearisation for m = len(u) periods of the plan slowed by c: at
+    t_j = c j dT (j = 1 .. m) the plan's parameter u_j (Profile.state_at on its grid pt, pu_, pb,
+    pa, with the same bits; the last one 1), its velocity v_plan = q'(u) c du/dt (the last
+    zero), then curve_frame there."""
+    m = u.shape[0]
+    nt = pt.shape[0]
+    speed = np.empty(m)
+    for j in range(m):
+        t = _np_min(pt[nt - 1], _np_max(0.0, c * (dt * (j + 1))))
+        lo, hi = 0, nt  # searchsorted(pt, t, side="right"): the first index with pt > t
+        while lo < hi:
+            mid = (lo + hi) >> 1
+            if t < pt[mid]:
+                hi = mid
+            else:
+                lo = mid + 1
+        i = min(pa.shape[0] - 1, max(0, lo - 1))
+        tau = t - pt[i]
+        v0 = np.sqrt(_np_max(pb[i], 0.0))
+        a = pa[i]
+        speed[j] = c * _np_max(v0 + a * tau, 0.0)
+        u[j] = _np_min(pu_[i] + v0 * tau + 0.5 * a * tau * tau, pu_[i + 1])
+    u[m - 1] = 1.0
+    curve_frame(c0, c1, k, nseg, u, start, L, pu, tang, nrm, trust, trust_mm, speed, v_plan)
+    v_plan[m - 1, 0] = 0.0
+    v_plan[m - 1, 1] = 0.0
+
+
+@numba.njit(cache=True, nogil=True)
+def relinearise(c0, c1, k, nseg, u, d, L, x, start, tol, pu, tang, nrm, trust, trust_mm, u_new,
+                u_mono):  # pragma: no cover - compiled
+    """After a linearised solve of the sampler (shifts d in mm of arc, reached positions x from
+    the start): u_new = clip(u + d / L, 0, 1) with the last 1, and curve_frame there. True where
+    every instant but the last is within tol of its point per axis. Else u_mono = the running
+    maximum of u_new (the shifted parameter made monotone, numpy.maximum.accumulate's bits), and
+    the frame is remade there where it differs. Array steps of sample.sample_stroke, fused."""
+    m = u.shape[0]
+    for j in range(m):
+        y = u[j] + d[j] / L
+        if y == y:  # numpy.clip's element (NaN stays; an equal zero keeps its sign)
+            y = 0.0 if y < 0.0 else (1.0 if y > 1.0 else y)
+        u_new[j] = y
+    u_new[m - 1] = 1.0
+    _E = np.empty(0)
+    curve_frame(c0, c1, k, nseg, u_new, start, L, pu, tang, nrm, trust, trust_mm, _E, pu)
+    ok = True
+    for j in range(m - 1):
+        for a in range(2):
+            if not abs(x[j, a] - pu[j, a]) <= tol:  # NaN: not within
+                ok = False
+    if ok:
+        return True
+    same = True
+    r = u_new[0]
+    u_mono[0] = r
+    for j in range(1, m):
+        r = _np_max(r, u_new[j])
+        u_mono[j] = r
+        if not r == u_new[j]:
+            same = False
+    if not same:
+        curve_frame(c0, c1, k, nseg, u_mono, start, L, pu, tang, nrm, trust, trust_mm, _E, pu)
+    return False
+
+
+@numba.njit(cache=True, nogil=True)
+def sample_qp(tang, p, v_plan, shifted, nrm, w, lam, tol, L, end, M, amax, vmax, dt, trust, H, g, C, b,
+              T):  # pragma: no cover - compiled
     """The sampler's linearised QP (sample._pattern, kernels.qp_fill: the same objective, rows and
     bounds) with the positions eliminated, x_i = dT (v_1 + ... + v_i-1) + dT / 2 v_i, as dense
     arrays for a dense solver: min 1/2 z'Hz + g'z, C[:2] z = b[:2], C[2:] z <= b[2:] over
     z = (vx, vy, d); T (m, n): x = T v per axis. Empty M: no actuator rows; empty trust: no
-    trust rows; empty nrm: no penalty across the curve. Returns (H, g, C, b, T)."""
+    trust rows; empty nrm: no penalty across the curve. Fills H (nz, nz), g (nz,), C (nc, nz),
+    b (nc,) and T (m, n) (nc: sample._dense_arrays) with H, -g, -C, -b and T: quadprog's arguments
+    (min 1/2 z'Hz - a'z subject to C' z >= b; C.T is its C, in the column order it copies).
+    Filled in place, as returning five new arrays costs more than building them."""
     m = p.shape[0]
     n = m - 1
-    nz = 2 * n + m
-    T = np.zeros((m, n))  # x_k+1 = T[k] . v per axis
+    T[:] = 0.0  # x_k+1 = T[k] . v per axis
     for k in range(m):
         for j in range(min(k, n)):
             T[k, j] = dt
         if k < n:
             T[k, k] = 0.5 * dt
-    H = np.zeros((nz, nz))
-    g = np.zeros(nz)
+    H[:] = 0.0
+    g[:] = 0.0
     for i in range(n):  # objective: as qp_fill, the 1e-12 on the positions carried through T
         for a in range(2):
             g[a * n + i] = -lam * v_plan[i, a]
@@ -874,9 +965,8 @@ def sample_qp(tang, p, v_plan, shifted, nrm, w, lam, tol, L, end, M, amax, vmax,
         H[2 * n + j, 2 * n + j] = 1.0 + 1e-12
         g[2 * n + j] = shifted[j]
     na = M.shape[0]
-    nc = 2 + 5 * (m - 1) + 2 * na * (m + n) + (2 * m if trust.shape[0] > 0 else 0)
-    C = np.zeros((nc, nz))
-    b = np.zeros(nc)
+    C[:] = 0.0
+    b[:] = 0.0
     for a in range(2):  # the end, reached exactly
         for j in range(n):
             C[a, a * n + j] = dt
@@ -917,7 +1007,12 @@ def sample_qp(tang, p, v_plan, shifted, nrm, w, lam, tol, L, end, M, amax, vmax,
                 C[o, 2 * n + j] = sign
                 b[o] = trust[j]
                 o += 1
-    return H, g, C, b, T
+    for i in range(g.shape[0]):  # quadprog's signs (exact)
+        g[i] = -g[i]
+    for i in range(b.shape[0]):
+        b[i] = -b[i]
+        for j in range(C.shape[1]):
+            C[i, j] = -C[i, j]
 
 
 @numba.njit(cache=True, nogil=True)

@@ -39,6 +39,7 @@ from __future__ import annotations
 
 import collections
 import functools
+import math
 import threading
 
 import numpy as np
@@ -56,9 +57,12 @@ TRACKING_STEPS = 0.4
 # shift at the instants); shifts per solve stay within ~TRUST_MM of arc.
 NORMAL_WEIGHT = 10.0
 TRUST_MM = 0.5
-# Up to this many instants the QP is solved densely (quadprog), past it by Clarabel.
-DENSE_INSTANTS = 40
+# Up to this many instants the QP is solved densely (quadprog), past it by Clarabel: the dense
+# method's cost grows as m^3 (~0.7 ms a solve at 20-24 instants, 2.9 ms at 35-40), Clarabel's
+# about as m (0.8 ms, 1.3 ms): benchmarks/bench_sample.py measures both by instants.
+DENSE_INSTANTS = 24
 _NO_ROWS, _NONE = np.empty((0, 2)), np.empty(0)  # for the kernels' absent arguments
+_ZERO = np.zeros(1)
 
 
 class _Coo:
@@ -260,9 +264,10 @@ def _crank_rows(J: np.ndarray, dt: float, vcap: np.ndarray, acap: np.ndarray):
     return A.csc(), rhs
 
 
-def _qp(p, tang, v_plan, end, dt, tol, limits, L, nrm=None, trust=None, crank=None, shifted=None):
+def _qp(p, tang, v_plan, end, dt, tol, bounds, L, nrm=None, trust=None, crank=None, shifted=None):
     """One linearised QP. p: (m, 3) curve points relative to the start and
-    their u, tang: (m, 2) tangents per mm of shift, end: (2,). Returns (v, x, d) or None.
+    their u, tang: (m, 2) tangents per mm of shift, end: (2,) float, bounds: _Bounds.
+    Returns (v, x, d) or None.
 
     ``shifted`` (m,): how far (mm of arc) p already lies from the anchor points; the cost is
     the total shift (shifted + d)^2, so re-linearised solves converge to one answer.
@@ -275,20 +280,20 @@ def _qp(p, tang, v_plan, end, dt, tol, limits, L, nrm=None, trust=None, crank=No
     m = len(p)
     n = m - 1
     nv, nx = 2 * n, 2 * m
-    pen = limits.pen_speed is not None
+    pen = bounds.pen_speed is not None
     lam = VELOCITY_WEIGHT * dt * dt
     if crank is None and not pen and m <= DENSE_INSTANTS:
-        got = _dense_qp(p, tang, v_plan, end, dt, tol, limits, L, nrm, trust, shifted, lam)
+        got = _dense_qp(p, tang, v_plan, end, dt, tol, bounds, L, nrm, trust, shifted, lam)
         if got is not False:
             return got
-    M = None if limits.M is None else tuple(np.asarray(limits.M, float).ravel())
+    M = bounds.key
     key = (m, float(dt), M, trust is not None, pen)
     base, n_eq, tagged, signs, inst, axes = _pattern(*key)
     A = _working(key, base)
     P, dx, dy, cross = _objective(m)
     P = _working(m, P)
     limited = M is not None
-    n_rows = 2 * m + 2 + 5 * (m - 1) + (2 * len(limits.amax) * (m + n) if limited else 0) \
+    n_rows = 2 * m + 2 + 5 * (m - 1) + (2 * len(bounds.amax) * (m + n) if limited else 0) \
         + (2 * m if trust is not None else 0) + (3 * n if pen else 0)
     q, b = np.empty(nv + nx + m), np.empty(n_rows)
     # in one compiled pass (kernels.qp_fill): A's tangent entries, the objective (its
@@ -301,9 +306,8 @@ def _qp(p, tang, v_plan, end, dt, tol, limits, L, nrm=None, trust=None, crank=No
 
     qp_fill(tang, tagged, signs, inst, axes, A.data, P.indices, P.data, dx, dy, cross,
             nrm if nrm is not None else _NO_ROWS, NORMAL_WEIGHT * (dt / 4) ** 2, lam, v_plan,
-            shifted if shifted is not None else np.zeros(m), p, tol, L, np.asarray(end, float),
-            np.asarray(limits.amax, float) if limited else _NONE, np.asarray(limits.vmax, float) if limited else _NONE,
-            float(dt), trust if trust is not None else _NONE, float(limits.pen_speed) if pen else -1.0, q, b)
+            shifted if shifted is not None else np.zeros(m), p, tol, L, end, bounds.amax, bounds.vmax,
+            float(dt), trust if trust is not None else _NONE, float(bounds.pen_speed) if pen else -1.0, q, b)
     n_tail = 0
     if crank is not None:
         import scipy.sparse as sp
@@ -315,7 +319,7 @@ def _qp(p, tang, v_plan, end, dt, tol, limits, L, nrm=None, trust=None, crank=No
     return z[:nv].reshape(2, n).T, z[nv : nv + nx].reshape(2, m).T, z[nv + nx : nv + nx + m]
 
 
-def _dense_qp(p, tang, v_plan, end, dt, tol, limits, L, nrm, trust, shifted, lam):
+def _dense_qp(p, tang, v_plan, end, dt, tol, bounds, L, nrm, trust, shifted, lam):
     """_qp's problem solved exactly by quadprog (Goldfarb and Idnani's dual active-set method) on
     the dense arrays of kernels.sample_qp: (v, x, d), None where it is infeasible, or False where
     quadprog gives up (use Clarabel). An active-set answer is the QP's optimum to rounding, so the
@@ -327,20 +331,31 @@ def _dense_qp(p, tang, v_plan, end, dt, tol, limits, L, nrm, trust, shifted, lam
 
     m = len(p)
     n = m - 1
-    limited = limits.M is not None
-    H, g, C, b, T = sample_qp(tang, p, v_plan, shifted if shifted is not None else np.zeros(m),
-                              nrm if nrm is not None else _NO_ROWS, NORMAL_WEIGHT * (dt / 4) ** 2, lam, tol, L,
-                              np.asarray(end, float), np.asarray(limits.M, float) if limited else _NO_ROWS,
-                              np.asarray(limits.amax, float) if limited else _NONE,
-                              np.asarray(limits.vmax, float) if limited else _NONE,
-                              float(dt), trust if trust is not None else _NONE)
+    H, a, C, b, T = _dense_arrays(m, len(bounds.amax), trust is not None)
+    sample_qp(tang, p, v_plan, shifted if shifted is not None else np.zeros(m), nrm if nrm is not None else _NO_ROWS,
+              NORMAL_WEIGHT * (dt / 4) ** 2, lam, tol, L, end, bounds.M if bounds.M is not None else _NO_ROWS,
+              bounds.amax, bounds.vmax, float(dt), trust if trust is not None else _NONE, H, a, C, b, T)
     try:  # quadprog: min 1/2 z'Hz - a'z subject to C' z >= b, the first meq rows equalities
-        z = quadprog.solve_qp(H, -g, -C.T, -b, 2)[0]
+        z = quadprog.solve_qp(H, a, C.T, b, 2)[0]
     except ValueError as e:  # "constraints are inconsistent, no solution" is its verdict of infeasible
         return None if "inconsistent" in str(e) else False
     v = z[:2 * n].reshape(2, n).T
     return v, T @ v, z[2 * n:]
 
+
+def _dense_arrays(m: int, na: int, trusted: bool):
+    """This thread's arrays for kernels.sample_qp of m instants, na actuators, with or without the
+    trust rows: quadprog copies what it is handed, and x = T v is taken before the next fill."""
+    cache = getattr(_WORK, "dense", None)
+    if cache is None:
+        cache = _WORK.dense = {}
+    key = (m, na, trusted)
+    got = cache.get(key)
+    if got is None:
+        n = m - 1
+        nz, nc = 2 * n + m, 2 + 5 * (m - 1) + 2 * na * (m + n) + (2 * m if trusted else 0)
+        got = cache[key] = (np.empty((nz, nz)), np.empty(nz), np.empty((nc, nz)), np.empty(nc), np.empty((m, n)))
+    return got
 
 
 def whole_step_limits(limits, steps_per_mm, dt: float):
@@ -372,6 +387,39 @@ def whole_step_limits(limits, steps_per_mm, dt: float):
                    pen_speed=pen)
 
 
+class _Bounds:
+    """What every solve reads of the lowered limits, as the kernels take it (made once per job)."""
+
+    __slots__ = ("pen_speed", "M", "key", "amax", "vmax", "too_low")
+
+    def __init__(self, limits):
+        self.pen_speed = limits.pen_speed
+        limited = limits.M is not None
+        self.too_low = (limited and ((limits.vmax <= 0).any() or (limits.amax <= 0).any())) or \
+            (limits.pen_speed is not None and limits.pen_speed <= 0)
+        self.M = np.asarray(limits.M, float) if limited else None
+        self.key = tuple(self.M.ravel()) if limited else None  # _pattern's cache key
+        self.amax = np.asarray(limits.amax, float) if limited else _NONE
+        self.vmax = np.asarray(limits.vmax, float) if limited else _NONE
+
+
+_LOWERED: list = [None]  # the last (limits, (k, dT), lowered limits, _Bounds)
+
+
+def _lowered(limits, k: np.ndarray, dt: float):
+    """whole_step_limits(limits, k, dt) and its _Bounds, remembered for the last limits: a job
+    samples all its strokes with one Limits (per pen), which are never changed in place (they
+    cache their own checks too). Swapping one tuple keeps threads safe."""
+    key = (float(k[0]), float(k[1]), float(dt))
+    last = _LOWERED[0]
+    if last is not None and last[0] is limits and last[1] == key:
+        return last[2], last[3]
+    low = whole_step_limits(limits, k, dt)
+    bounds = _Bounds(low)
+    _LOWERED[0] = (limits, key, low, bounds)
+    return low, bounds
+
+
 def sample_stroke(stroke: Stroke, dt: float, limits, steps_per_mm=(80.0, 80.0), tracking_steps: float = TRACKING_STEPS,
                   max_extra: float = 1.0, follow: bool = False, crank_share: tuple[float, float] | None = None) -> StrokeSamples:
     """Velocity targets (mm/s) for one planned stroke at t = dT, 2 dT, ...
@@ -393,13 +441,12 @@ def sample_stroke(stroke: Stroke, dt: float, limits, steps_per_mm=(80.0, 80.0), 
     k = np.asarray(steps_per_mm, float)
     if prof is None:
         raise PlanError("the stroke has no profile; plan it (plan_stroke) before sampling")
-    if not (np.isfinite(dt) and dt > 0):
+    if not 0.0 < dt < math.inf:  # (NaN fails too) plain comparisons: numpy's checks cost 5 us a stroke
         raise PlanError(f"delta_time must be a positive number of seconds, got {dt!r}; fix [sampling] delta_time")
-    if k.shape != (2,) or not np.all(np.isfinite(k)) or (k <= 0).any():
+    if k.shape != (2,) or not all(0.0 < x < math.inf for x in k.tolist()):
         raise PlanError(f"steps_per_mm must be two positive numbers, got {k.tolist()}; fix the machine profile")
-    limits = whole_step_limits(limits, k, dt)
-    if (limits.M is not None and ((limits.vmax <= 0).any() or (limits.amax <= 0).any())) or \
-            (limits.pen_speed is not None and limits.pen_speed <= 0):
+    limits, bounds = _lowered(limits, k, dt)
+    if bounds.too_low:
         raise PlanError("the limits are below one machine step per sample period; raise them or steps_per_mm")
     start = np.round(spline.start * k) / k
     end = np.round(spline.end * k) / k - start
@@ -409,33 +456,25 @@ def sample_stroke(stroke: Stroke, dt: float, limits, steps_per_mm=(80.0, 80.0), 
         if fast is not None:
             return fast
     L = max(spline.length, 1e-9)
-    from doodlecam.plan.kernels import curve_frame
+    from doodlecam.plan.kernels import relinearise, sample_aim
 
-    dc, nseg = spline.derivative_controls, len(spline.control) - spline.degree
+    dc, deg, nseg = spline.derivative_controls, spline.degree, len(spline.control) - spline.degree
 
     def attempt(m: int) -> StrokeSamples | None:
         c = prof.duration / (m * dt)  # time scale <= 1: a uniformly slower plan is within limits
-        t = dt * np.arange(1, m + 1)
-        u, ud, _ = prof.state_at(c * t)
-        u[-1] = 1.0
-        v_plan = spline(u, 1) * (c * ud)[:, None]
-        v_plan[-1] = 0.0
+        # the plan's points at t = c dT, 2 c dT, ... (the last the end) and velocities there (the last
+        # zero), linearised there: the points aimed at (from the start, with their u), the tangents (d
+        # is in mm of arc, roughly: q(u + d/L) ~ q + q' d / L); following, the unit normals and the
+        # trust region, ~TRUST_MM of arc (compiled, with the bits of Profile.state_at and Spline)
+        u, v_plan, pu, tang = np.empty(m), np.empty((m, 2)), np.empty((m, 3)), np.empty((m, 2))
+        nrm, trust = (np.empty((m, 2)), np.empty(m)) if follow else (_NO_ROWS, _NONE)
+        sample_aim(prof.t, prof.u, prof.b, prof.a, c, dt, dc[0], dc[1], deg, nseg, start, L, u, v_plan, pu,
+                   tang, nrm, trust, TRUST_MM)
+        if not follow:
+            nrm, trust = None, None
         ok = False
         anchor = u  # where the shifts are costed from: the planned points, then the first solve's
-
-        def frame(uu):
-            # the points aimed at (from the start, with their u), the tangents: d is in mm of arc
-            # (roughly), q(u + d/L) ~ q + q' d / L; following, the unit normals and the trust
-            # region, ~TRUST_MM of arc (compiled: kernels.curve_frame, q(u) with Spline's bits)
-            pu, tang = np.empty((len(uu), 3)), np.empty((len(uu), 2))
-            nrm, trust = (np.empty((len(uu), 2)), np.empty(len(uu))) if follow else (None, None)
-            curve_frame(dc[0], dc[1], spline.degree, nseg, uu, start, L, pu, tang,
-                        nrm if follow else _NO_ROWS, trust if follow else _NONE, TRUST_MM)
-            return pu, tang, nrm, trust
-
-        here = frame(u)
         for it in range(5 if follow else 3):  # linearise, solve, re-linearise at the shifted points
-            pu, tang, nrm, trust = here
             crank = None
             if crank_share is not None and limits.M is None:
                 J = _jacobians(limits.kinematics, spline(u))
@@ -444,26 +483,24 @@ def sample_stroke(stroke: Stroke, dt: float, limits, steps_per_mm=(80.0, 80.0), 
                 crank = _crank_rows(J, dt, limits.vmax * crank_share[0] * (1 - 1e-6) - absJ @ (1.0 / k),
                                     limits.amax * crank_share[1] * (1 - 1e-6) - absJ @ (2.0 / (k * dt)))
             # the box is 3/4 of the tolerance: the rest absorbs the linearisation error
-            res = _qp(pu, tang, v_plan, end, dt, 0.75 * tol, limits, L, nrm, trust, crank, (u - anchor) * L)
+            res = _qp(pu, tang, v_plan, end, dt, 0.75 * tol, bounds, L, nrm, trust, crank, (u - anchor) * L)
             if res is None and it == 0 and trust is not None:
                 # the ramps may need to run further behind (or ahead of) the plan than the trust region
                 # lets one solve shift: the first solve then sets the timing without it, and the
                 # re-linearised solves that follow keep it (docs/sampling.md)
-                res = _qp(pu, tang, v_plan, end, dt, 0.75 * tol, limits, L, nrm, None, crank, (u - anchor) * L)
+                res = _qp(pu, tang, v_plan, end, dt, 0.75 * tol, bounds, L, nrm, None, crank, (u - anchor) * L)
             if res is None:
                 break
             v, x, d = res
-            u_new = np.clip(u + d / L, 0.0, 1.0)
-            u_new[-1] = 1.0
-            here = frame(u_new)  # checked there; linearised there next unless made monotone
-            err = np.abs(x - here[0][:, :2])[:-1]  # per axis: steps are per axis
-            if err.size == 0 or err.max() <= tol:
+            # checked at u + d / L (per axis: steps are per axis), where the frame is remade; linearised
+            # there next, unless made monotone (then there)
+            u_new, u_mono = np.empty(m), np.empty(m)
+            if relinearise(dc[0], dc[1], deg, nseg, u, d, L, x, start, tol, pu, tang,
+                           nrm if follow else _NO_ROWS, trust if follow else _NONE, TRUST_MM, u_new, u_mono):
                 ok = True
                 u = u_new
                 break
-            u = np.maximum.accumulate(u_new)
-            if not np.array_equal(u, u_new):
-                here = frame(u)
+            u = u_mono
             if it == 0:
                 # the first solve sets the samples' timing (whole-period ramps cannot keep the
                 # plan's); costing later shifts from there, not from the last solve, lets the
@@ -471,8 +508,9 @@ def sample_stroke(stroke: Stroke, dt: float, limits, steps_per_mm=(80.0, 80.0), 
                 anchor = u
         if not ok:
             return None
-        vel = np.vstack([v, np.zeros((1, 2))])
-        return StrokeSamples(start=start, velocity=vel, delta_time=dt, time_scale=c, sample_u=np.append(0.0, u))
+        vel = np.zeros((m, 2))
+        vel[:-1] = v
+        return StrokeSamples(start=start, velocity=vel, delta_time=dt, time_scale=c, sample_u=np.concatenate((_ZERO, u)))
 
     m0 = max(int(np.ceil(prof.duration / dt - 1e-9)), 2)  # up, then down to rest
     m, bad = m0, m0 - 1
