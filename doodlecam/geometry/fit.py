@@ -575,6 +575,21 @@ def _samples(p, tolerance, length):  # pragma: no cover - compiled
     return pts, cum / cum[-1], cum
 
 
+CORNERED = 0.1  # radians a vertex turns on average, above which a polyline's vertices are its corners
+SPANS_PER_RADIAN = 2.0  # a flattened curve's first guess: a knot span per half radian it turns
+
+
+@numba.njit(cache=True, nogil=True)
+def _turning(p):  # pragma: no cover - compiled
+    """The total angle (radians) the polyline p turns through at its vertices."""
+    total = 0.0
+    for i in range(1, p.shape[0] - 1):
+        ax, ay = p[i, 0] - p[i - 1, 0], p[i, 1] - p[i - 1, 1]
+        bx, by = p[i + 1, 0] - p[i, 0], p[i + 1, 1] - p[i, 1]
+        total += abs(np.arctan2(ax * by - ay * bx, ax * bx + ay * by))
+    return total
+
+
 @numba.njit(cache=True, nogil=True)
 def _search(p, degree, tolerance, max_control, length, quick):  # pragma: no cover - compiled
     """The fewest control points found within ``tolerance`` of the polyline p
@@ -586,9 +601,16 @@ def _search(p, degree, tolerance, max_control, length, quick):  # pragma: no cov
     w = _work(pts.shape[0], degree)
     n_min = degree + 1
     n_max = min(max_control, max(n_min, 2 * m))
-    # A polyline needs a few control points per vertex to turn its corners
-    # within tolerance: start there, grow until within tolerance, then bisect.
-    n = min(max(2 * p.shape[0], n_min), n_max)
+    # Start from a guess, grow until within tolerance, then bisect. A polyline
+    # whose vertices are corners (a traced outline) needs a few control points
+    # per vertex to turn them; a curve flattened into many vertices, each
+    # turning a little, about a knot span per half radian it turns.
+    turning = _turning(p)
+    if turning > CORNERED * (p.shape[0] - 2):
+        n = 2 * p.shape[0]
+    else:
+        n = degree + int(SPANS_PER_RADIAN * turning)
+    n = min(max(n, n_min), n_max)
     lo = n_min - 1
     ctrl, err = _attempt(pts, u, cum, n, degree, tolerance, 1e-9 * m / n, quick, w)
     err = np.inf if err < 0 else err
