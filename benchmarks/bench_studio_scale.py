@@ -40,9 +40,10 @@ def wait_planned(session, timeout: float = 900.0) -> None:
 
 
 def wait_checked(session, timeout: float = 300.0) -> None:
-    """Until the background checks of every stroke are done (an edit before then checks the rest itself)."""
+    """Until the background checks of every stroke and the job's largest figures by them are done (an edit before
+    then checks the rest itself)."""
     end = time.monotonic() + timeout
-    while time.monotonic() < end and not all(id(st) in session._checks for st in session.job.strokes):
+    while time.monotonic() < end and not (session._worst_of is not None and session._worst_of[0] is session.job):
         time.sleep(0.2)
 
 

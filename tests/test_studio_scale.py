@@ -217,6 +217,28 @@ def test_edits_in_place_carry_the_totals_and_figures_of_a_fresh_job():
             assert new.meta["max_fit_error_mm"] == second
 
 
+def test_after_the_background_checks_an_edit_checks_only_its_own_strokes():
+    _, session = client()
+    session.load("art.svg", generated_svg(150, "curves").encode(), background=False)
+    job = session.job
+    end = time.monotonic() + 60
+    while not (session._worst_of is not None and session._worst_of[0] is job) and time.monotonic() < end:
+        time.sleep(0.05)  # the background checks, then the job's largest figures by them
+    k = len(job.strokes) // 2
+    asked = []
+
+    class Checks(dict):  # every look-up of a stroke's checks
+        def get(self, key, default=None):
+            asked.append(key)
+            return super().get(key, default)
+
+    session._checks = Checks(session._checks)
+    control = np.array(job.strokes[k].spline.control)
+    control[1] += 0.2
+    session.edit("move", k, control=control.tolist())
+    assert asked and set(asked) <= {id(job.strokes[k]), id(session.job.strokes[k])}
+
+
 def test_thin_paths_keep_ends_corners_and_shape():
     t = np.linspace(0, 2 * np.pi, 2000)
     paths = [np.c_[0.3 * np.cos(t), 0.3 * np.sin(t)] + 5,  # a tight circle, densely flattened

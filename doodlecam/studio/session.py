@@ -187,7 +187,8 @@ class Session:
             return {"job": self.job_id, "version": self.version, "planning": self.planning}
 
     def _check_later(self, job: Job) -> None:
-        """Each stroke's checks, in the background: the first edit then only checks its own."""
+        """Each stroke's checks, in the background, and the job's largest figures by them: the first edit
+        then only checks its own."""
         generation = self._generation
 
         def run():
@@ -195,6 +196,9 @@ class Session:
                 if self._generation != generation:
                     return  # superseded by another load
                 self.checks(st, sa)
+            with self.lock:
+                if self.job is job:
+                    self._worst(job.strokes, job.samples, job)
 
         threading.Thread(target=run, name="studio-check", daemon=True).start()
 
