@@ -274,18 +274,24 @@ def _offsets(arrays) -> np.ndarray:
 def _pass_through(strokes, which, lifts) -> tuple[np.ndarray, np.ndarray]:
     """For strokes[which[s]]: the unit direction in which the pen arrives at its start / leaves its end without
     stopping (the neighbouring stroke's tangent at the point they share, where Job.lifts says the pen stays
-    down), (0, 0) where it stops."""
-    t_in, t_out = np.zeros((len(which), 2)), np.zeros((len(which), 2))
+    down), (0, 0) where it stops. The tangents are evaluated in one call (eval_many: Spline.__call__'s bits)."""
+    t = np.zeros((2, len(which), 2))  # t_in, t_out
+    if lifts is None:
+        return t[0], t[1]
+    rows, nbr, at = [], [], []  # (side, s), the neighbour, where on it
     for s, i in enumerate(which):
-        if lifts is None:
-            continue
-        for t, k, u in ((t_in, i - 1, 1.0), (t_out, i + 1, 0.0)):
-            if 0 <= k < len(strokes) and not lifts[max(i, k)]:
-                d = strokes[k].spline(np.array([u]), 1)[0]
-                n = float(np.hypot(*d))
-                if n > 0:
-                    t[s] = d / n
-    return t_in, t_out
+        for side, k, u in ((0, i - 1, 1.0), (1, i + 1, 0.0)):
+            if 0 <= k < len(strokes) and not lifts[max(i, k)] and strokes[k].spline.degree >= 1:
+                rows.append((side, s))
+                nbr.append(strokes[k].spline)
+                at.append(u)
+    if rows:
+        d = eval_many(nbr, np.array(at), 1)
+        n = np.hypot(d[:, 0], d[:, 1])
+        side, s = np.array(rows).T
+        good = n > 0
+        t[side[good], s[good]] = d[good] / n[good, None]
+    return t[0], t[1]
 
 
 class _CapWalk:

@@ -115,7 +115,10 @@ def _axis_limit(values: np.ndarray, unit: np.ndarray) -> np.ndarray:
     """GRBL's limit_value_by_axis_maximum for each row of unit (n, 3)."""
     with np.errstate(divide="ignore"):
         r = np.where(unit != 0, values / np.abs(unit), SOME_LARGE_VALUE)
-    return r.min(axis=1)
+    out = r[:, 0].copy()
+    for k in range(1, r.shape[1]):  # column by column: r.min(axis=1) over 2-3 columns is ~3x slower
+        np.minimum(out, r[:, k], out=out)
+    return out
 
 
 def to_steps(mm: np.ndarray, steps_per_mm: np.ndarray) -> np.ndarray:
@@ -180,11 +183,9 @@ def _segment_time(points: np.ndarray, feeds: np.ndarray, s: GrblSettings, rest: 
     pad = W
     me_p = np.concatenate([me, np.zeros(pad + 1)])  # past the program end: rest
     two_aL = np.concatenate([2.0 * a * L, np.zeros(pad + 1)])
-    idx = np.arange(n)
     cur = np.zeros(n)  # exit² of block i + W - 1
-    for k in range(W - 1, 0, -1):
-        j = idx + k
-        cur = np.minimum(me_p[j], cur + two_aL[j])
+    for k in range(W - 1, 0, -1):  # rows i + k of every i: a slice, not a gather
+        cur = np.minimum(me_p[k:k + n], cur + two_aL[k:k + n])
     limit = cur  # exit² bound of block i (= entry² bound of block i+1)
 
     # Forward pass: exit_i² = min(limit_i, exit_{i-1}² + 2 a_i L_i), from rest. A min-plus scan;
