@@ -9,6 +9,7 @@ clips without np.clip. Each is compared here with the plain version.
 import numpy as np
 import pytest
 
+from doodlecam.errors import PlanError
 from doodlecam.model import Profile, Spline, Stroke, prime_splines
 from doodlecam.plan import kernels, planner
 from doodlecam.plan.follow import CANDIDATES, JerkBound, jerk_limit, path_deviation
@@ -136,3 +137,77 @@ def test_forgotten_derivatives_give_the_same_bits_and_stay_unkept():
     for d in (0, 1):
         np.testing.assert_array_equal(eval_many(fresh, [u] * len(fresh), d), batch[d])
     assert all("derivative_controls" not in s.__dict__ for s in fresh)
+
+
+def separate(spline, limits, check, jerk, grid):
+    """plan_stroke, then check_profile: what plan_checked's compiled calls must give."""
+    prof = planner.plan_stroke(spline, limits, jerk_max=jerk, grid=grid, jerk_period=0.04)
+    return prof, planner.check_profile(spline, prof, check)
+
+
+def bounds():
+    base = jerk_limit(0.1, 0.04)
+    return [None, base, JerkBound(base), JerkBound(base, ((0.1, 0.4, 0.5), (0.3, 0.9, 0.25))), 0.3 * base]
+
+
+@pytest.mark.parametrize("pen", [None, 90.0])
+def test_plan_checked_is_plan_stroke_then_check_profile(limits, pen):
+    """The plan and its ratios from the compiled calls equal plan_stroke's and check_profile's, bit for
+    bit: fresh grids and given ones (a re-plan), every kind of jerk bound, check limits other than
+    the plan's, a pen-speed cap."""
+    from dataclasses import replace
+
+    lim = replace(limits, pen_speed=pen)
+    check = replace(limits, vmax=limits.vmax * 1.1, amax=limits.amax * 0.9, pen_speed=pen and pen * 1.2)
+    splines = [s for s in random_splines(7, 80) if s.degree == 3 and not s.straight]
+    splines += [Spline(3, np.array([[0, 0], [1, 2], [3, 2.5], [40, 3], [41, 9], [60, 0]], float) * k) for k in (0.05, 1, 8)]
+    seen = 0
+    for i, s in enumerate(splines):
+        jerk = bounds()[i % 5]
+        for grid in (None, np.union1d(separate(s, lim, check, None, None)[0].u[::3], s.breakpoints)):
+            got, want = planner.plan_checked(s, lim, check, jerk_max=jerk, grid=grid, jerk_period=0.04), \
+                separate(s, lim, check, jerk, grid)
+            for name in "uabt":
+                assert np.array_equal(getattr(got[0], name), getattr(want[0], name), equal_nan=True)
+            assert got[0].solver == want[0].solver and got[1] == want[1]
+            seen += 1
+    assert seen > 60
+
+
+def test_plan_checked_takes_the_compiled_calls(limits, monkeypatch):
+    """plan_checked plans a curved cubic without plan_stroke (else the test above compares nothing)."""
+    s = next(s for s in random_splines(8, 20) if s.degree == 3 and not s.straight)
+    monkeypatch.setattr(planner, "plan_stroke", lambda *a, **k: pytest.fail("plan_stroke called"))
+    prof, (acc, vel) = planner.plan_checked(s, limits, limits, jerk_max=JerkBound(jerk_limit(0.1, 0.04)))
+    assert prof.duration > 0 and 0.9 < max(acc, vel) <= 1.0 + 1e-9
+
+
+@pytest.mark.parametrize("control, message", [
+    ([[0, 0], [1, 1], [np.nan, 2], [3, 0], [4, 4]], "non-finite control points"),
+    ([[2, 3]] * 5, "zero length"),
+])
+def test_plan_checked_says_what_plan_stroke_says(limits, control, message):
+    s = Spline(3, np.array(control, float))
+    for f in (lambda: planner.plan_checked(s, limits, limits), lambda: planner.plan_stroke(s, limits)):
+        with pytest.raises(PlanError, match=message):
+            f()
+
+
+def test_plan_checked_standing_still_span(limits):
+    """A span of equal control points (the pen stands still there): the compiled rounds hand it to
+    plan_stroke's Python rounds, which cap b there; the same plan either way."""
+    s = Spline(3, np.array([[0, 0], [10, 5], [20, 0], [20, 0], [20, 0], [20, 0], [30, 10], [40, 0]], float))
+    got, want = planner.plan_checked(s, limits, limits), separate(s, limits, limits, None, None)
+    assert np.isfinite(got[0].b).all()
+    for name in "uabt":
+        assert np.array_equal(getattr(got[0], name), getattr(want[0], name))
+    assert got[1] == want[1]
+
+
+def test_certify_square_is_pythons():
+    """curve_finish squares the velocity ratio as planner._certify's ``**`` does: the C library's
+    pow, which is not always x * x (so x * x in the kernel would change a few plans)."""
+    x = np.random.default_rng(9).uniform(0.5, 2.0, 40000)
+    got = np.array([kernels.python_square(v, 2.0) for v in x])
+    assert np.array_equal(got, [np.float64(v) ** 2 for v in x]) and np.array_equal(got, [float(v) ** 2 for v in x])
+    assert (got != x * x).any()

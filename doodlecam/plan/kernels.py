@@ -6,10 +6,12 @@ Python would be ~100x slower. This module is imported only when a stroke is
 planned (numba's import costs ~0.3 s).
 """
 
+import math
+
 import numba
 import numpy as np
 
-from doodlecam.geometry.kernels import _point, span_at
+from doodlecam.geometry.kernels import _point, span_at, span_taylor
 
 _EPS = 1e-12
 
@@ -1023,3 +1025,154 @@ def executed_deviation(c0, c1, c2, k, nseg, start, velocity, half_dt, tau, c, su
             x[i, d] = start[d] + (run if i > 0 else 0.0)
     period_deviation(c0, c1, c2, k, nseg, x, v, tau, c, su, candidates, iterations, out)
 
+
+
+@numba.njit(cache=True, nogil=True)
+def curve_rounds(c0, c1, c2, c3, C, bp, gx, gw, spacing, turn_step, max_points, u_given, M, vmax, amax, pen2, R,
+                 B1, B2, tau, pen, b0, bN, max_rounds, jerk_taus):  # pragma: no cover - compiled
+    """planner.plan_checked's first compiled call for a cubic (control points c0 and the
+    derivatives' c1, c2, c3): planner.check_inputs' tests of the control points, the span
+    polynomials (constraints.spans), the grid (planner.make_grid; u_given instead where it is
+    not empty), the rounds (plan_rounds, adaptive unless u_given) and, with jerk_taus, the jerk
+    terms at those taus of every interval (constraints.jerk_coefficients before numpy's powers).
+    The same operations in the same order. Returns (bad, status, u, b, tot, beta, gamma, uu, sp,
+    c12, c13, dot12): bad 1 = a control point not finite, 2 = all of them equal (nothing else
+    done); status as plan_rounds."""
+    p = 3
+    n = c0.shape[0]
+    nseg = bp.shape[0] - 1
+    e = np.empty((0, 0))
+    lo = np.empty(2)
+    hi = np.empty(2)
+    for d in range(2):
+        lo[d] = c0[0, d]
+        hi[d] = c0[0, d]
+        for i in range(n):
+            x = c0[i, d]
+            if not np.isfinite(x):
+                return 1, 0, u_given, u_given, e, e, e, e, e, e, e, e
+            lo[d] = min(lo[d], x)
+            hi[d] = max(hi[d], x)
+    top = 1.0  # Python's max(1.0, *|lo|, *|hi|) and max(hi - lo) <= 1e-9 that
+    for d in range(2):
+        top = max(top, abs(lo[d]))
+    for d in range(2):
+        top = max(top, abs(hi[d]))
+    if max(hi[0] - lo[0], hi[1] - lo[1]) <= 1e-9 * top:
+        return 2, 0, u_given, u_given, e, e, e, e, e, e, e, e
+    D = np.zeros((p + 1, n, 2))  # constraints._padded_derivatives
+    D[0] = c0
+    D[1, : n - 1] = c1
+    D[2, : n - 2] = c2
+    D[3, : n - 3] = c3
+    mid = (bp[:-1] + bp[1:]) / 2
+    T = np.empty((nseg, p + 1, 2))
+    span_taylor(D, p, nseg, mid, C, T)
+    adaptive = u_given.shape[0] == 0
+    if adaptive:
+        length = np.empty(nseg)
+        turning = np.empty(nseg)
+        span_measures(T, (bp[1:] - bp[:-1]) / 2, gx, gw, length, turning)
+        cnt = np.empty(nseg, np.int64)
+        total = 0
+        for s in range(nseg):
+            cnt[s] = max(int(np.ceil(length[s] / spacing + turning[s] / turn_step)), 2)
+            total += cnt[s]
+        if total > max_points:
+            for s in range(nseg):
+                cnt[s] = max(int(cnt[s] * max_points / total), 1)
+        u = np.empty(cnt.sum() + 1)
+        grid_fill(bp, cnt, u)
+    else:
+        u = u_given
+    status, u, b, tot, beta, gamma = plan_rounds(T, bp, mid, u, M, vmax, amax, pen2, R, B1, B2, c1, c2, p, nseg, tau,
+                                                 pen, b0, bN, max_rounds, adaptive)
+    if status != 0 or jerk_taus.shape[0] == 0:
+        return 0, status, u, b, tot, beta, gamma, e, e, e, e, e
+    K = u.shape[0] - 1
+    nt = jerk_taus.shape[0]
+    uu = np.empty((nt, K))
+    for t in range(nt):
+        for i in range(K):
+            # the interval's own side of a knot at tau >= 1
+            uu[t, i] = np.nextafter(u[i + 1], -np.inf) if jerk_taus[t] >= 1 else u[i] + jerk_taus[t] * (u[i + 1] - u[i])
+    sp = np.empty((nt, K))
+    c12 = np.empty((nt, K))
+    c13 = np.empty((nt, K))
+    dot12 = np.empty((nt, K))
+    jerk_terms(c1, c2, c3, p, nseg, uu, sp, c12, c13, dot12)
+    return 0, status, u, b, tot, beta, gamma, uu, sp, c12, c13, dot12
+
+
+@numba.njit(cache=True, nogil=True)
+def python_square(x, two):  # pragma: no cover - compiled
+    """x ** 2 as Python computes it: the C library's pow (glibc's pow(x, 2) is not always x * x),
+    with ``two`` = 2.0 given at run time so that the compiler cannot turn it into x * x."""
+    return math.pow(x, two)
+
+
+@numba.njit(cache=True, nogil=True)
+def curve_finish(u, b, tot, beta, gamma, uu, sp, sp3, sp6, c12, c13, dot12, taus, jbase, jstretch, grows, b0, bN,
+                 two, c1, c2, nseg, tau, M, amax, vmax, pen):  # pragma: no cover - compiled
+    """planner.plan_checked's second compiled call, after curve_rounds (and numpy's |q'|^3 and
+    |q'|^6 of its sp as sp3, sp6; uu empty: no jerk bound): the jerk rows' coefficients
+    (jerk_finish), the bound at uu (follow.JerkBound: jbase times the factor of every stretch
+    (lo, hi, f) of jstretch holding the point, in order), the jerk solves (jerk_solves),
+    planner._certify (``two`` = 2.0, given at run time so that the square is the C library's
+    pow as in Python), a, t and planner.check_profile on the cubic q' = c1, q'' = c2 within M,
+    amax, vmax, pen (tau: the check's points per interval). Returns (bad, status, b, a, t, acc,
+    vel): bad 1 = a jerk solve failed (status: reach_passes'), 2 = the end speeds cannot be
+    met, 3 = the plan stops mid-stroke."""
+    K = u.shape[0] - 1
+    ub = np.full(K + 1, np.inf)
+    e = np.empty(0)
+    if uu.shape[0] > 0:
+        nt = uu.shape[0]
+        j1 = np.empty((nt, K))
+        j2 = np.empty((nt, K))
+        jerk_finish(sp, sp3, sp6, c12, c13, dot12, j1, j2)
+        jm = np.empty((nt, K))
+        for t in range(nt):
+            for i in range(K):
+                x = uu[t, i]
+                f = 1.0
+                for m in range(jstretch.shape[0]):
+                    if x >= jstretch[m, 0] and x <= jstretch[m, 1]:
+                        f *= jstretch[m, 2]
+                jm[t, i] = jbase * f
+        status, b, tot, beta, gamma, ub = jerk_solves(tot, beta, gamma, ub, j1, j2, taus, u, jm, b, grows, b0, bN)
+        if status != 0:
+            return 1, status, b, e, e, 0.0, 0.0
+    # _certify: the worst row ratio, then b over its finite positive node bounds (a NaN there
+    # is left out, as Python's max leaves out numpy's NaN maximum)
+    r = max_ratio(tot, beta, gamma, b)
+    m = -np.inf
+    seen = False
+    nan = False
+    for i in range(K + 1):
+        x = ub[i]
+        if np.isfinite(x) and x > 0:
+            seen = True
+            v = b[i] / x
+            if v != v:
+                nan = True
+            elif v > m:
+                m = v
+    if seen and not nan and m > r:
+        r = m
+    vel_r = np.sqrt(r if r >= 0.0 else 0.0)
+    c = 1.0 / (r if r >= 1e-300 else 1e-300)
+    cv = 1.0 / python_square(vel_r if vel_r >= 1e-300 else 1e-300, two)
+    if cv < c:
+        c = cv
+    if c < 1.0:
+        if (b0 > 0 or bN > 0) and c < 1 - 1e-6:
+            return 2, 0, b, e, e, 0.0, 0.0
+        b = b * c * (1 - 1e-12)
+    a = (b[1:] - b[:-1]) / (2 * (u[1:] - u[:-1]))
+    t = np.empty(K + 1)
+    times(u, b, t)
+    if not np.isfinite(t).all():
+        return 3, 0, b, a, t, 0.0, 0.0
+    wa, wv, wp = spline_interval_worst(c1, c2, 3, nseg, u, tau, b, M, amax, vmax, pen)
+    return 0, 0, b, a, t, wa.max(), max(wv.max(), wp.max())
