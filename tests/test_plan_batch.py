@@ -211,3 +211,49 @@ def test_certify_square_is_pythons():
     got = np.array([kernels.python_square(v, 2.0) for v in x])
     assert np.array_equal(got, [np.float64(v) ** 2 for v in x]) and np.array_equal(got, [float(v) ** 2 for v in x])
     assert (got != x * x).any()
+
+
+def deviation_reference(s, x, v, tau, c, su):
+    """period_deviation with each point's distance from _any_distance (every candidate rooted, the
+    cubic evaluated through the general spline_point: the values the cubic path must give)."""
+    k, nseg = s.degree, len(s.control) - s.degree
+    d = s.derivative_controls
+    kt, N, left, right = kernels.knot_table(k, nseg), np.empty(k + 1), np.empty(k + 1), np.empty(k + 1)
+    out = []
+    for i in range(len(x) - 1):
+        w = max(su[i + 1] - su[i], 1e-9)
+        lo, hi = max(su[i] - w / 2, 0.0), min(su[i + 1] + w / 2, 1.0)
+        p = x[i] + v[i] * tau[:, None] + (v[i + 1] - v[i]) * c[:, None]
+        dist = np.array([kernels._any_distance(d[0], d[1], d[2], k, nseg, kt, N, left, right, px, py, lo, hi,
+                                               CANDIDATES, 4) for px, py in p])
+        top = int(dist.argmax())
+        kk = min(max(top, 1), len(dist) - 2)
+        fm, f0, fp = dist[kk - 1], dist[kk], dist[kk + 1]
+        curv = 2 * f0 - fm - fp
+        peak = f0 + ((fp - fm) * (fp - fm) / (8 * curv) if curv > 1e-15 else 0.0)
+        out.append(max(dist[top], min(peak, f0 + abs(fp - fm))))
+    return np.array(out)
+
+
+def test_period_deviation_shares_the_candidates_of_a_period():
+    """The cubic's candidate points are made once per period and rooted only where they are nearer:
+    the same distances as rooting every candidate of every point, also where two candidates are
+    (to rounding) equally far, as from the axis of a symmetric curve."""
+    rng = np.random.default_rng(10)
+    tau = np.linspace(0.0, 0.04, 17)
+    c = tau ** 2 / (2 * 0.04)
+    cases = []
+    for _ in range(30):
+        s = Spline(3, rng.normal(0, 10, (int(rng.integers(4, 10)), 2)))
+        m = int(rng.integers(2, 12))
+        x = s(np.linspace(0, 1, m + 1)) + rng.normal(0, 0.3, (m + 1, 2))
+        v = rng.normal(0, 50, (m + 1, 2))
+        cases.append((s, x, v, np.linspace(0, 1, m + 1)))
+    arc = Spline(3, np.array([[-10, 0], [-8, 6], [0, 9], [8, 6], [10, 0]], float))  # mirrored about x = 0
+    x = np.column_stack([np.zeros(400), np.linspace(-20, 20, 400)])  # each period: its point, stretch [0, 1]
+    cases.append((arc, x, np.zeros((400, 2)), np.arange(400) % 2.0))
+    for s, x, v, su in cases:
+        got = np.empty(len(x) - 1)
+        d = s.derivative_controls
+        kernels.period_deviation(d[0], d[1], d[2], 3, len(s.control) - 3, x, v, tau, c, su, CANDIDATES, 4, got)
+        assert np.array_equal(got, deviation_reference(s, x, v, tau, c, su))

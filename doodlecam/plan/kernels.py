@@ -363,9 +363,14 @@ def spline_interval_worst(c1, c2, k, nseg, u, tau, b, M, amax, vmax, pen):  # pr
     wv = np.zeros(K)
     wp = np.zeros(K)
     kt = knot_table(k, nseg)
+    top_a = np.empty(na)
+    top_v = np.empty(na)
     for i in range(K):
         h = u[i + 1] - u[i]
         a = (b[i + 1] - b[i]) / (2.0 * h)
+        top_a[:] = 0.0
+        top_v[:] = 0.0
+        top_p = 0.0
         for r in range(R):
             x = np.nextafter(u[i + 1], -np.inf) if r == refine else u[i] + tau[r] * h
             x = min(max(x, 0.0), 1.0)
@@ -395,16 +400,25 @@ def spline_interval_worst(c1, c2, k, nseg, u, tau, b, M, amax, vmax, pen):  # pr
             for j in range(na):
                 t1 = d1x * M[j, 0] + d1y * M[j, 1]
                 t2 = d2x * M[j, 0] + d2y * M[j, 1]
-                acc = abs(t1 * a + t2 * bb) / amax[j]
-                vel = abs(t1) * sb / vmax[j]
-                if acc > wa[i]:
-                    wa[i] = acc
-                if vel > wv[i]:
-                    wv[i] = vel
+                acc = abs(t1 * a + t2 * bb)
+                vel = abs(t1) * sb
+                if acc > top_a[j]:
+                    top_a[j] = acc
+                if vel > top_v[j]:
+                    top_v[j] = vel
             if pen > 0.0:
-                p = np.hypot(d1x, d1y) * sb / pen
-                if p > wp[i]:
-                    wp[i] = p
+                p = np.hypot(d1x, d1y) * sb
+                if p > top_p:
+                    top_p = p
+        # divided once per interval and actuator: a correctly rounded x / c grows with x, so the
+        # largest quotient is the largest numerator's (the same bits as dividing at every point)
+        for j in range(na):
+            if top_a[j] / amax[j] > wa[i]:
+                wa[i] = top_a[j] / amax[j]
+            if top_v[j] / vmax[j] > wv[i]:
+                wv[i] = top_v[j] / vmax[j]
+        if pen > 0.0:
+            wp[i] = top_p / pen
     return wa, wv, wp
 
 
@@ -552,16 +566,40 @@ def _newton(u, rx, ry, d1x, d1y, d2x, d2y, a, b):  # pragma: no cover - compiled
 
 @numba.njit(cache=True, nogil=True, inline="always")
 def _cubic_distance(c0, c1, c2, nseg, kt, px, py, lo, hi, candidates, iterations):  # pragma: no cover - compiled
+    cx = np.empty(candidates)
+    cy = np.empty(candidates)
+    cu = np.empty(candidates)
+    step = _cubic_candidates(c0, nseg, kt, lo, hi, cx, cy, cu)
+    return _cubic_from(c0, c1, c2, nseg, kt, px, py, lo, cx, cy, cu, step, iterations)
+
+
+@numba.njit(cache=True, nogil=True, inline="always")
+def _cubic_candidates(c0, nseg, kt, lo, hi, cx, cy, cu):  # pragma: no cover - compiled
+    """The cubic's points (cx, cy) at len(cu) parameters cu evenly spread over [lo, hi]
+    (_cubic_distance's candidates: the same for every point of a period); returns the spacing."""
+    candidates = cu.shape[0]
     step = (hi - lo) / (candidates - 1)
-    best, ub = np.inf, lo
     for j in range(candidates):
         u = lo + step * j
         s = span_at(u, nseg)
         n0, n1, n2, n3 = _cubic(u, kt, nseg, s, 3)
-        qx, qy = _sum4(c0, s, n0, n1, n2, n3)
-        d = np.sqrt((qx - px) ** 2 + (qy - py) ** 2)
-        if d < best:
-            best, ub = d, u
+        cx[j], cy[j] = _sum4(c0, s, n0, n1, n2, n3)
+        cu[j] = u
+    return step
+
+
+@numba.njit(cache=True, nogil=True, inline="always")
+def _cubic_from(c0, c1, c2, nseg, kt, px, py, lo, cx, cy, cu, step, iterations):  # pragma: no cover - compiled
+    """_cubic_distance of (px, py) from its candidates: the nearest, then the Newton steps. The
+    square root only where the squared distance drops below the best one's (a correctly rounded
+    root does not fall where its argument does not), so the same best as rooting every one."""
+    best, ub, best2 = np.inf, lo, np.inf
+    for j in range(cu.shape[0]):
+        d2 = (cx[j] - px) ** 2 + (cy[j] - py) ** 2
+        if d2 < best2:
+            d = np.sqrt(d2)
+            if d < best:
+                best, ub, best2 = d, cu[j], d2
     a, b = max(ub - step, 0.0), min(ub + step, 1.0)
     u = ub
     for it in range(iterations + 1):  # the last pass only evaluates q at the final u
@@ -612,6 +650,9 @@ def period_deviation(c0, c1, c2, k, nseg, x, v, tau, c, su, candidates, iteratio
     kt = knot_table(k, nseg)
     R = tau.shape[0]
     dist = np.empty(R)
+    cx = np.empty(candidates)
+    cy = np.empty(candidates)
+    cu = np.empty(candidates)
     for i in range(out.shape[0]):
         w = su[i + 1] - su[i]
         w = w if (w >= 1e-9 or w != w) else 1e-9
@@ -620,10 +661,14 @@ def period_deviation(c0, c1, c2, k, nseg, x, v, tau, c, su, candidates, iteratio
         hi = su[i + 1] + w / 2
         hi = hi if (hi <= 1.0 or hi != hi) else 1.0
         top = 0
+        step = _cubic_candidates(c0, nseg, kt, lo, hi, cx, cy, cu) if k == 3 else 0.0  # once per period
         for r in range(R):
             px = x[i, 0] + v[i, 0] * tau[r] + (v[i + 1, 0] - v[i, 0]) * c[r]
             py = x[i, 1] + v[i, 1] * tau[r] + (v[i + 1, 1] - v[i, 1]) * c[r]
-            dist[r] = _distance(c0, c1, c2, k, nseg, kt, N, left, right, px, py, lo, hi, candidates, iterations)
+            if k == 3:
+                dist[r] = _cubic_from(c0, c1, c2, nseg, kt, px, py, lo, cx, cy, cu, step, iterations)
+            else:
+                dist[r] = _distance(c0, c1, c2, k, nseg, kt, N, left, right, px, py, lo, hi, candidates, iterations)
         for r in range(R):  # numpy's argmax: the first largest (the first NaN)
             if dist[r] != dist[r]:
                 top = r
