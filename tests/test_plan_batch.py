@@ -257,3 +257,16 @@ def test_period_deviation_shares_the_candidates_of_a_period():
         d = s.derivative_controls
         kernels.period_deviation(d[0], d[1], d[2], 3, len(s.control) - 3, x, v, tau, c, su, CANDIDATES, 4, got)
         assert np.array_equal(got, deviation_reference(s, x, v, tau, c, su))
+
+
+def test_interval_check_where_is_the_full_check_there(limits):
+    """plan_rounds checks only the intervals where a row binds: there the same ratios as the full check."""
+    s = next(s for s in random_splines(11, 20) if s.degree == 3 and not s.straight)
+    prof = planner.plan_stroke(s, limits)
+    c, M = s.derivative_controls, np.ascontiguousarray(limits.M, float)
+    args = (c[1], c[2], 3, len(s.control) - 3, prof.u, planner._taus(8), prof.b, M, limits.amax, limits.vmax, 50.0)
+    full = kernels.spline_interval_worst(*args)
+    which = np.random.default_rng(12).random(len(prof.u) - 1) < 0.5
+    part = kernels.spline_interval_worst_where(*args, which)
+    for f, p in zip(full, part):
+        assert np.array_equal(p[which], f[which]) and not p[~which].any() and f[~which].all()

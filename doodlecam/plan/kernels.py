@@ -352,6 +352,12 @@ def spline_interval_worst(c1, c2, k, nseg, u, tau, b, M, amax, vmax, pen):  # pr
     u_k + tau h_k (the last point: the float below u_k+1, the interval's side of a knot) inside the loop, so the 20x check grid is never
     stored (its arrays cost more than the arithmetic). The same points as the numpy version
     (tests/test_plan_kernels.py compares them)."""
+    return spline_interval_worst_where(c1, c2, k, nseg, u, tau, b, M, amax, vmax, pen, np.empty(0, np.bool_))
+
+
+@numba.njit(cache=True, nogil=True)
+def spline_interval_worst_where(c1, c2, k, nseg, u, tau, b, M, amax, vmax, pen, which):  # pragma: no cover - compiled
+    """spline_interval_worst on the intervals i where which[i] (all where ``which`` is empty), 0 elsewhere."""
     K = u.shape[0] - 1
     R = tau.shape[0]
     refine = R - 1
@@ -366,6 +372,8 @@ def spline_interval_worst(c1, c2, k, nseg, u, tau, b, M, amax, vmax, pen):  # pr
     top_a = np.empty(na)
     top_v = np.empty(na)
     for i in range(K):
+        if which.shape[0] > 0 and not which[i]:
+            continue
         h = u[i + 1] - u[i]
         a = (b[i + 1] - b[i]) / (2.0 * h)
         top_a[:] = 0.0
@@ -998,8 +1006,6 @@ def plan_rounds(T, bp, mid, u, M, vmax, amax, pen2, R, B1, B2, c1, c2, k, nseg, 
             return -2, u, b, tot, beta, gamma
         if not adaptive:
             break
-        wa, wv, wp = spline_interval_worst(c1, c2, k, nseg, u, tau, b, M, amax, vmax, pen)
-        worst = np.maximum(np.maximum(wa, wv), wp)
         used = np.empty(K)
         row_ratios(tot, beta, gamma, b, 0, used)
         t = np.empty(K + 1)
@@ -1007,7 +1013,11 @@ def plan_rounds(T, bp, mid, u, M, vmax, amax, pen2, R, B1, B2, c1, c2, k, nseg, 
         if not np.isfinite(t[K]) or t[K] > best_t * (1 - 1e-4):
             break  # refinement no longer pays
         best_t = t[K]
-        split = (used > 1 - 1e-6) & (worst < 1 - 2e-3)  # binding, but the bound is loose
+        binding = used > 1 - 1e-6
+        # the check only where a row binds (the rest are not split whatever it finds)
+        wa, wv, wp = spline_interval_worst_where(c1, c2, k, nseg, u, tau, b, M, amax, vmax, pen, binding)
+        worst = np.maximum(np.maximum(wa, wv), wp)
+        split = binding & (worst < 1 - 2e-3)  # binding, but the bound is loose
         if not split.any() or u.shape[0] + split.sum() > 200_000 or round_ == max_rounds - 1:
             break
         u = np.sort(np.concatenate((u, ((u[:-1] + u[1:])[split]) / 2)))
