@@ -33,6 +33,9 @@ from doodlecam.model import Profile, Spline
 from doodlecam.plan import constraints, convex, reach
 
 CHECK_REFINE = 20  # the verification grid is this many times finer
+SPACING, TURN_STEP = 0.5, 0.05  # grid steps: mm along the curve, rad of turning (make_grid)
+MAX_POINTS = 200_000  # grid nodes at most
+MAX_ROUNDS = 6  # solves on refined grids at most
 # jerk_max: the rows take sqrt(b) from a profile b_hat the solution stays below. The
 # first solve takes the plan without the bound; the next min(that, 2 x the last),
 # which the last solution satisfies, so each is at least as fast (camera.png, same
@@ -122,8 +125,8 @@ def _span_measures(spline: Spline, span_polys: constraints.Spans | None = None):
     return length, turning
 
 
-def make_grid(spline: Spline, spacing: float = 0.5, turn_step: float = 0.05, n_points: int | None = None,
-              min_per_span: int = 2, max_points: int = 200_000,
+def make_grid(spline: Spline, spacing: float = SPACING, turn_step: float = TURN_STEP, n_points: int | None = None,
+              min_per_span: int = 2, max_points: int = MAX_POINTS,
               span_polys: constraints.Spans | None = None) -> np.ndarray:
     """Grid in u: every knot; each span split so steps are ~``spacing`` mm and
     turn ~``turn_step`` rad at most (dense where the curve is tight), or into
@@ -208,7 +211,6 @@ def check_profile(spline: Spline, profile: Profile, limits: Limits, refine: int 
 
 
 _NO_GRID = np.empty(0)  # (shared, never written to)
-_NO_JERK = np.empty((0, 0))
 _NO_STRETCH = np.empty((0, 3))
 _JERK_TAUS = np.array([0.0, 0.5, 1.0])  # constraints.jerk_coefficients' taus
 
@@ -259,10 +261,10 @@ def _fused(spline: Spline, limits: Limits, check_limits: Limits, jerk, grid):
     M, vmax, amax = limits.arrays
     R = M.shape[0] * 4 * p + (2 * p if pen is not None else 0)  # as constraints.bernstein_rows
     bad, status, u, b, tot, beta, gamma, uu, sp, c12, c13, dot12 = curve_rounds(
-        c[0], c[1], c[2], c[3], constraints._interior_taylor(p), spline.breakpoints, _GAUSS[0], _GAUSS[1], 0.5, 0.05,
-        200_000, _NO_GRID if grid is None else np.array(grid, float), M, vmax, amax,
+        c[0], c[1], c[2], c[3], constraints._interior_taylor(p), spline.breakpoints, _GAUSS[0], _GAUSS[1], SPACING,
+        TURN_STEP, MAX_POINTS, _NO_GRID if grid is None else np.array(grid, float), M, vmax, amax,
         float(pen) ** 2 if pen is not None else 0.0, R, constraints._b_matrix(p - 1), constraints._b_matrix(2 * p - 1),
-        _taus(8), float(pen or 0.0), 0.0, 0.0, 6, _JERK_TAUS if jerk else _NO_GRID)
+        _taus(8), float(pen or 0.0), 0.0, 0.0, MAX_ROUNDS, _JERK_TAUS if jerk else _NO_GRID)
     if bad:
         raise PlanError(_INPUT_PROBLEMS[bad])
     if status == -2:
@@ -401,10 +403,10 @@ def check_solver(solver: str) -> None:
         require("solvers", f"the {solver.partition(':')[0]} solver", "or use the default, --solver reach")
 
 
-def plan_stroke(spline: Spline, limits: Limits, solver: str = "reach", spacing: float = 0.5,
+def plan_stroke(spline: Spline, limits: Limits, solver: str = "reach", spacing: float = SPACING,
                 n_points: int | None = None, adaptive: bool = True, smoothing: float = 0.0,
                 v_start: float = 0.0, v_end: float = 0.0, mode: str = "bernstein",
-                max_rounds: int = 6, jerk_max=None, grid: np.ndarray | None = None,
+                max_rounds: int = MAX_ROUNDS, jerk_max=None, grid: np.ndarray | None = None,
                 jerk_period: float | None = None) -> Profile:
     """Time-optimal profile along ``spline``; v_start / v_end are pen speeds (mm/s).
 
