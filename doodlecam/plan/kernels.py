@@ -6,10 +6,12 @@ Python would be ~100x slower. This module is imported only when a stroke is
 planned (numba's import costs ~0.3 s).
 """
 
+import math
+
 import numba
 import numpy as np
 
-from doodlecam.geometry.kernels import _point, span_at
+from doodlecam.geometry.kernels import _point, span_at, span_taylor
 
 _EPS = 1e-12
 
@@ -350,6 +352,12 @@ def spline_interval_worst(c1, c2, k, nseg, u, tau, b, M, amax, vmax, pen):  # pr
     u_k + tau h_k (the last point: the float below u_k+1, the interval's side of a knot) inside the loop, so the 20x check grid is never
     stored (its arrays cost more than the arithmetic). The same points as the numpy version
     (tests/test_plan_kernels.py compares them)."""
+    return spline_interval_worst_where(c1, c2, k, nseg, u, tau, b, M, amax, vmax, pen, np.empty(0, np.bool_))
+
+
+@numba.njit(cache=True, nogil=True)
+def spline_interval_worst_where(c1, c2, k, nseg, u, tau, b, M, amax, vmax, pen, which):  # pragma: no cover - compiled
+    """spline_interval_worst on the intervals i where which[i] (all where ``which`` is empty), 0 elsewhere."""
     K = u.shape[0] - 1
     R = tau.shape[0]
     refine = R - 1
@@ -361,9 +369,16 @@ def spline_interval_worst(c1, c2, k, nseg, u, tau, b, M, amax, vmax, pen):  # pr
     wv = np.zeros(K)
     wp = np.zeros(K)
     kt = knot_table(k, nseg)
+    top_a = np.empty(na)
+    top_v = np.empty(na)
     for i in range(K):
+        if which.shape[0] > 0 and not which[i]:
+            continue
         h = u[i + 1] - u[i]
         a = (b[i + 1] - b[i]) / (2.0 * h)
+        top_a[:] = 0.0
+        top_v[:] = 0.0
+        top_p = 0.0
         for r in range(R):
             x = np.nextafter(u[i + 1], -np.inf) if r == refine else u[i] + tau[r] * h
             x = min(max(x, 0.0), 1.0)
@@ -393,16 +408,25 @@ def spline_interval_worst(c1, c2, k, nseg, u, tau, b, M, amax, vmax, pen):  # pr
             for j in range(na):
                 t1 = d1x * M[j, 0] + d1y * M[j, 1]
                 t2 = d2x * M[j, 0] + d2y * M[j, 1]
-                acc = abs(t1 * a + t2 * bb) / amax[j]
-                vel = abs(t1) * sb / vmax[j]
-                if acc > wa[i]:
-                    wa[i] = acc
-                if vel > wv[i]:
-                    wv[i] = vel
+                acc = abs(t1 * a + t2 * bb)
+                vel = abs(t1) * sb
+                if acc > top_a[j]:
+                    top_a[j] = acc
+                if vel > top_v[j]:
+                    top_v[j] = vel
             if pen > 0.0:
-                p = np.hypot(d1x, d1y) * sb / pen
-                if p > wp[i]:
-                    wp[i] = p
+                p = np.hypot(d1x, d1y) * sb
+                if p > top_p:
+                    top_p = p
+        # divided once per interval and actuator: a correctly rounded x / c grows with x, so the
+        # largest quotient is the largest numerator's (the same bits as dividing at every point)
+        for j in range(na):
+            if top_a[j] / amax[j] > wa[i]:
+                wa[i] = top_a[j] / amax[j]
+            if top_v[j] / vmax[j] > wv[i]:
+                wv[i] = top_v[j] / vmax[j]
+        if pen > 0.0:
+            wp[i] = top_p / pen
     return wa, wv, wp
 
 
@@ -550,16 +574,40 @@ def _newton(u, rx, ry, d1x, d1y, d2x, d2y, a, b):  # pragma: no cover - compiled
 
 @numba.njit(cache=True, nogil=True, inline="always")
 def _cubic_distance(c0, c1, c2, nseg, kt, px, py, lo, hi, candidates, iterations):  # pragma: no cover - compiled
+    cx = np.empty(candidates)
+    cy = np.empty(candidates)
+    cu = np.empty(candidates)
+    step = _cubic_candidates(c0, nseg, kt, lo, hi, cx, cy, cu)
+    return _cubic_from(c0, c1, c2, nseg, kt, px, py, lo, cx, cy, cu, step, iterations)
+
+
+@numba.njit(cache=True, nogil=True, inline="always")
+def _cubic_candidates(c0, nseg, kt, lo, hi, cx, cy, cu):  # pragma: no cover - compiled
+    """The cubic's points (cx, cy) at len(cu) parameters cu evenly spread over [lo, hi]
+    (_cubic_distance's candidates: the same for every point of a period); returns the spacing."""
+    candidates = cu.shape[0]
     step = (hi - lo) / (candidates - 1)
-    best, ub = np.inf, lo
     for j in range(candidates):
         u = lo + step * j
         s = span_at(u, nseg)
         n0, n1, n2, n3 = _cubic(u, kt, nseg, s, 3)
-        qx, qy = _sum4(c0, s, n0, n1, n2, n3)
-        d = np.sqrt((qx - px) ** 2 + (qy - py) ** 2)
-        if d < best:
-            best, ub = d, u
+        cx[j], cy[j] = _sum4(c0, s, n0, n1, n2, n3)
+        cu[j] = u
+    return step
+
+
+@numba.njit(cache=True, nogil=True, inline="always")
+def _cubic_from(c0, c1, c2, nseg, kt, px, py, lo, cx, cy, cu, step, iterations):  # pragma: no cover - compiled
+    """_cubic_distance of (px, py) from its candidates: the nearest, then the Newton steps. The
+    square root only where the squared distance drops below the best one's (a correctly rounded
+    root does not fall where its argument does not), so the same best as rooting every one."""
+    best, ub, best2 = np.inf, lo, np.inf
+    for j in range(cu.shape[0]):
+        d2 = (cx[j] - px) ** 2 + (cy[j] - py) ** 2
+        if d2 < best2:
+            d = np.sqrt(d2)
+            if d < best:
+                best, ub, best2 = d, cu[j], d2
     a, b = max(ub - step, 0.0), min(ub + step, 1.0)
     u = ub
     for it in range(iterations + 1):  # the last pass only evaluates q at the final u
@@ -610,6 +658,9 @@ def period_deviation(c0, c1, c2, k, nseg, x, v, tau, c, su, candidates, iteratio
     kt = knot_table(k, nseg)
     R = tau.shape[0]
     dist = np.empty(R)
+    cx = np.empty(candidates)
+    cy = np.empty(candidates)
+    cu = np.empty(candidates)
     for i in range(out.shape[0]):
         w = su[i + 1] - su[i]
         w = w if (w >= 1e-9 or w != w) else 1e-9
@@ -618,10 +669,14 @@ def period_deviation(c0, c1, c2, k, nseg, x, v, tau, c, su, candidates, iteratio
         hi = su[i + 1] + w / 2
         hi = hi if (hi <= 1.0 or hi != hi) else 1.0
         top = 0
+        step = _cubic_candidates(c0, nseg, kt, lo, hi, cx, cy, cu) if k == 3 else 0.0  # once per period
         for r in range(R):
             px = x[i, 0] + v[i, 0] * tau[r] + (v[i + 1, 0] - v[i, 0]) * c[r]
             py = x[i, 1] + v[i, 1] * tau[r] + (v[i + 1, 1] - v[i, 1]) * c[r]
-            dist[r] = _distance(c0, c1, c2, k, nseg, kt, N, left, right, px, py, lo, hi, candidates, iterations)
+            if k == 3:
+                dist[r] = _cubic_from(c0, c1, c2, nseg, kt, px, py, lo, cx, cy, cu, step, iterations)
+            else:
+                dist[r] = _distance(c0, c1, c2, k, nseg, kt, N, left, right, px, py, lo, hi, candidates, iterations)
         for r in range(R):  # numpy's argmax: the first largest (the first NaN)
             if dist[r] != dist[r]:
                 top = r
@@ -1046,8 +1101,6 @@ def plan_rounds(T, bp, mid, u, M, vmax, amax, pen2, R, B1, B2, c1, c2, k, nseg, 
             return -2, u, b, tot, beta, gamma
         if not adaptive:
             break
-        wa, wv, wp = spline_interval_worst(c1, c2, k, nseg, u, tau, b, M, amax, vmax, pen)
-        worst = np.maximum(np.maximum(wa, wv), wp)
         used = np.empty(K)
         row_ratios(tot, beta, gamma, b, 0, used)
         t = np.empty(K + 1)
@@ -1055,7 +1108,11 @@ def plan_rounds(T, bp, mid, u, M, vmax, amax, pen2, R, B1, B2, c1, c2, k, nseg, 
         if not np.isfinite(t[K]) or t[K] > best_t * (1 - 1e-4):
             break  # refinement no longer pays
         best_t = t[K]
-        split = (used > 1 - 1e-6) & (worst < 1 - 2e-3)  # binding, but the bound is loose
+        binding = used > 1 - 1e-6
+        # the check only where a row binds (the rest are not split whatever it finds)
+        wa, wv, wp = spline_interval_worst_where(c1, c2, k, nseg, u, tau, b, M, amax, vmax, pen, binding)
+        worst = np.maximum(np.maximum(wa, wv), wp)
+        split = binding & (worst < 1 - 2e-3)  # binding, but the bound is loose
         if not split.any() or u.shape[0] + split.sum() > 200_000 or round_ == max_rounds - 1:
             break
         u = np.sort(np.concatenate((u, ((u[:-1] + u[1:])[split]) / 2)))
@@ -1118,3 +1175,154 @@ def executed_deviation(c0, c1, c2, k, nseg, start, velocity, half_dt, tau, c, su
             x[i, d] = start[d] + (run if i > 0 else 0.0)
     period_deviation(c0, c1, c2, k, nseg, x, v, tau, c, su, candidates, iterations, out)
 
+
+
+@numba.njit(cache=True, nogil=True)
+def curve_rounds(c0, c1, c2, c3, C, bp, gx, gw, spacing, turn_step, max_points, u_given, M, vmax, amax, pen2, R,
+                 B1, B2, tau, pen, b0, bN, max_rounds, jerk_taus):  # pragma: no cover - compiled
+    """planner.plan_checked's first compiled call for a cubic (control points c0 and the
+    derivatives' c1, c2, c3): planner.check_inputs' tests of the control points, the span
+    polynomials (constraints.spans), the grid (planner.make_grid; u_given instead where it is
+    not empty), the rounds (plan_rounds, adaptive unless u_given) and, with jerk_taus, the jerk
+    terms at those taus of every interval (constraints.jerk_coefficients before numpy's powers).
+    The same operations in the same order. Returns (bad, status, u, b, tot, beta, gamma, uu, sp,
+    c12, c13, dot12): bad 1 = a control point not finite, 2 = all of them equal (nothing else
+    done); status as plan_rounds."""
+    p = 3
+    n = c0.shape[0]
+    nseg = bp.shape[0] - 1
+    e = np.empty((0, 0))
+    lo = np.empty(2)
+    hi = np.empty(2)
+    for d in range(2):
+        lo[d] = c0[0, d]
+        hi[d] = c0[0, d]
+        for i in range(n):
+            x = c0[i, d]
+            if not np.isfinite(x):
+                return 1, 0, u_given, u_given, e, e, e, e, e, e, e, e
+            lo[d] = min(lo[d], x)
+            hi[d] = max(hi[d], x)
+    top = 1.0  # Python's max(1.0, *|lo|, *|hi|) and max(hi - lo) <= 1e-9 that
+    for d in range(2):
+        top = max(top, abs(lo[d]))
+    for d in range(2):
+        top = max(top, abs(hi[d]))
+    if max(hi[0] - lo[0], hi[1] - lo[1]) <= 1e-9 * top:
+        return 2, 0, u_given, u_given, e, e, e, e, e, e, e, e
+    D = np.zeros((p + 1, n, 2))  # constraints._padded_derivatives
+    D[0] = c0
+    D[1, : n - 1] = c1
+    D[2, : n - 2] = c2
+    D[3, : n - 3] = c3
+    mid = (bp[:-1] + bp[1:]) / 2
+    T = np.empty((nseg, p + 1, 2))
+    span_taylor(D, p, nseg, mid, C, T)
+    adaptive = u_given.shape[0] == 0
+    if adaptive:
+        length = np.empty(nseg)
+        turning = np.empty(nseg)
+        span_measures(T, (bp[1:] - bp[:-1]) / 2, gx, gw, length, turning)
+        cnt = np.empty(nseg, np.int64)
+        total = 0
+        for s in range(nseg):
+            cnt[s] = max(int(np.ceil(length[s] / spacing + turning[s] / turn_step)), 2)
+            total += cnt[s]
+        if total > max_points:
+            for s in range(nseg):
+                cnt[s] = max(int(cnt[s] * max_points / total), 1)
+        u = np.empty(cnt.sum() + 1)
+        grid_fill(bp, cnt, u)
+    else:
+        u = u_given
+    status, u, b, tot, beta, gamma = plan_rounds(T, bp, mid, u, M, vmax, amax, pen2, R, B1, B2, c1, c2, p, nseg, tau,
+                                                 pen, b0, bN, max_rounds, adaptive)
+    if status != 0 or jerk_taus.shape[0] == 0:
+        return 0, status, u, b, tot, beta, gamma, e, e, e, e, e
+    K = u.shape[0] - 1
+    nt = jerk_taus.shape[0]
+    uu = np.empty((nt, K))
+    for t in range(nt):
+        for i in range(K):
+            # the interval's own side of a knot at tau >= 1
+            uu[t, i] = np.nextafter(u[i + 1], -np.inf) if jerk_taus[t] >= 1 else u[i] + jerk_taus[t] * (u[i + 1] - u[i])
+    sp = np.empty((nt, K))
+    c12 = np.empty((nt, K))
+    c13 = np.empty((nt, K))
+    dot12 = np.empty((nt, K))
+    jerk_terms(c1, c2, c3, p, nseg, uu, sp, c12, c13, dot12)
+    return 0, status, u, b, tot, beta, gamma, uu, sp, c12, c13, dot12
+
+
+@numba.njit(cache=True, nogil=True)
+def python_square(x, two):  # pragma: no cover - compiled
+    """x ** 2 as Python computes it: the C library's pow (glibc's pow(x, 2) is not always x * x),
+    with ``two`` = 2.0 given at run time so that the compiler cannot turn it into x * x."""
+    return math.pow(x, two)
+
+
+@numba.njit(cache=True, nogil=True)
+def curve_finish(u, b, tot, beta, gamma, uu, sp, sp3, sp6, c12, c13, dot12, taus, jbase, jstretch, grows, b0, bN,
+                 two, c1, c2, nseg, tau, M, amax, vmax, pen):  # pragma: no cover - compiled
+    """planner.plan_checked's second compiled call, after curve_rounds (and numpy's |q'|^3 and
+    |q'|^6 of its sp as sp3, sp6; uu empty: no jerk bound): the jerk rows' coefficients
+    (jerk_finish), the bound at uu (follow.JerkBound: jbase times the factor of every stretch
+    (lo, hi, f) of jstretch holding the point, in order), the jerk solves (jerk_solves),
+    planner._certify (``two`` = 2.0, given at run time so that the square is the C library's
+    pow as in Python), a, t and planner.check_profile on the cubic q' = c1, q'' = c2 within M,
+    amax, vmax, pen (tau: the check's points per interval). Returns (bad, status, b, a, t, acc,
+    vel): bad 1 = a jerk solve failed (status: reach_passes'), 2 = the end speeds cannot be
+    met, 3 = the plan stops mid-stroke."""
+    K = u.shape[0] - 1
+    ub = np.full(K + 1, np.inf)
+    e = np.empty(0)
+    if uu.shape[0] > 0:
+        nt = uu.shape[0]
+        j1 = np.empty((nt, K))
+        j2 = np.empty((nt, K))
+        jerk_finish(sp, sp3, sp6, c12, c13, dot12, j1, j2)
+        jm = np.empty((nt, K))
+        for t in range(nt):
+            for i in range(K):
+                x = uu[t, i]
+                f = 1.0
+                for m in range(jstretch.shape[0]):
+                    if x >= jstretch[m, 0] and x <= jstretch[m, 1]:
+                        f *= jstretch[m, 2]
+                jm[t, i] = jbase * f
+        status, b, tot, beta, gamma, ub = jerk_solves(tot, beta, gamma, ub, j1, j2, taus, u, jm, b, grows, b0, bN)
+        if status != 0:
+            return 1, status, b, e, e, 0.0, 0.0
+    # _certify: the worst row ratio, then b over its finite positive node bounds (a NaN there
+    # is left out, as Python's max leaves out numpy's NaN maximum)
+    r = max_ratio(tot, beta, gamma, b)
+    m = -np.inf
+    seen = False
+    nan = False
+    for i in range(K + 1):
+        x = ub[i]
+        if np.isfinite(x) and x > 0:
+            seen = True
+            v = b[i] / x
+            if v != v:
+                nan = True
+            elif v > m:
+                m = v
+    if seen and not nan and m > r:
+        r = m
+    vel_r = np.sqrt(r if r >= 0.0 else 0.0)
+    c = 1.0 / (r if r >= 1e-300 else 1e-300)
+    cv = 1.0 / python_square(vel_r if vel_r >= 1e-300 else 1e-300, two)
+    if cv < c:
+        c = cv
+    if c < 1.0:
+        if (b0 > 0 or bN > 0) and c < 1 - 1e-6:
+            return 2, 0, b, e, e, 0.0, 0.0
+        b = b * c * (1 - 1e-12)
+    a = (b[1:] - b[:-1]) / (2 * (u[1:] - u[:-1]))
+    t = np.empty(K + 1)
+    times(u, b, t)
+    if not np.isfinite(t).all():
+        return 3, 0, b, a, t, 0.0, 0.0
+    wa, wv, wp = spline_interval_worst(c1, c2, 3, nseg, u, tau, b, M, amax, vmax, pen)
+    return 0, 0, b, a, t, wa.max(), max(wv.max(), wp.max())

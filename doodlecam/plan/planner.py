@@ -33,6 +33,9 @@ from doodlecam.model import Profile, Spline
 from doodlecam.plan import constraints, convex, reach
 
 CHECK_REFINE = 20  # the verification grid is this many times finer
+SPACING, TURN_STEP = 0.5, 0.05  # grid steps: mm along the curve, rad of turning (make_grid)
+MAX_POINTS = 200_000  # grid nodes at most
+MAX_ROUNDS = 6  # solves on refined grids at most
 # jerk_max: the rows take sqrt(b) from a profile b_hat the solution stays below. The
 # first solve takes the plan without the bound; the next min(that, 2 x the last),
 # which the last solution satisfies, so each is at least as fast (camera.png, same
@@ -78,6 +81,11 @@ class Limits:
         return ""
 
     @functools.cached_property
+    def arrays(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """(M, vmax, amax) as contiguous float arrays, once per Limits (linear kinematics)."""
+        return np.ascontiguousarray(self.M, float), np.asarray(self.vmax, float), np.asarray(self.amax, float)
+
+    @functools.cached_property
     def easiest(self) -> tuple[float, float]:
         """(speed mm/s, acceleration mm/s^2) in the most favourable direction (linear kinematics),
         generously: actuator units per mm there halved (a direction may share the motion
@@ -117,8 +125,8 @@ def _span_measures(spline: Spline, span_polys: constraints.Spans | None = None):
     return length, turning
 
 
-def make_grid(spline: Spline, spacing: float = 0.5, turn_step: float = 0.05, n_points: int | None = None,
-              min_per_span: int = 2, max_points: int = 200_000,
+def make_grid(spline: Spline, spacing: float = SPACING, turn_step: float = TURN_STEP, n_points: int | None = None,
+              min_per_span: int = 2, max_points: int = MAX_POINTS,
               span_polys: constraints.Spans | None = None) -> np.ndarray:
     """Grid in u: every knot; each span split so steps are ~``spacing`` mm and
     turn ~``turn_step`` rad at most (dense where the curve is tight), or into
@@ -202,6 +210,92 @@ def check_profile(spline: Spline, profile: Profile, limits: Limits, refine: int 
     return float(wa.max()), float(max(wv.max(), wp.max()))
 
 
+_NO_GRID = np.empty(0)  # (shared, never written to)
+_NO_STRETCH = np.empty((0, 3))
+_JERK_TAUS = np.array([0.0, 0.5, 1.0])  # constraints.jerk_coefficients' taus
+
+
+def plan_checked(spline: Spline, limits: Limits, check_limits: Limits, solver: str = "reach", smoothing: float = 0.0,
+                 jerk_max=None, grid: np.ndarray | None = None, jerk_period: float | None = None):
+    """(plan_stroke(spline, limits, ...), check_profile(spline, that profile, check_limits)): the
+    profile and its worst (acceleration, velocity) ratios within ``check_limits``. A curved cubic
+    on linear kinematics with the reach solver (a generated drawing's 10^4 curves) takes two
+    compiled calls (kernels.curve_rounds, curve_finish) instead of ~40 numpy and compiled ones,
+    the same operations in the same order, so the same bits (tests/test_plan_batch.py)."""
+    if (solver == "reach" and isinstance(spline, Spline) and spline.degree == 3 and limits.M is not None
+            and check_limits.M is not None and not limits.problem and not spline.straight):
+        jerk = _jerk_form(jerk_max)
+        if jerk is not None:
+            out = _fused(spline, limits, check_limits, jerk, grid)
+            if out is not None:
+                return out
+    prof = plan_stroke(spline, limits, solver=solver, smoothing=smoothing, jerk_max=jerk_max, grid=grid,
+                       jerk_period=jerk_period)
+    return prof, check_profile(spline, prof, check_limits)
+
+
+def _jerk_form(jerk_max):
+    """jerk_max as curve_finish takes it: (base, (n, 3) stretches (lo, hi, factor)), () for no
+    bound, or None for a bound it cannot take (a function of u other than follow.JerkBound)."""
+    from doodlecam.plan.follow import JerkBound
+
+    if type(jerk_max) is JerkBound:
+        stretches = np.array(jerk_max.scaled, float).reshape(-1, 3) if jerk_max.scaled else _NO_STRETCH
+        return float(jerk_max.base), stretches
+    if not jerk_max:
+        return ()
+    if isinstance(jerk_max, (int, float)) and not isinstance(jerk_max, bool):
+        return float(jerk_max), _NO_STRETCH
+    return None
+
+
+def _fused(spline: Spline, limits: Limits, check_limits: Limits, jerk, grid):
+    """plan_checked's compiled calls: (profile, ratios), or None where the rounds meet a
+    standing-still span (plan_stroke's Python rounds handle it)."""
+    from doodlecam.plan.kernels import curve_finish, curve_rounds
+
+    if grid is not None and _bad_grid(grid):
+        return None  # plan_stroke says what is wrong, after the stroke's own problems
+    c = spline.derivative_controls
+    p, pen = 3, limits.pen_speed
+    M, vmax, amax = limits.arrays
+    R = M.shape[0] * 4 * p + (2 * p if pen is not None else 0)  # as constraints.bernstein_rows
+    bad, status, u, b, tot, beta, gamma, uu, sp, c12, c13, dot12 = curve_rounds(
+        c[0], c[1], c[2], c[3], constraints._interior_taylor(p), spline.breakpoints, _GAUSS[0], _GAUSS[1], SPACING,
+        TURN_STEP, MAX_POINTS, _NO_GRID if grid is None else np.array(grid, float), M, vmax, amax,
+        float(pen) ** 2 if pen is not None else 0.0, R, constraints._b_matrix(p - 1), constraints._b_matrix(2 * p - 1),
+        _taus(8), float(pen or 0.0), 0.0, 0.0, MAX_ROUNDS, _JERK_TAUS if jerk else _NO_GRID)
+    if bad:
+        raise PlanError(_INPUT_PROBLEMS[bad])
+    if status == -2:
+        return None
+    if status != 0:
+        raise PlanError(reach.message(status))
+    base, stretches = jerk if jerk else (0.0, _NO_STRETCH)
+    sp3, sp6 = (sp ** 3, sp ** 6) if jerk else (sp, sp)  # numpy's powers, as jerk_coefficients takes them
+    cM, cv, ca = check_limits.arrays
+    bad, status, b, a, t, acc, vel = curve_finish(
+        u, b, tot, beta, gamma, uu, sp, sp3, sp6, c12, c13, dot12, _JERK_TAUS, base, stretches, _JERK_GROW, 0.0, 0.0,
+        2.0, c[1], c[2], len(spline.control) - p, _taus(CHECK_REFINE), cM, ca, cv, float(check_limits.pen_speed or 0.0))
+    if bad == 1:
+        raise PlanError(reach.message(status))
+    if bad == 2:
+        raise PlanError("the start/end speeds cannot be met within the limits; lower them")
+    if bad == 3:
+        raise PlanError(_STOPS)
+    return Profile(u=u, b=b, a=a, t=t, solver="reach"), (float(acc), float(vel))
+
+
+_INPUT_PROBLEMS = {1: "the stroke has non-finite control points (NaN or infinity); fix the drawing",
+                   2: "the stroke has zero length (all control points equal); drop it or draw a dot"}
+_STOPS = "the planned profile stops mid-stroke (a limit forces zero speed); check the machine's limits"
+
+
+def _bad_grid(grid) -> bool:
+    g = np.asarray(grid, float)
+    return g.ndim != 1 or len(g) < 2 or not _finite(g) or g[0] != 0.0 or g[-1] != 1.0 or bool((np.diff(g) <= 0).any())
+
+
 def _solve(rows, u, solver: str, b0: float, bN: float) -> np.ndarray:
     if solver == "reach":
         try:
@@ -232,10 +326,10 @@ def check_inputs(spline: Spline, limits: Limits, v_start: float = 0.0, v_end: fl
     c = np.asarray(spline.control, float)
     lo, hi = c.min(axis=0).tolist(), c.max(axis=0).tolist()  # (NaN propagates into both)
     if not all(map(math.isfinite, lo + hi)):
-        raise PlanError("the stroke has non-finite control points (NaN or infinity); fix the drawing")
+        raise PlanError(_INPUT_PROBLEMS[1])
     tiny = 1e-9 * max(1.0, *map(abs, lo + hi))
     if max(h - l for l, h in zip(lo, hi)) <= tiny:
-        raise PlanError("the stroke has zero length (all control points equal); drop it or draw a dot")
+        raise PlanError(_INPUT_PROBLEMS[2])
     if spline.degree == 1 and (np.linalg.norm(np.diff(c, axis=0), axis=1) <= tiny).any():
         raise PlanError("the degree-1 stroke repeats a control point (a span without length); remove repeated points")
     if limits.problem:
@@ -309,10 +403,10 @@ def check_solver(solver: str) -> None:
         require("solvers", f"the {solver.partition(':')[0]} solver", "or use the default, --solver reach")
 
 
-def plan_stroke(spline: Spline, limits: Limits, solver: str = "reach", spacing: float = 0.5,
+def plan_stroke(spline: Spline, limits: Limits, solver: str = "reach", spacing: float = SPACING,
                 n_points: int | None = None, adaptive: bool = True, smoothing: float = 0.0,
                 v_start: float = 0.0, v_end: float = 0.0, mode: str = "bernstein",
-                max_rounds: int = 6, jerk_max=None, grid: np.ndarray | None = None,
+                max_rounds: int = MAX_ROUNDS, jerk_max=None, grid: np.ndarray | None = None,
                 jerk_period: float | None = None) -> Profile:
     """Time-optimal profile along ``spline``; v_start / v_end are pen speeds (mm/s).
 
@@ -334,10 +428,8 @@ def plan_stroke(spline: Spline, limits: Limits, solver: str = "reach", spacing: 
         raise PlanError(f"the grid spacing must be a positive number of mm, got {spacing!r}")
     if n_points is not None and n_points < 2:
         raise PlanError(f"a grid needs at least 2 points, got n_points = {n_points}")
-    if grid is not None:
-        g = np.asarray(grid, float)
-        if g.ndim != 1 or len(g) < 2 or not _finite(g) or g[0] != 0.0 or g[-1] != 1.0 or (np.diff(g) <= 0).any():
-            raise PlanError("a planning grid must rise strictly from 0 to 1; pass the u of an earlier plan")
+    if grid is not None and _bad_grid(grid):
+        raise PlanError("a planning grid must rise strictly from 0 to 1; pass the u of an earlier plan")
     d1 = spline.derivative_controls[1]
     (x0, y0), (x1, y1) = d1[0].tolist(), d1[-1].tolist()
     # |q'(0)|, |q'(1)|: a clamped spline's end controls (x^2 + y^2 as numpy sums a pair)
@@ -375,7 +467,7 @@ def plan_stroke(spline: Spline, limits: Limits, solver: str = "reach", spacing: 
     a = (b[1:] - b[:-1]) / (2 * (u[1:] - u[:-1]))  # np.diff's subtraction, without its wrapper
     t = profile_times(u, b)
     if not np.isfinite(t).all():
-        raise PlanError("the planned profile stops mid-stroke (a limit forces zero speed); check the machine's limits")
+        raise PlanError(_STOPS)
     return Profile(u=u, b=b, a=a, t=t, solver=solver)
 
 

@@ -67,7 +67,7 @@ def plan_one(ctx: Context, n: int, total: int, stroke: Stroke, pen) -> Outcome:
     limits on the plan's fine grid, the actuators along the sampled ramps
     (nonlinear kinematics) and the path tolerance between sample instants."""
     from doodlecam.plan.follow import path_deviation, ramp_ratios
-    from doodlecam.plan.planner import check_profile, plan_stroke
+    from doodlecam.plan.planner import plan_checked
     from doodlecam.plan.sample import sample_stroke, written_samples
 
     limits, plan_limits = ctx.pens[pen]
@@ -81,12 +81,12 @@ def plan_one(ctx: Context, n: int, total: int, stroke: Stroke, pen) -> Outcome:
         if (sv, sa) != (1.0, 1.0):
             pen_speed = None if lim.pen_speed is None else lim.pen_speed * slow
             lim = replace(lim, vmax=lim.vmax * sv, amax=lim.amax * sa, pen_speed=pen_speed)
-        try:
-            prof = plan_stroke(stroke.spline, lim, solver=ctx.solver, smoothing=ctx.smoothing, jerk_max=jerk_max,
-                               grid=grid, jerk_period=ctx.delta_time)
+        try:  # the plan and its check on the fine grid within the limits themselves
+            prof, ratios = plan_checked(stroke.spline, lim, limits, solver=ctx.solver, smoothing=ctx.smoothing,
+                                        jerk_max=jerk_max, grid=grid, jerk_period=ctx.delta_time)
         except PlanError as e:
             raise PlanError(f"stroke {n} of {total}: {e}") from None
-        return stroke.with_profile(prof), check_profile(stroke.spline, prof, limits)
+        return stroke.with_profile(prof), ratios
 
     def sample(s):
         return sample_stroke(s, ctx.delta_time, limits, ctx.steps, follow=ctx.jerk is not None,
