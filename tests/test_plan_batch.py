@@ -213,6 +213,18 @@ def test_certify_square_is_pythons():
     assert (got != x * x).any()
 
 
+def test_certify_leaves_a_standing_profile_alone(limits):
+    """b = 0 everywhere gives all-zero ratios: nothing to scale (the velocity ratio's square used to
+    underflow to 0 and divide by it)."""
+    from doodlecam.plan.constraints import bernstein_rows
+
+    s = Spline(3, np.array([[0.0, 0.0], [10.0, 5.0], [20.0, -5.0], [30.0, 0.0]]))
+    u = np.linspace(0.0, 1.0, 9)
+    rows = bernstein_rows(s, u, limits.M, limits.vmax, limits.amax)
+    for r in (rows, None):
+        assert np.array_equal(planner._certify(s, u, np.zeros(9), limits, 0.0, 0.0, r), np.zeros(9))
+
+
 def deviation_reference(s, x, v, tau, c, su):
     """period_deviation with each point's distance from _any_distance (every candidate rooted, the
     cubic evaluated through the general spline_point: the values the cubic path must give)."""

@@ -1312,7 +1312,8 @@ def curve_finish(u, b, tot, beta, gamma, uu, sp, sp3, sp6, c12, c13, dot12, taus
         r = m
     vel_r = np.sqrt(r if r >= 0.0 else 0.0)
     c = 1.0 / (r if r >= 1e-300 else 1e-300)
-    cv = 1.0 / python_square(vel_r if vel_r >= 1e-300 else 1e-300, two)
+    cv = python_square(vel_r, two)
+    cv = 1.0 / (cv if cv >= 1e-300 else 1e-300)
     if cv < c:
         c = cv
     if c < 1.0:

@@ -599,7 +599,7 @@ def _certify(spline, u, b, limits, b0, bN, rows) -> np.ndarray:
     else:
         wa, wv, wp = interval_ratios(spline, u, b, limits)
         acc_r, vel_r = float(wa.max()), float(max(wv.max(), wp.max()))
-    c = min(1.0 / max(acc_r, 1e-300), 1.0 / max(vel_r, 1e-300) ** 2)
+    c = min(1.0 / max(acc_r, 1e-300), 1.0 / max(vel_r ** 2, 1e-300))  # all-zero rows (b = 0): no scaling
     if c < 1.0:
         if (b0 > 0 or bN > 0) and c < 1 - 1e-6:
             raise PlanError("the start/end speeds cannot be met within the limits; lower them")
