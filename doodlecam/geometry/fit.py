@@ -601,27 +601,45 @@ def _search(p, degree, tolerance, max_control, length, quick):  # pragma: no cov
     w = _work(pts.shape[0], degree)
     n_min = degree + 1
     n_max = min(max_control, max(n_min, 2 * m))
-    # Start from a guess, grow until within tolerance, then bisect. A polyline
-    # whose vertices are corners (a traced outline) needs a few control points
-    # per vertex to turn them; a curve flattened into many vertices, each
-    # turning a little, about a knot span per half radian it turns.
+    # Start from a guess, grow until within tolerance, then bisect (_grow_bisect). A
+    # polyline whose vertices are corners (a traced outline) needs a few control points
+    # per vertex to turn them; a curve flattened into many vertices, each turning a
+    # little, about a knot span per half radian it turns.
     turning = _turning(p)
-    if turning > CORNERED * (p.shape[0] - 2):
-        n = 2 * p.shape[0]
-    else:
-        n = degree + int(SPANS_PER_RADIAN * turning)
-    n = min(max(n, n_min), n_max)
-    lo = n_min - 1
+    cornered = turning > CORNERED * (p.shape[0] - 2)
+    n = 2 * p.shape[0] if cornered else degree + int(SPANS_PER_RADIAN * turning)
+    ctrl, err, grew, ok = _grow_bisect(pts, u, cum, min(max(n, n_min), n_max), n_min - 1, n_max, degree, tolerance,
+                                       quick, w, m)
+    if not ok:  # not within the cap: the caller splits (counts below it seldom do better)
+        if quick and err < np.inf:  # the value the search without the shortcut reports
+            err = _measure(pts, u, cum, ctrl, degree, tolerance, True, False, w)
+        return ctrl, err
+    if not cornered and grew >= 3:
+        # The guess was far too low: a curve with cusps among its flattened vertices, where whether
+        # a count fits need not be monotone (the bisection lands on one boundary of several). The
+        # search from two control points per vertex is run too, and the fewer control points kept.
+        c2, e2, _, ok2 = _grow_bisect(pts, u, cum, min(max(2 * p.shape[0], n_min), n_max), n_min - 1, n_max, degree,
+                                      tolerance, quick, w, m)
+        if ok2 and c2.shape[0] < ctrl.shape[0]:
+            ctrl, err = c2, e2
+    return ctrl, err
+
+
+@numba.njit(cache=True, nogil=True)
+def _grow_bisect(pts, u, cum, n, lo, n_max, degree, tolerance, quick, w, m):  # pragma: no cover - compiled
+    """_search from n control points (lo: a count known not to fit): grow by half until within
+    tolerance or at n_max, then bisect down to one above the last count that did not fit.
+    (control points, deviation, times grown, within tolerance)."""
     ctrl, err = _attempt(pts, u, cum, n, degree, tolerance, 1e-9 * m / n, quick, w)
     err = np.inf if err < 0 else err
+    grew = 0
     while err > tolerance and n < n_max:
         lo, n = n, min(n_max, int(np.ceil(n * 1.5)))
         ctrl, err = _attempt(pts, u, cum, n, degree, tolerance, 1e-9 * m / n, quick, w)
         err = np.inf if err < 0 else err
-    if err > tolerance:  # not within the cap: the caller splits (counts below it seldom do better)
-        if quick and err < np.inf:  # the value the search without the shortcut reports
-            err = _measure(pts, u, cum, ctrl, degree, tolerance, True, False, w)
-        return ctrl, err
+        grew += 1
+    if err > tolerance:
+        return ctrl, err, grew, False
     hi = n
     while hi - lo > 1:
         mid = (lo + hi) // 2
@@ -630,7 +648,7 @@ def _search(p, degree, tolerance, max_control, length, quick):  # pragma: no cov
             hi, ctrl, err = mid, c, e
         else:
             lo = mid
-    return ctrl, err
+    return ctrl, err, grew, True
 
 
 @numba.njit(cache=True, nogil=True)
