@@ -377,8 +377,11 @@ class Job:
         no travel move. The first stroke and every pen change always lift. Every
         post and link that emits pen up/down follows this one predicate.
         """
-        return tuple(i == 0 or self.strokes[i].layer != self.strokes[i - 1].layer
-                     or self.travels[i].length >= SAME_POINT for i in range(len(self.strokes)))
+        return tuple(map(self._lift, range(len(self.strokes))))
+
+    def _lift(self, i: int) -> bool:
+        """lifts[i], for one stroke."""
+        return i == 0 or self.strokes[i].layer != self.strokes[i - 1].layer or self.travels[i].length >= SAME_POINT
 
     @property
     def pen_lifts(self) -> int:
@@ -404,10 +407,13 @@ class Job:
     @cached_property  # strokes, travels and samples never change: the studio asks often
     def pen_delays(self) -> float:
         """The pen's down and up delays of every lift, each with its pen's (s)."""
-        m = self.machine
-        number = getattr(m, "pen_number", None)  # each lift with its pen's delays ([[pen]])
-        pens = [number(k) if number else m.pen for k in self.pen_numbers] if self.strokes else []
+        pens = [self._pen(k) for k in self.pen_numbers] if self.strokes else []  # each lift with its pen's delays
         return sum(p.down_delay + p.up_delay for p, lift in zip(pens, self.lifts) if lift)
+
+    def _pen(self, k: int):
+        """Pen number k's settings ([[pen]]; the machine's one [pen] without pen_number)."""
+        number = getattr(self.machine, "pen_number", None)
+        return number(k) if number else self.machine.pen
 
     @property
     def duration(self) -> float:
@@ -450,14 +456,13 @@ class Job:
             moved = [i for i in travels if i < len(st)]
             lifts = list(known["lifts"])
             for i in moved:
-                lifts[i] = i == 0 or st[i].layer != st[i - 1].layer or tr[i].length >= SAME_POINT
+                lifts[i] = new._lift(i)
             d["lifts"] = tuple(lifts)
             if "pen_delays" in known:
                 pens = self.layer_pens
-                number = getattr(self.machine, "pen_number", None)
 
                 def delay(i: int) -> float:
-                    p = number(pens[st[i].layer]) if number else self.machine.pen
+                    p = self._pen(pens[st[i].layer])
                     return (p.down_delay + p.up_delay) * (d["lifts"][i] - known["lifts"][i])
 
                 carried("pen_delays", moved, delay)
