@@ -105,18 +105,27 @@ def test_pause_waits_pen_up_at_a_stroke_end_and_resumes(jobs):
     emu = _emulator()
 
     def controls():
+        # "resume" is answered on every poll once the board rests after a pen up, not once: the sender also polls
+        # between sending that pen up and waiting in the pause, where a resume means nothing. A bounded wait: a
+        # pause that never comes to rest ends the test as a stop (a failure), never as a hang.
         seen["calls"] += 1
         if seen["calls"] == 200:
+            seen["asked"] = time.monotonic()
             return "pause"
-        if seen["calls"] > 200 and seen["paused_at"] is None and emu.idle and _commands(emu)[-1].startswith("SP,1"):
-            seen["paused_at"] = (len(_commands(emu)), emu.pen_up)
+        if seen["calls"] > 200 and emu.idle and _commands(emu)[-1].startswith("SP,1"):
+            if seen["paused_at"] is None:
+                seen["paused_at"] = (len(_commands(emu)), emu.pen_up)
             return "resume"
+        if seen["calls"] > 200 and time.monotonic() - seen["asked"] > 300:
+            return "stop"
         return None
 
+    logged = []
     try:
-        send_ebb(emu.port, path, state_file=None, controls=controls)
+        send_ebb(emu.port, path, state_file=None, controls=controls, log=logged.append)
         assert _commands(emu) == list(job.lines)
         assert seen["paused_at"] is not None and seen["paused_at"][1] == 1
+        assert any(m.startswith("paused, pen up") for m in logged) and "resumed" in logged
     finally:
         emu.stop()
 
