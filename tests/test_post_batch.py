@@ -9,7 +9,7 @@ import pytest
 from test_posts import MACHINE, samples_for, trapezoid_profile
 
 from doodlecam.errors import InputError
-from doodlecam.geometry.chords import _junction_cost, _junction_costs, _sqrt_reaches
+from doodlecam.geometry.chords import _junction_cost, _junction_row, _sqrt_reaches
 from doodlecam.geometry.spline_batch import eval_many
 from doodlecam.link.grbl.timing import GrblSettings, estimate_program
 from doodlecam.link.plc.packetfile import (DRAW, MOVE, PAUSE, RECORD_DTYPE, _whole_step_runs, commands_array,
@@ -163,21 +163,27 @@ def test_g1_lines_of_all_strokes_equal_each_stroke_written_alone(monkeypatch):
 
 @pytest.mark.parametrize("acc", [(2000.0, 2000.0), (2000.0, 800.0)])
 def test_batched_junction_costs_equal_the_junction_cost(acc):
-    """Every branch of the junction cost: straight on, reversals, fast and slow junctions, axis-aligned
-    junction vectors (a zero component), both when the axes' accelerations are equal and when not."""
+    """A row of junctions (one incoming direction against many outgoing ones, in vector instructions) equals
+    the scalar junction cost to the bit on every branch: straight on, reversals, fast and slow junctions,
+    axis-aligned junction vectors (a zero component), both when the axes' accelerations are equal and when not."""
     rng = np.random.default_rng(9)
     ang = np.r_[rng.uniform(-np.pi, np.pi, 400), 0.0, 0.0, np.pi, 1e-4, -1e-4, np.pi / 2, np.pi - 1e-4]
     base = np.r_[rng.uniform(-np.pi, np.pi, 400), 0.0, np.pi / 4, 0.0, 0.3, 0.3, 0.0, 0.0]
     u = np.c_[np.cos(base), np.sin(base)]
     w = np.c_[np.cos(base + ang), np.sin(base + ang)]
+    wx, wy = w[:, 0].copy(), w[:, 1].copy()
     for v in (150.0, 20.0):
         v2 = _sqrt_reaches(v)
-        out = np.empty(len(u))
-        _junction_costs(u[:, 0].copy(), u[:, 1].copy(), w[:, 0].copy(), w[:, 1].copy(), len(u), v, v2, *acc, 0.01,
-                        out)
-        want = [_junction_cost(a[0], a[1], b[0], b[1], v, v2, *acc, 0.01) for a, b in zip(u, w)]
-        assert np.array_equal(out, want)
-        assert (out == 0).any() and (out > 0).any()
+        out = np.empty(len(w))
+        got, want = [], []
+        for k in list(range(0, len(u), 23)) + list(range(400, len(u))):  # the special cases' rows too
+            _junction_row(u[k, 0], u[k, 1], wx, wy, len(w), v, v2, *acc, 0.01, out)
+            got.append(out.copy())
+            want.append([_junction_cost(u[k, 0], u[k, 1], b[0], b[1], v, v2, *acc, 0.01) for b in w])
+            # the pairs the special cases were built as (straight on, reversal, ...)
+            assert out[k] == _junction_cost(u[k, 0], u[k, 1], w[k, 0], w[k, 1], v, v2, *acc, 0.01)
+        assert np.array_equal(np.array(got), np.array(want))
+        assert (np.array(got) == 0).any() and (np.array(got) > 0).any()
 
 
 def test_dense_points_of_all_strokes_equal_each_stroke_refined_alone():

@@ -169,15 +169,16 @@ def _junction_cost(ux, uy, wx, wy, v, v2, acc_x, acc_y, dev):  # pragma: no cove
     return (1.0 / max(vj, 1e-3) - 1.0 / v) ** 4
 
 
-@numba.njit(cache=True, nogil=True, error_model="numpy")
-def _junction_costs(ux, uy, wx, wy, n, v, v2, acc_x, acc_y, dev, out):  # pragma: no cover - compiled
-    """out[k] = _junction_cost(u[k], w[k], ...) for k < n, to the bit: every branch of it computed and the
-    result selected (no branch in the loop, so it runs in vector instructions: a junction costs 3 square roots
-    and 3 divisions). The lanes a branch would have skipped may divide by zero; their values are not taken."""
+@numba.njit(cache=True, nogil=True, error_model="numpy", inline="always")
+def _junction_row(ux, uy, wx, wy, n, v, v2, acc_x, acc_y, dev, out):  # pragma: no cover - compiled
+    """out[k] = _junction_cost(u, w[k], ...) for k < n, one incoming direction u against n outgoing ones, to
+    the bit: every branch of it computed and the result selected (no branch in the loop, and w contiguous, so
+    it runs in vector instructions: a junction costs 3 square roots and 3 divisions). The lanes a branch
+    would have skipped may divide by zero; their values are not taken."""
     r1v = 1.0 / v
     for k in range(n):
-        cos = -(ux[k] * wx[k] + uy[k] * wy[k])
-        jx, jy = wx[k] - ux[k], wy[k] - uy[k]
+        cos = -(ux * wx[k] + uy * wy[k])
+        jx, jy = wx[k] - ux, wy[k] - uy
         jn = np.sqrt(jx * jx + jy * jy)
         if acc_x == acc_y:
             ja = acc_x * jn / max(abs(jx), abs(jy))
@@ -254,9 +255,8 @@ def snap_chords(q, idx, room, sx, sy, v, acc_x, acc_y, dev, t_in, t_out):  # pra
     W = np.zeros((C, C, 2))  # of chord k from j to n
     live = np.empty(C, np.int64)
     valid = np.empty(C, np.int64)
-    first, best_t, bi_t = np.empty(C), np.empty(C), np.empty(C, np.int64)
-    wi, wt = np.empty(C * C, np.int64), np.empty(C * C, np.int64)  # the pairs (i, n) to cost
-    ux, uy, wx, wy, jc = np.empty(C * C), np.empty(C * C), np.empty(C * C), np.empty(C * C), np.empty(C * C)
+    best_t, bi_t = np.empty(C), np.empty(C, np.int64)
+    wx, wy, jc = np.empty(C), np.empty(C), np.empty(C)  # the directions W[j, n] of the valid n, their junctions
     v2 = _sqrt_reaches(v)
     for k in range(0, m - 1):
         new[:, :] = INF
@@ -293,34 +293,27 @@ def snap_chords(q, idx, room, sx, sy, v, acc_x, acc_y, dev, t_in, t_out):  # pra
             if k == 0 or no == 0:
                 continue
             # Each n takes the first i (in index order) of least cost[i, j] + junction. A junction costs >= 0, so
-            # no i whose cost alone is above cost[i0, j] + its junction with i0 (first[t]) can win, nor one of
-            # equal cost and a larger index than i0: only the other pairs are costed (~3x fewer junctions, the
-            # same choice). The junctions are costed in batches (_junction_costs: vector instructions).
+            # an i whose cost alone is above every n's cost through i0 (the first cheapest) cannot win: its row
+            # is skipped. The others are costed a row at a time (one i against every n: _junction_row, in vector
+            # instructions), which costs less than choosing single pairs (bookkeeping, not arithmetic, was the
+            # cost); the same choice to the bit.
             for t in range(nv):
-                n = valid[t]
-                ux[t], uy[t], wx[t], wy[t] = U[i0, j, 0], U[i0, j, 1], W[j, n, 0], W[j, n, 1]
-            _junction_costs(ux, uy, wx, wy, nv, v, v2, acc_x, acc_y, dev, jc)
+                wx[t], wy[t] = W[j, valid[t], 0], W[j, valid[t], 1]
+            _junction_row(U[i0, j, 0], U[i0, j, 1], wx, wy, nv, v, v2, acc_x, acc_y, dev, jc)
+            c0, top = cost[i0, j], 0.0
             for t in range(nv):
-                first[t] = cost[i0, j] + jc[t]
-                best_t[t], bi_t[t] = first[t], i0
-            nw = 0
+                best_t[t], bi_t[t] = c0 + jc[t], i0
+                top = max(top, best_t[t])
             for r in range(no):
                 i = live[r]
                 ci = cost[i, j]
-                if i == i0:
+                if i == i0 or ci > top:
                     continue
+                _junction_row(U[i, j, 0], U[i, j, 1], wx, wy, nv, v, v2, acc_x, acc_y, dev, jc)
                 for t in range(nv):
-                    if ci < first[t] or (ci == first[t] and i < i0):
-                        n = valid[t]
-                        wi[nw], wt[nw] = i, t
-                        ux[nw], uy[nw], wx[nw], wy[nw] = U[i, j, 0], U[i, j, 1], W[j, n, 0], W[j, n, 1]
-                        nw += 1
-            _junction_costs(ux, uy, wx, wy, nw, v, v2, acc_x, acc_y, dev, jc)
-            for w in range(nw):
-                t, i = wt[w], wi[w]
-                c = cost[i, j] + jc[w]
-                if c < best_t[t] or (c == best_t[t] and i < bi_t[t]):
-                    best_t[t], bi_t[t] = c, i
+                    c = ci + jc[t]
+                    if c < best_t[t] or (c == best_t[t] and i < bi_t[t]):
+                        best_t[t], bi_t[t] = c, i
             for t in range(nv):
                 new[j, valid[t]] = best_t[t]
                 back[k + 1, j, valid[t]] = bi_t[t]
