@@ -190,3 +190,28 @@ def test_a_conversion_collects_garbage_rarely_and_restores_the_collector(tmp_pat
     with pytest.raises(InputError):
         convert(svg, tmp_path / "out2", Settings(machine=load_machine("doodlebot")))
     assert gc.get_threshold() == before
+
+
+@pytest.mark.parametrize("enabled", [True, False])
+def test_a_convert_leaves_the_garbage_collector_as_it_found_it(tmp_path, enabled):
+    """The convert turns the collector off after the trace and collects rarely before: after it, ended or
+    failed, the collector is on or off as it was, with the caller's thresholds."""
+    import gc
+
+    from doodlecam.errors import DoodleError
+
+    svg = tmp_path / "art.svg"
+    svg.write_text(generated_svg(20, "mixed", seed=3))
+    was, thresholds = gc.isenabled(), gc.get_threshold()
+    try:
+        (gc.enable if enabled else gc.disable)()
+        gc.set_threshold(700, 10, 10)
+        _convert(tmp_path, svg, 1, "ok")
+        assert gc.isenabled() == enabled and gc.get_threshold() == (700, 10, 10)
+        m = load_machine("doodlebot")
+        with pytest.raises(DoodleError):  # a drawing far outside the work area: refused after the trace
+            convert(svg, tmp_path / "bad", Settings(machine=m, layout={"scale": 100.0}))
+        assert gc.isenabled() == enabled and gc.get_threshold() == (700, 10, 10)
+    finally:
+        (gc.enable if was else gc.disable)()
+        gc.set_threshold(*thresholds)
