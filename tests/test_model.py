@@ -20,3 +20,24 @@ def test_spline_evaluation_matches_scipy_at_every_derivative():
                 assert np.allclose(s(x, der), want, rtol=1e-11, atol=1e-9 * np.abs(want).max())
             assert np.array_equal(s(np.array([-0.5, 1.5])), s(np.array([0.0, 1.0])))  # clipped to [0, 1]
             assert s(0.5).shape == (2,) and s(u.reshape(-1, 1)).shape == (len(u), 1, 2)
+
+
+def test_handed_constructors_equal_the_copying_ones_and_freeze_in_place():
+    from dataclasses import fields
+
+    from doodlecam.model import Profile, StrokeSamples
+
+    rng = np.random.default_rng(5)
+    u, b, a, t = np.linspace(0, 1, 6), rng.random(6), rng.random(5), np.cumsum(rng.random(6))
+    copied, handed = Profile(u, b, a, t, "reach"), Profile.handed(u, b, a, t, "reach")
+    start, vel, su = rng.random(2), rng.random((4, 2)), np.linspace(0, 1, 5)
+    s_copied = StrokeSamples(start, vel, 0.04, 0.9, su)
+    s_handed = StrokeSamples.handed(start, vel, 0.04, 0.9, su)
+    for one, other in ((copied, handed), (s_copied, s_handed)):
+        for f in fields(one):
+            x, y = getattr(one, f.name), getattr(other, f.name)
+            assert np.array_equal(x, y) if isinstance(x, np.ndarray) else x == y
+    # handed over: the very arrays, now read-only (the copying constructor left the originals alone)
+    assert handed.u is u and s_handed.velocity is vel and s_handed.sample_u is su
+    assert not (u.flags.writeable or b.flags.writeable or start.flags.writeable or vel.flags.writeable)
+    assert copied.u is not u and s_copied.start is not start

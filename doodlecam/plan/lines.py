@@ -107,9 +107,9 @@ def plan_lines(ctx, strokes: list, pens: list) -> list:
     start = np.round(a0 * k) / k
     for i, q, m, o, ts, (ra, rv) in zip(np.flatnonzero(ok).tolist(), nodes[ok].tolist(), periods[ok].tolist(),
                                          offs[:-1][ok].tolist(), scale[ok].tolist(), ratios[ok].tolist()):
-        prof = Profile(u=u[i, :q], b=b[i, :q], a=acc[i, :q - 1], t=t[i, :q], solver="reach")
-        smp = StrokeSamples(start=start[i], velocity=vel[o:o + m], delta_time=dt, time_scale=ts,
-                            sample_u=su[o + i:o + i + m + 1])
+        # rows of arrays made here, handed over (read-only views instead of copies)
+        prof = Profile.handed(u[i, :q], b[i, :q], acc[i, :q - 1], t[i, :q], "reach")
+        smp = StrokeSamples.handed(start[i], vel[o:o + m], dt, ts, su[o + i:o + i + m + 1])
         out[i] = (strokes[i].with_profile(prof), (ra, rv), smp, dev[o:o + m].copy())
     return out
 

@@ -283,7 +283,7 @@ def _fused(spline: Spline, limits: Limits, check_limits: Limits, jerk, grid):
         raise PlanError("the start/end speeds cannot be met within the limits; lower them")
     if bad == 3:
         raise PlanError(_STOPS)
-    return Profile(u=u, b=b, a=a, t=t, solver="reach"), (float(acc), float(vel))
+    return Profile.handed(u, b, a, t, "reach"), (float(acc), float(vel))  # the kernels' fresh arrays
 
 
 _INPUT_PROBLEMS = {1: "the stroke has non-finite control points (NaN or infinity); fix the drawing",
@@ -581,7 +581,7 @@ def _trapezoid(spline: Spline, limits: Limits, b0: float, bN: float) -> Profile:
     # a hair inside the limits, as the general solver's certify leaves it; the ends as asked
     b = np.minimum(np.minimum(b0 + 2 * a * u, bN + 2 * a * (1 - u)), cap) * (1 - 1e-12)
     b[0], b[-1] = b0, bN
-    return Profile(u=u, b=b, a=np.diff(b) / (2 * np.diff(u)), t=profile_times(u, b), solver="reach")
+    return Profile.handed(u, b, np.diff(b) / (2 * np.diff(u)), profile_times(u, b), "reach")  # all made here
 
 
 def _certify(spline, u, b, limits, b0, bN, rows) -> np.ndarray:

@@ -510,7 +510,8 @@ def sample_stroke(stroke: Stroke, dt: float, limits, steps_per_mm=(80.0, 80.0), 
             return None
         vel = np.zeros((m, 2))
         vel[:-1] = v
-        return StrokeSamples(start=start, velocity=vel, delta_time=dt, time_scale=c, sample_u=np.concatenate((_ZERO, u)))
+        # (start is every attempt's: a copy of it)
+        return StrokeSamples.handed(start.copy(), vel, dt, c, np.concatenate((_ZERO, u)))
 
     m0 = max(int(np.ceil(prof.duration / dt - 1e-9)), 2)  # up, then down to rest
     m, bad = m0, m0 - 1
@@ -592,8 +593,7 @@ def straight_samples(stroke: Stroke, dt: float, limits, k: np.ndarray, tol: floa
     if (np.abs(pos - (a0 + u[:, None] * d))[1:-1] > straight_bound(tol, k, dt)).any():
         return None
     vel = np.vstack([speed[:, None] * e, np.zeros((1, 2))])
-    return StrokeSamples(start=start, velocity=vel, delta_time=dt, time_scale=stroke.profile.duration / (m * dt),
-                         sample_u=u)
+    return StrokeSamples.handed(start, vel, dt, stroke.profile.duration / (m * dt), u)  # all made here
 
 
 def straight_bound(tol: float, k: np.ndarray, dt: float) -> np.ndarray:
@@ -611,12 +611,12 @@ def _jacobians(kinematics, xy: np.ndarray) -> np.ndarray:
 def written_samples(samples: StrokeSamples, steps_per_mm) -> StrokeSamples:
     """The samples as the PLC post writes them (whole steps/s) and the machine
     executes them, in mm/s: what the executed-path checks should read."""
-    from dataclasses import replace
-
     from doodlecam.link.plc.packetfile import whole_step_targets
 
     k = np.asarray(steps_per_mm, float)
-    return replace(samples, velocity=whole_step_targets(samples.velocity, k) / k)
+    # the same fields, the start shared (read-only already), the new targets handed over
+    return StrokeSamples.handed(samples.start, whole_step_targets(samples.velocity, k) / k, samples.delta_time,
+                                samples.time_scale, samples.sample_u)
 
 
 def reference_positions(stroke: Stroke, samples: StrokeSamples) -> np.ndarray:
