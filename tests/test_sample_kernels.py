@@ -127,3 +127,22 @@ def test_lowered_limits_are_remade_for_other_limits_steps_or_periods():
     for _ in range(2):
         with pytest.raises(PlanError, match="below one machine step"):
             sampling.sample_stroke(stroke, DT, slow, k, follow=True)
+
+
+def test_written_samples_are_the_plc_posts_whole_steps_to_the_bit():
+    """sample.written_samples (compiled: kernels.written_velocity) against the PLC post's own
+    whole_step_targets, on targets whose running sums land on halves of a step (rounded to even),
+    on zeros and on signed zeros."""
+    from doodlecam.link.plc.packetfile import whole_step_targets
+    from doodlecam.model import StrokeSamples
+
+    rng = np.random.default_rng(11)
+    k = np.array([80.0, 57.0])
+    for m in (1, 2, 7, 200):
+        for vel in (rng.normal(scale=300, size=(m, 2)), np.round(rng.normal(scale=40, size=(m, 2))) / (2 * k),
+                    np.zeros((m, 2)), -np.zeros((m, 2))):
+            smp = StrokeSamples(start=rng.random(2), velocity=vel, delta_time=0.04, sample_u=np.linspace(0, 1, m + 1))
+            got = sampling.written_samples(smp, tuple(k))
+            want = whole_step_targets(vel, k) / k
+            assert got.velocity.tobytes() == want.tobytes()
+            assert got.start is smp.start and got.sample_u is smp.sample_u and got.delta_time == smp.delta_time

@@ -1178,6 +1178,23 @@ def executed_deviation(c0, c1, c2, k, nseg, start, velocity, half_dt, tau, c, su
 
 
 @numba.njit(cache=True, nogil=True)
+def written_velocity(velocity, k, out):  # pragma: no cover - compiled
+    """link.plc.packetfile.whole_step_targets(velocity, k) / k (mm/s): the targets (M, 2) as the PLC
+    post writes them in whole steps/s, with the same products, running sums (numpy's cumsum
+    starts from the first term), roundings (half to even), differences and divisions, so the
+    same numbers without six numpy calls per stroke."""
+    for a in range(2):
+        acc = 0.0
+        last = 0.0
+        for r in range(velocity.shape[0]):
+            x = velocity[r, a] * k[a]
+            acc = x if r == 0 else acc + x
+            cum = np.rint(acc)
+            out[r, a] = (cum - last) / k[a]
+            last = cum
+
+
+@numba.njit(cache=True, nogil=True)
 def curve_rounds(c0, c1, c2, c3, C, bp, gx, gw, spacing, turn_step, max_points, u_given, M, vmax, amax, pen2, R,
                  B1, B2, tau, pen, b0, bN, max_rounds, jerk_taus):  # pragma: no cover - compiled
     """planner.plan_checked's first compiled call for a cubic (control points c0 and the

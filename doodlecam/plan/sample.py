@@ -611,12 +611,13 @@ def _jacobians(kinematics, xy: np.ndarray) -> np.ndarray:
 def written_samples(samples: StrokeSamples, steps_per_mm) -> StrokeSamples:
     """The samples as the PLC post writes them (whole steps/s) and the machine
     executes them, in mm/s: what the executed-path checks should read."""
-    from doodlecam.link.plc.packetfile import whole_step_targets
+    from doodlecam.plan.kernels import written_velocity
 
     k = np.asarray(steps_per_mm, float)
+    vel = np.empty(samples.velocity.shape)  # link.plc.packetfile.whole_step_targets(velocity, k) / k, compiled
+    written_velocity(samples.velocity, k, vel)
     # the same fields, the start shared (read-only already), the new targets handed over
-    return StrokeSamples.handed(samples.start, whole_step_targets(samples.velocity, k) / k, samples.delta_time,
-                                samples.time_scale, samples.sample_u)
+    return StrokeSamples.handed(samples.start, vel, samples.delta_time, samples.time_scale, samples.sample_u)
 
 
 def reference_positions(stroke: Stroke, samples: StrokeSamples) -> np.ndarray:
