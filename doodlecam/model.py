@@ -29,7 +29,7 @@ def _handed(new, fields: dict):
     C-contiguous, of the right shape."""
     for v in fields.values():
         if type(v) is np.ndarray:
-            v.flags.writeable = False
+            v.setflags(write=False)  # (half the time of setting v.flags.writeable)
     new.__dict__.update(fields)
     return new
 

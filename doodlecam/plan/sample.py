@@ -325,10 +325,7 @@ def _dense_qp(p, tang, v_plan, end, dt, tol, bounds, L, nrm, trust, shifted, lam
     quadprog gives up (use Clarabel). An active-set answer is the QP's optimum to rounding, so the
     rows hold without an interior point's residuals; for a few dozen instants it costs a fraction
     of Clarabel's set-up (benchmarks/bench_sample.py)."""
-    import quadprog
-
-    from doodlecam.plan.kernels import sample_qp
-
+    solve_qp, sample_qp = _dense_solvers()
     m = len(p)
     n = m - 1
     H, a, C, b, T = _dense_arrays(m, len(bounds.amax), trust is not None)
@@ -336,11 +333,22 @@ def _dense_qp(p, tang, v_plan, end, dt, tol, bounds, L, nrm, trust, shifted, lam
               NORMAL_WEIGHT * (dt / 4) ** 2, lam, tol, L, end, bounds.M if bounds.M is not None else _NO_ROWS,
               bounds.amax, bounds.vmax, float(dt), trust if trust is not None else _NONE, H, a, C, b, T)
     try:  # quadprog: min 1/2 z'Hz - a'z subject to C' z >= b, the first meq rows equalities
-        z = quadprog.solve_qp(H, a, C.T, b, 2)[0]
+        z = solve_qp(H, a, C.T, b, 2)[0]
     except ValueError as e:  # "constraints are inconsistent, no solution" is its verdict of infeasible
         return None if "inconsistent" in str(e) else False
     v = z[:2 * n].reshape(2, n).T
     return v, T @ v, z[2 * n:]
+
+
+@functools.lru_cache(maxsize=1)
+def _dense_solvers():
+    """(quadprog.solve_qp, kernels.sample_qp), imported on first use (numba's import is slow), then
+    looked up once instead of at each of ~10^4 solves."""
+    import quadprog
+
+    from doodlecam.plan.kernels import sample_qp
+
+    return quadprog.solve_qp, sample_qp
 
 
 def _dense_arrays(m: int, na: int, trusted: bool):
@@ -443,15 +451,18 @@ def sample_stroke(stroke: Stroke, dt: float, limits, steps_per_mm=(80.0, 80.0), 
         raise PlanError("the stroke has no profile; plan it (plan_stroke) before sampling")
     if not 0.0 < dt < math.inf:  # (NaN fails too) plain comparisons: numpy's checks cost 5 us a stroke
         raise PlanError(f"delta_time must be a positive number of seconds, got {dt!r}; fix [sampling] delta_time")
-    if k.shape != (2,) or not all(0.0 < x < math.inf for x in k.tolist()):
-        raise PlanError(f"steps_per_mm must be two positive numbers, got {k.tolist()}; fix the machine profile")
+    kl = k.tolist()
+    if k.shape != (2,) or not all(0.0 < x < math.inf for x in kl):
+        raise PlanError(f"steps_per_mm must be two positive numbers, got {kl}; fix the machine profile")
     limits, bounds = _lowered(limits, k, dt)
     if bounds.too_low:
         raise PlanError("the limits are below one machine step per sample period; raise them or steps_per_mm")
-    start = np.round(spline.start * k) / k
-    end = np.round(spline.end * k) / k - start
-    tol = tracking_steps / k.max()
-    if crank_share is None:
+    # both ends in whole steps in one pass (the same roundings and divisions, elementwise)
+    ends = np.round(spline.control[[0, -1]] * k) / k
+    start = ends[0]
+    end = ends[1] - start
+    tol = tracking_steps / max(kl)  # (k.max()'s value: two positive numbers)
+    if crank_share is None and spline.degree >= 2 and spline.straight:  # (straight_samples: None for the rest)
         fast = straight_samples(stroke, dt, limits, k, tol)
         if fast is not None:
             return fast
@@ -513,7 +524,7 @@ def sample_stroke(stroke: Stroke, dt: float, limits, steps_per_mm=(80.0, 80.0), 
         # (start is every attempt's: a copy of it)
         return StrokeSamples.handed(start.copy(), vel, dt, c, np.concatenate((_ZERO, u)))
 
-    m0 = max(int(np.ceil(prof.duration / dt - 1e-9)), 2)  # up, then down to rest
+    m0 = max(math.ceil(prof.duration / dt - 1e-9), 2)  # up, then down to rest
     m, bad = m0, m0 - 1
     while m <= m0 * (1 + max_extra) + 4:
         got = attempt(m)
