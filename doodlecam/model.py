@@ -530,6 +530,7 @@ def _prime_group(g: _KnotTable, n: int, degree: int, group: list, lengths: bool)
         if "derivative_controls" not in d:
             d["derivative_controls"] = [s.control, *(c[i] for c in levels[1:])]
             d["straight"] = bool(flat[i])
+            d["breakpoints"] = g.breakpoints  # (the planner's: shared by the shape)
     if lengths and degree >= 1:
         ev, u = _eval(), g.gauss_u
         speed = np.empty((len(group), len(u), 2))

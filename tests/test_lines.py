@@ -73,3 +73,29 @@ def test_a_segment_over_the_path_tolerance_is_left_to_the_general_pass(monkeypat
     job = plan_job(d, m, order={"merge": 0.0})
     assert all(o is None for o in taken[0])  # every one went through plan_one
     assert len(job.strokes) == 40 and job.meta["max_between_samples_mm"] <= m.path_tolerance
+
+
+def test_eligible_all_takes_exactly_the_strokes_eligible_takes():
+    """eligible_all tests the control points of every straight stroke at once: the same strokes
+    as eligible one by one, whatever the shapes, degrees and non-finite points among them."""
+    from types import SimpleNamespace
+
+    from doodlecam.model import Spline, Stroke
+
+    rng = np.random.default_rng(4)
+    strokes = []
+    for i in range(60):
+        deg = (1, 2, 3)[i % 3]
+        n = deg + 1 + i % 4
+        if i % 2:  # a segment run at constant speed (evenly spread points, one span): straight
+            n = deg + 1
+            c = np.linspace(0, 1, n)[:, None] * rng.normal(size=2) + rng.normal(size=2)
+        else:
+            c = rng.normal(size=(n, 2))
+        if i % 5 == 0:
+            c[i % n, i % 2] = (np.nan, np.inf, -np.inf)[i % 3]
+        strokes.append(Stroke(spline=Spline(deg, c)))
+    ctx = SimpleNamespace(solver="reach", nonlinear=False)
+    want = [i for i, s in enumerate(strokes) if lines.eligible(ctx, s)]
+    assert lines.eligible_all(ctx, strokes) == want and len(want) >= 10
+    assert lines.eligible_all(ctx, strokes[:1]) == [] and lines.eligible_all(ctx, []) == []

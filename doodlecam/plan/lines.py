@@ -41,8 +41,15 @@ def eligible_all(ctx, strokes) -> list[int]:
         return []
     splines = [s.spline for s in strokes]
     prime_splines(splines)
-    return [i for i, sp in enumerate(splines)
-            if sp.degree >= 2 and sp.straight and bool(np.isfinite(sp.control).all())]
+    straight = [i for i, sp in enumerate(splines) if sp.degree >= 2 and sp.straight]
+    if not straight:
+        return []
+    # their control points all finite: tested on all of them at once
+    controls = [splines[i].control for i in straight]
+    first = np.zeros(len(controls), np.int64)
+    np.cumsum([len(c) for c in controls[:-1]], out=first[1:])
+    finite = np.logical_and.reduceat(np.isfinite(np.concatenate(controls)).all(axis=1), first)
+    return [i for i, ok in zip(straight, finite.tolist()) if ok]
 
 
 def plan_lines(ctx, strokes: list, pens: list) -> list:

@@ -86,6 +86,17 @@ class Limits:
         return np.ascontiguousarray(self.M, float), np.asarray(self.vmax, float), np.asarray(self.amax, float)
 
     @functools.cached_property
+    def cubic_rows(self) -> tuple:
+        """(M, vmax, amax, pen speed squared, rows per interval, Bernstein matrices of degrees 2 and 5,
+        taus of the rounds' check, pen speed): kernels.curve_rounds' arguments from these limits,
+        once per Limits instead of once per stroke (linear kinematics, cubics)."""
+        M, vmax, amax = self.arrays
+        p, pen = 3, self.pen_speed
+        R = M.shape[0] * 4 * p + (2 * p if pen is not None else 0)  # as constraints.bernstein_rows
+        return (M, vmax, amax, float(pen) ** 2 if pen is not None else 0.0, R, constraints._b_matrix(p - 1),
+                constraints._b_matrix(2 * p - 1), _taus(8), float(pen or 0.0))
+
+    @functools.cached_property
     def easiest(self) -> tuple[float, float]:
         """(speed mm/s, acceleration mm/s^2) in the most favourable direction (linear kinematics),
         generously: actuator units per mm there halved (a direction may share the motion
@@ -257,14 +268,12 @@ def _fused(spline: Spline, limits: Limits, check_limits: Limits, jerk, grid):
     if grid is not None and _bad_grid(grid):
         return None  # plan_stroke says what is wrong, after the stroke's own problems
     c = spline.derivative_controls
-    p, pen = 3, limits.pen_speed
-    M, vmax, amax = limits.arrays
-    R = M.shape[0] * 4 * p + (2 * p if pen is not None else 0)  # as constraints.bernstein_rows
+    p = 3
+    M, vmax, amax, pen2, R, B1, B2, tau8, pen = limits.cubic_rows
     bad, status, u, b, tot, beta, gamma, uu, sp, c12, c13, dot12 = curve_rounds(
         c[0], c[1], c[2], c[3], constraints._interior_taylor(p), spline.breakpoints, _GAUSS[0], _GAUSS[1], SPACING,
-        TURN_STEP, MAX_POINTS, _NO_GRID if grid is None else np.array(grid, float), M, vmax, amax,
-        float(pen) ** 2 if pen is not None else 0.0, R, constraints._b_matrix(p - 1), constraints._b_matrix(2 * p - 1),
-        _taus(8), float(pen or 0.0), 0.0, 0.0, MAX_ROUNDS, _JERK_TAUS if jerk else _NO_GRID)
+        TURN_STEP, MAX_POINTS, _NO_GRID if grid is None else np.array(grid, float), M, vmax, amax, pen2, R, B1, B2,
+        tau8, pen, 0.0, 0.0, MAX_ROUNDS, _JERK_TAUS if jerk else _NO_GRID)
     if bad:
         raise PlanError(_INPUT_PROBLEMS[bad])
     if status == -2:
