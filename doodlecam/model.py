@@ -298,6 +298,14 @@ class Travel:
         object.__setattr__(self, "start", _frozen(self.start))
         object.__setattr__(self, "end", _frozen(self.end))
 
+    @classmethod
+    def handed(cls, start: np.ndarray, end: np.ndarray, duration: float = 0.0) -> "Travel":
+        """Travel(start, end, duration) of fresh float64 (2,) arrays the caller hands over (made read-only
+        in place, not copied; plan.travel.make_travels' rows of the array it made)."""
+        new = _handed(object.__new__(cls), {"start": start, "end": end})
+        new.__dict__["duration"] = duration
+        return new
+
     @cached_property  # the studio's summaries ask every travel of a 10^4-stroke job after each edit
     def length(self) -> float:
         return float(np.hypot(*(self.end - self.start)))

@@ -205,7 +205,7 @@ def plan_job(drawing: Drawing, machine: Machine, solver: str = "reach", plugin_d
     samples = tuple(o.samples for o in outcomes)
     worst_acc = max((o.ratios[0] for o in outcomes), default=0.0)
     worst_vel = max((o.ratios[1] for o in outcomes), default=0.0)
-    between = max((float(o.deviation.max(initial=0.0)) for o in outcomes), default=0.0)
+    between = max((o.worst_deviation for o in outcomes), default=0.0)
     nonlinear = kin.linear_map is None
 
     points = [np.asarray(machine.home, float)]

@@ -41,3 +41,9 @@ def test_handed_constructors_equal_the_copying_ones_and_freeze_in_place():
     assert handed.u is u and s_handed.velocity is vel and s_handed.sample_u is su
     assert not (u.flags.writeable or b.flags.writeable or start.flags.writeable or vel.flags.writeable)
     assert copied.u is not u and s_copied.start is not start
+    from doodlecam.model import Travel
+
+    a0, a1 = rng.random(2), rng.random(2)
+    t_copied, t_handed = Travel(a0, a1, 1.5), Travel.handed(a0, a1, 1.5)
+    assert t_handed.start is a0 and t_handed.end is a1 and not a0.flags.writeable and t_handed.duration == 1.5
+    assert np.array_equal(t_copied.start, t_handed.start) and t_copied.length == t_handed.length

@@ -215,3 +215,19 @@ def test_a_convert_leaves_the_garbage_collector_as_it_found_it(tmp_path, enabled
     finally:
         (gc.enable if was else gc.disable)()
         gc.set_threshold(*thresholds)
+
+
+def test_each_outcome_carries_its_largest_deviation(tmp_path, monkeypatch):
+    """plan_strokes' outcomes (closed-form lines and planned curves alike) carry deviation.max(initial=0)
+    as worst_deviation, which the job reports as its largest distance between samples."""
+    svg = tmp_path / "art.svg"
+    svg.write_text(generated_svg(150, "mixed", seed=3))
+    seen = []
+    real = stroke_plan.plan_strokes
+    monkeypatch.setattr(stroke_plan, "plan_strokes", lambda *a, **k: seen.extend(r := real(*a, **k)) or r)
+    res, _ = _convert(tmp_path, svg, 1, "o")
+    assert len(seen) == len(res.job.strokes) >= 150
+    assert {o.replans == 0 and len(o.stroke.profile.u) <= 4 for o in seen} == {True, False}  # lines and curves
+    for o in seen:
+        assert o.worst_deviation == float(o.deviation.max(initial=0.0))
+    assert res.job.meta["max_between_samples_mm"] == max(o.worst_deviation for o in seen) > 0

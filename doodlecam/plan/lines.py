@@ -54,7 +54,7 @@ def eligible_all(ctx, strokes) -> list[int]:
 
 def plan_lines(ctx, strokes: list, pens: list) -> list:
     """For every stroke (all ``eligible``), what plan_one finds for it: (the planned stroke, its
-    (acceleration, velocity) ratios, samples, per-period deviation), or None where the general pass is
+    (acceleration, velocity) ratios, samples, per-period deviation, its largest), or None where the general pass is
     needed."""
     n = len(strokes)
     if n == 0:
@@ -99,12 +99,13 @@ def plan_lines(ctx, strokes: list, pens: list) -> list:
     _samples(a0, a1, pen_idx, M, plan_v, plan_a, plan_pen, k, dt, straight_bound(tol, k, dt), periods, scale, offs, vel, written, su, dev,
              tilt_ok, SUB)
     ok &= tilt_ok
+    worst = np.full(n, -np.inf)  # each stroke's largest deviation (rows of its own: periods > 0)
+    has = periods > 0
+    if offs[-1]:
+        worst[has] = np.maximum.reduceat(dev, offs[:-1][has])
     if ctx.jerk is not None:
-        worst = np.full(n, -np.inf)
-        has = periods > 0
-        if offs[-1]:
-            worst[has] = np.maximum.reduceat(dev, offs[:-1][has])
         ok &= worst <= ctx.path_tolerance
+    worst = np.maximum(worst, 0.0).tolist()  # as deviation.max(initial=0.0)
     out: list = [None] * n
     # every profile's a and t, and every start in whole steps, at once (each row as for one stroke)
     with np.errstate(invalid="ignore", divide="ignore"):  # (the padding of 3-node rows and the rows not kept)
@@ -117,7 +118,7 @@ def plan_lines(ctx, strokes: list, pens: list) -> list:
         # rows of arrays made here, handed over (read-only views instead of copies)
         prof = Profile.handed(u[i, :q], b[i, :q], acc[i, :q - 1], t[i, :q], "reach")
         smp = StrokeSamples.handed(start[i], vel[o:o + m], dt, ts, su[o + i:o + i + m + 1])
-        out[i] = (strokes[i].with_profile(prof), (ra, rv), smp, dev[o:o + m].copy())
+        out[i] = (strokes[i].with_profile(prof), (ra, rv), smp, dev[o:o + m].copy(), worst[i])
     return out
 
 

@@ -60,6 +60,7 @@ class Outcome:
     slowed_for_ramps: bool
     ramp: float  # worst actuator ratio along the sampled ramps (nonlinear kinematics)
     slowed: float  # speed share after slowing the stroke as a whole (1: not slowed)
+    worst_deviation: float = 0.0  # deviation.max(initial=0.0), mm (found while checking it)
 
 
 def plan_one(ctx: Context, n: int, total: int, stroke: Stroke, pen) -> Outcome:
@@ -137,8 +138,9 @@ def plan_one(ctx: Context, n: int, total: int, stroke: Stroke, pen) -> Outcome:
     s, ratios = planned
     s, ratios, smp, dev = sample_within_ramps(s, ratios, bound)
     replans = 0
+    worst = float(dev.max(initial=0.0))
     for attempt in range(REPLANS + SLOW_REPLANS if ctx.jerk is not None else 0):
-        if dev.max(initial=0.0) <= ctx.path_tolerance:
+        if worst <= ctx.path_tolerance:
             break
         if bound is not None and attempt < REPLANS:  # lower the jerk bound where it strays
             bound = bound.tightened(smp, dev, ctx.path_tolerance)
@@ -154,8 +156,9 @@ def plan_one(ctx: Context, n: int, total: int, stroke: Stroke, pen) -> Outcome:
             again = plan(None, s.profile.u)
         s, ratios = again
         s, ratios, smp, dev = sample_within_ramps(s, ratios, bound)
+        worst = float(dev.max(initial=0.0))
         replans += 1
-    return Outcome(s, ratios, smp, dev, replans, min(share) < 1.0, ramp, slow)
+    return Outcome(s, ratios, smp, dev, replans, min(share) < 1.0, ramp, slow, worst)
 
 
 def _least_time(spline, limits) -> float:
@@ -200,7 +203,7 @@ def plan_strokes(ctx: Context, strokes: list[Stroke], pens: list, workers: int =
     # straight strokes in closed form, all at once; the rest (and any of those the closed forms
     # do not cover) one by one
     lines = eligible_all(ctx, strokes)
-    done = {i: Outcome(*o, replans=0, slowed_for_ramps=False, ramp=0.0, slowed=1.0)
+    done = {i: Outcome(*o[:4], replans=0, slowed_for_ramps=False, ramp=0.0, slowed=1.0, worst_deviation=o[4])
             for i, o in zip(lines, plan_lines(ctx, [strokes[i] for i in lines], [pens[i] for i in lines]))
             if o is not None}
     if progress and done:

@@ -109,9 +109,9 @@ def make_travel(start, end, machine, law: str | None = None) -> Travel:
 
 def make_travels(points, machine) -> tuple[Travel, ...]:
     """The moves points[0] -> points[1], points[2] -> points[3], ... ((2n, 2) mm) with the machine's law."""
-    p = np.asarray(points, float).reshape(-1, 2)
+    p = np.array(points, float).reshape(-1, 2)  # a copy of its own: its rows are handed to the travels
     t = travel_times(p[0::2], p[1::2], machine).tolist()
-    return tuple(Travel(start=p[2 * i], end=p[2 * i + 1], duration=t[i]) for i in range(len(t)))
+    return tuple(Travel.handed(p[2 * i], p[2 * i + 1], t[i]) for i in range(len(t)))
 
 
 def travel_state(travel: Travel, machine, t, law: str | None = None) -> np.ndarray:
