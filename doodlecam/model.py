@@ -533,11 +533,13 @@ def _prime_group(g: _KnotTable, n: int, degree: int, group: list, lengths: bool)
         flat = (scale > 1e-9) & (np.abs(levels[2]).reshape(len(group), -1).max(axis=1) <= 1e-9 * scale)
     else:
         flat = np.full(len(group), n == 2)
-    for i, s in enumerate(group):
+    # each spline's rows of the levels (the views c[i] of each level) and flag, walked together
+    rows = zip(*levels[1:]) if degree >= 1 else iter(lambda: (), None)
+    for s, straight, der in zip(group, flat.tolist(), rows):
         d = s.__dict__
         if "derivative_controls" not in d:
-            d["derivative_controls"] = [s.control, *(c[i] for c in levels[1:])]
-            d["straight"] = bool(flat[i])
+            d["derivative_controls"] = [s.control, *der]
+            d["straight"] = straight
             d["breakpoints"] = g.breakpoints  # (the planner's: shared by the shape)
     if lengths and degree >= 1:
         ev, u = _eval(), g.gauss_u

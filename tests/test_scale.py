@@ -231,3 +231,12 @@ def test_each_outcome_carries_its_largest_deviation(tmp_path, monkeypatch):
     for o in seen:
         assert o.worst_deviation == float(o.deviation.max(initial=0.0))
     assert res.job.meta["max_between_samples_mm"] == max(o.worst_deviation for o in seen) > 0
+
+
+def test_outcome_of_is_the_dataclass_with_every_field():
+    from dataclasses import fields
+
+    values = [object() for _ in fields(stroke_plan.Outcome)]
+    made, fast = stroke_plan.Outcome(*values), stroke_plan.Outcome.of(*values)
+    assert [getattr(fast, f.name) for f in fields(fast)] == [getattr(made, f.name) for f in fields(made)] == values
+    assert fast == made and vars(fast) == vars(made)

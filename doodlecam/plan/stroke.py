@@ -62,6 +62,17 @@ class Outcome:
     slowed: float  # speed share after slowing the stroke as a whole (1: not slowed)
     worst_deviation: float = 0.0  # deviation.max(initial=0.0), mm (found while checking it)
 
+    @classmethod
+    def of(cls, stroke, ratios, samples, deviation, replans, slowed_for_ramps, ramp, slowed,
+           worst_deviation) -> "Outcome":
+        """Outcome(...) with every field, without the frozen dataclass's __init__ (an
+        object.__setattr__ per field, 5x the time: a job of 10^4-10^5 strokes makes one each)."""
+        new = object.__new__(cls)
+        new.__dict__.update(stroke=stroke, ratios=ratios, samples=samples, deviation=deviation, replans=replans,
+                            slowed_for_ramps=slowed_for_ramps, ramp=ramp, slowed=slowed,
+                            worst_deviation=worst_deviation)
+        return new
+
 
 def plan_one(ctx: Context, n: int, total: int, stroke: Stroke, pen) -> Outcome:
     """Plan and sample stroke n of total (drawn with ``pen``) within every bound: the
@@ -158,7 +169,7 @@ def plan_one(ctx: Context, n: int, total: int, stroke: Stroke, pen) -> Outcome:
         s, ratios, smp, dev = sample_within_ramps(s, ratios, bound)
         worst = float(dev.max(initial=0.0))
         replans += 1
-    return Outcome(s, ratios, smp, dev, replans, min(share) < 1.0, ramp, slow, worst)
+    return Outcome.of(s, ratios, smp, dev, replans, min(share) < 1.0, ramp, slow, worst)
 
 
 def _least_time(spline, limits) -> float:
@@ -203,7 +214,7 @@ def plan_strokes(ctx: Context, strokes: list[Stroke], pens: list, workers: int =
     # straight strokes in closed form, all at once; the rest (and any of those the closed forms
     # do not cover) one by one
     lines = eligible_all(ctx, strokes)
-    done = {i: Outcome(*o[:4], replans=0, slowed_for_ramps=False, ramp=0.0, slowed=1.0, worst_deviation=o[4])
+    done = {i: Outcome.of(*o[:4], 0, False, 0.0, 1.0, o[4])
             for i, o in zip(lines, plan_lines(ctx, [strokes[i] for i in lines], [pens[i] for i in lines]))
             if o is not None}
     if progress and done:
