@@ -88,7 +88,7 @@ def _span3(P, B, F, i, A, rx, ry, ctrl, S):  # pragma: no cover - compiled
     first, last = f == 0, f + 3 == n - 1  # the span of a pinned end
     m = P.shape[0]
     while i < m and F[i] == f:
-        n0, n1, n2, n3 = B[i, 0], B[i, 1], B[i, 2], B[i, 3]
+        n0, n1, n2, n3 = B[0, i], B[1, i], B[2, i], B[3, i]
         dx, dy = P[i, 0], P[i, 1]  # the data minus the pinned ends' share
         if first:
             dx -= n0 * ctrl[0, 0]
@@ -131,7 +131,7 @@ def _span3(P, B, F, i, A, rx, ry, ctrl, S):  # pragma: no cover - compiled
 @numba.njit(cache=True, nogil=True)
 def _lsq(P, B, F, n, p, lam, ctrl):  # pragma: no cover - compiled
     """Least-squares control points for the data P[0::2] (basis functions
-    B[0::2] from span F[0::2], ``_basis_table``), with
+    B[:, 0::2] from span F[0::2], ``_basis_table``), with
     ctrl[0] and ctrl[n - 1] given (the pinned ends), plus ``lam`` x the squared
     second differences of the control points so one without data under it
     stays defined. Banded normal equations, Cholesky. Fills ctrl[1:n - 1];
@@ -153,23 +153,23 @@ def _lsq(P, B, F, n, p, lam, ctrl):  # pragma: no cover - compiled
             continue
         dx, dy = P[i, 0], P[i, 1]  # the data minus the pinned ends' share
         if f == 0:
-            dx -= B[i, 0] * ctrl[0, 0]
-            dy -= B[i, 0] * ctrl[0, 1]
+            dx -= B[0, i] * ctrl[0, 0]
+            dy -= B[0, i] * ctrl[0, 1]
         if f + p == n - 1:
-            dx -= B[i, p] * ctrl[n - 1, 0]
-            dy -= B[i, p] * ctrl[n - 1, 1]
+            dx -= B[p, i] * ctrl[n - 1, 0]
+            dy -= B[p, i] * ctrl[n - 1, 1]
         for a in range(p + 1):
             ca = f + a - 1
             if ca < 0 or ca >= q:
                 continue
-            va = B[i, a]
+            va = B[a, i]
             rx[ca] += va * dx
             ry[ca] += va * dy
             for b in range(a, p + 1):
                 cb = f + b - 1
                 if cb >= q:
                     break
-                A[ca, cb - ca] += va * B[i, b]
+                A[ca, cb - ca] += va * B[b, i]
         i += 2
     coef = np.array([1.0, -2.0, 1.0])
     v = np.empty((3, 3))
@@ -341,7 +341,7 @@ def _bound(P, u, cum, ctrl, p, tol, give_up, quick, w):  # pragma: no cover - co
     differs (still an upper bound, over ``tol``); a success is measured exactly
     as without it.
     w: work arrays Q, a, b, arc, ta, tb, done, worst of each stretch (m, m, m,
-    m - 1, m, m, m, m - 1 entries), the basis functions at u and their spans
+    m - 1, m, m, m, m - 1 entries), the basis functions at u (p + 1 rows of m) and their spans
     (``_basis_table``, filled by the caller), and its own work arrays.
     """
     Q, a, b, arc, ta, tb, done, c0, B, F, _, _ = w
@@ -359,14 +359,14 @@ def _bound(P, u, cum, ctrl, p, tol, give_up, quick, w):  # pragma: no cover - co
     for i in range(m):
         f = F[i]
         if p == 3:  # the loop below, unrolled: the same sums in the same order
-            x = 0.0 + B[i, 0] * ctrl[f, 0] + B[i, 1] * ctrl[f + 1, 0] + B[i, 2] * ctrl[f + 2, 0] + B[i, 3] * ctrl[f + 3, 0]
-            y = 0.0 + B[i, 0] * ctrl[f, 1] + B[i, 1] * ctrl[f + 1, 1] + B[i, 2] * ctrl[f + 2, 1] + B[i, 3] * ctrl[f + 3, 1]
+            x = 0.0 + B[0, i] * ctrl[f, 0] + B[1, i] * ctrl[f + 1, 0] + B[2, i] * ctrl[f + 2, 0] + B[3, i] * ctrl[f + 3, 0]
+            y = 0.0 + B[0, i] * ctrl[f, 1] + B[1, i] * ctrl[f + 1, 1] + B[2, i] * ctrl[f + 2, 1] + B[3, i] * ctrl[f + 3, 1]
         else:
             x = 0.0
             y = 0.0
             for k in range(p + 1):
-                x += B[i, k] * ctrl[f + k, 0]
-                y += B[i, k] * ctrl[f + k, 1]
+                x += B[k, i] * ctrl[f + k, 0]
+                y += B[k, i] * ctrl[f + k, 1]
         Q[i, 0], Q[i, 1] = x, y
         # a: curve sample i to the polyline; b (the same until tightened): polyline sample i to the curve
         a[i] = np.sqrt((x - P[i, 0]) ** 2 + (y - P[i, 1]) ** 2)
@@ -420,16 +420,17 @@ def _bound(P, u, cum, ctrl, p, tol, give_up, quick, w):  # pragma: no cover - co
 def _work(m, p):  # pragma: no cover - compiled
     """``_bound``'s work arrays for m samples and degree p."""
     return (np.empty((m, 2)), np.empty(m), np.empty(m), np.empty(m - 1), np.empty(m), np.empty(m),
-            np.empty(m, np.bool_), np.empty(m - 1), np.empty((m, p + 1)), np.empty(m, np.int64),
+            np.empty(m, np.bool_), np.empty(m - 1), np.empty((p + 1, m)), np.empty(m, np.int64),
             np.empty((m, p + 1)), np.empty((m, p + 1)))
 
 
 @numba.njit(cache=True, nogil=True)
 def _basis_table(u, n, p, w):  # pragma: no cover - compiled
     """``basis_at`` (the same numbers) for n control points at every u[i]: the
-    basis functions into the work arrays B[i], their span into F[i], evaluated
+    basis functions into the work array B[:, i], their span into F[i], evaluated
     once for the fit and its bound. Span by span, each step of the recurrence
-    for all the span's points before the next: the points' divisions overlap."""
+    for all the span's points before the next: the points' divisions overlap
+    (a cubic's spans in vector instructions, ``_cubic_rows``, ``_clamped_rows``)."""
     B, F, left, right = w[8], w[9], w[10], w[11]
     nseg = n - p
     m = u.size
@@ -442,13 +443,18 @@ def _basis_table(u, n, p, w):  # pragma: no cover - compiled
         while i1 < m and F[i1] == s:
             i1 += 1
         if p == 3 and p <= s < nseg - p:
-            for i in range(i0, i1):
-                B[i, 0], B[i, 1], B[i, 2], B[i, 3] = _cubic_inner(u[i], nseg, s)
+            _cubic_rows(u[i0:i1], B[0, i0:i1], B[1, i0:i1], B[2, i0:i1], B[3, i0:i1], nseg, s)
             i0 = i1
             continue
         k = s + p  # Cox-de Boor as basis_at
+        if p == 3:
+            _clamped_rows(u[i0:i1], B[0, i0:i1], B[1, i0:i1], B[2, i0:i1], B[3, i0:i1], _knot(k, p, nseg),
+                          _knot(k + 1, p, nseg), _knot(k - 1, p, nseg), _knot(k + 2, p, nseg), _knot(k - 2, p, nseg),
+                          _knot(k + 3, p, nseg))
+            i0 = i1
+            continue
         for i in range(i0, i1):
-            B[i, 0] = 1.0
+            B[0, i] = 1.0
         for j in range(1, p + 1):
             kl, kr = _knot(k + 1 - j, p, nseg), _knot(k + j, p, nseg)
             for i in range(i0, i1):
@@ -456,11 +462,46 @@ def _basis_table(u, n, p, w):  # pragma: no cover - compiled
                 right[i, j] = kr - u[i]
                 saved = 0.0
                 for r in range(j):
-                    t = B[i, r] / (right[i, r + 1] + left[i, j - r])
-                    B[i, r] = saved + right[i, r + 1] * t
+                    t = B[r, i] / (right[i, r + 1] + left[i, j - r])
+                    B[r, i] = saved + right[i, r + 1] * t
                     saved = left[i, j - r] * t
-                B[i, j] = saved
+                B[j, i] = saved
         i0 = i1
+
+
+@numba.njit(cache=True, nogil=True)
+def _cubic_rows(x, b0, b1, b2, b3, nseg, s):  # pragma: no cover - compiled
+    """``cubic_inner`` at every x (all in the inner span s) into b0..b3 (contiguous rows: vector instructions)."""
+    for i in range(x.shape[0]):
+        b0[i], b1[i], b2[i], b3[i] = _cubic_inner(x[i], nseg, s)
+
+
+@numba.njit(cache=True, nogil=True, inline="always", error_model="numpy")
+def _cdb(value, saved, right, left):  # pragma: no cover - compiled
+    """One step of Cox-de Boor's inner loop (``basis_at``): the new value and the carried ``saved``."""
+    t = value / (right + left)
+    return saved + right * t, left * t
+
+
+# numpy's error model: a division is not tested for zero (its divisors are knot spans, never zero), the
+# test that kept the loop from running in vector instructions; the same IEEE divisions otherwise
+@numba.njit(cache=True, nogil=True, error_model="numpy")
+def _clamped_rows(x, b0, b1, b2, b3, kl1, kr1, kl2, kr2, kl3, kr3):  # pragma: no cover - compiled
+    """``basis_at``'s Cox-de Boor for a cubic at every x (all in one span, whose knot k - j + 1 is klj and
+    knot k + j krj), unrolled: the same operations in the same order, into the rows b0..b3."""
+    for i in range(x.shape[0]):
+        xi = x[i]
+        l1, r1 = xi - kl1, kr1 - xi
+        l2, r2 = xi - kl2, kr2 - xi
+        l3, r3 = xi - kl3, kr3 - xi
+        n0, n1 = _cdb(1.0, 0.0, r1, l1)  # j = 1
+        n0, saved = _cdb(n0, 0.0, r1, l2)  # j = 2
+        n1, n2 = _cdb(n1, saved, r2, l1)
+        n0, saved = _cdb(n0, 0.0, r1, l3)  # j = 3
+        n1, saved = _cdb(n1, saved, r2, l2)
+        b2[i], b3[i] = _cdb(n2, saved, r3, l1)
+        b0[i] = n0
+        b1[i] = n1
 
 
 @numba.njit(cache=True, nogil=True)
