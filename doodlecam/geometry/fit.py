@@ -386,11 +386,17 @@ def _bound(P, u, cum, ctrl, p, tol, give_up, quick, w):  # pragma: no cover - co
     if give_up and quick:
         # where the curve strays across the polyline, not along it (the parameter drifting),
         # is where it fails: the stretches over tol in the order of that offset
-        e_prev = _across(P, Q, 0)
+        e_prev = -1.0  # _across at i, where known (only the ends of stretches over tol need it)
         for i in range(m - 1):
-            e = _across(P, Q, i + 1)
-            c0[i] = max(e_prev, e) if c0[i] > tol else -1.0
-            e_prev = e
+            if c0[i] > tol:
+                if e_prev < 0.0:
+                    e_prev = _across(P, Q, i)
+                e = _across(P, Q, i + 1)
+                c0[i] = max(e_prev, e)
+                e_prev = e
+            else:
+                c0[i] = -1.0
+                e_prev = -1.0
         for _ in range(QUICK_TRIES):
             i = np.argmax(c0)
             if not c0[i] > tol:
@@ -649,8 +655,9 @@ def _search(p, degree, tolerance, max_control, length, quick):  # pragma: no cov
     turning = _turning(p)
     cornered = turning > CORNERED * (p.shape[0] - 2)
     n = 2 * p.shape[0] if cornered else degree + int(SPANS_PER_RADIAN * turning)
+    tried = [(0, np.empty((0, 2)), 0.0)][:0]  # every attempt's (count, control points, deviation): none twice
     ctrl, err, grew, ok = _grow_bisect(pts, u, cum, min(max(n, n_min), n_max), n_min - 1, n_max, degree, tolerance,
-                                       quick, w, m)
+                                       quick, w, m, tried)
     if not ok:  # not within the cap: the caller splits (counts below it seldom do better)
         if quick and err < np.inf:  # the value the search without the shortcut reports
             err = _measure(pts, u, cum, ctrl, degree, tolerance, True, False, w)
@@ -660,23 +667,35 @@ def _search(p, degree, tolerance, max_control, length, quick):  # pragma: no cov
         # a count fits need not be monotone (the bisection lands on one boundary of several). The
         # search from two control points per vertex is run too, and the fewer control points kept.
         c2, e2, _, ok2 = _grow_bisect(pts, u, cum, min(max(2 * p.shape[0], n_min), n_max), n_min - 1, n_max, degree,
-                                      tolerance, quick, w, m)
+                                      tolerance, quick, w, m, tried)
         if ok2 and c2.shape[0] < ctrl.shape[0]:
             ctrl, err = c2, e2
     return ctrl, err
 
 
 @numba.njit(cache=True, nogil=True)
-def _grow_bisect(pts, u, cum, n, lo, n_max, degree, tolerance, quick, w, m):  # pragma: no cover - compiled
+def _tried(P, u, cum, n, p, tol, lam, quick, w, tried):  # pragma: no cover - compiled
+    """``_attempt``, or its result kept in ``tried`` when n was tried before (the second search of
+    ``_search`` meets some counts of the first: an attempt depends on n alone, so it is the same)."""
+    for k in range(len(tried)):
+        if tried[k][0] == n:
+            return tried[k][1], tried[k][2]
+    ctrl, err = _attempt(P, u, cum, n, p, tol, lam, quick, w)
+    tried.append((n, ctrl, err))
+    return ctrl, err
+
+
+@numba.njit(cache=True, nogil=True)
+def _grow_bisect(pts, u, cum, n, lo, n_max, degree, tolerance, quick, w, m, tried):  # pragma: no cover - compiled
     """_search from n control points (lo: a count known not to fit): grow by half until within
     tolerance or at n_max, then bisect down to one above the last count that did not fit.
     (control points, deviation, times grown, within tolerance)."""
-    ctrl, err = _attempt(pts, u, cum, n, degree, tolerance, 1e-9 * m / n, quick, w)
+    ctrl, err = _tried(pts, u, cum, n, degree, tolerance, 1e-9 * m / n, quick, w, tried)
     err = np.inf if err < 0 else err
     grew = 0
     while err > tolerance and n < n_max:
         lo, n = n, min(n_max, int(np.ceil(n * 1.5)))
-        ctrl, err = _attempt(pts, u, cum, n, degree, tolerance, 1e-9 * m / n, quick, w)
+        ctrl, err = _tried(pts, u, cum, n, degree, tolerance, 1e-9 * m / n, quick, w, tried)
         err = np.inf if err < 0 else err
         grew += 1
     if err > tolerance:
@@ -684,7 +703,7 @@ def _grow_bisect(pts, u, cum, n, lo, n_max, degree, tolerance, quick, w, m):  # 
     hi = n
     while hi - lo > 1:
         mid = (lo + hi) // 2
-        c, e = _attempt(pts, u, cum, mid, degree, tolerance, 1e-9 * m / mid, quick, w)
+        c, e = _tried(pts, u, cum, mid, degree, tolerance, 1e-9 * m / mid, quick, w, tried)
         if e >= 0 and e <= tolerance:
             hi, ctrl, err = mid, c, e
         else:
