@@ -813,7 +813,8 @@ def fit_many(polylines, degree: int = 3, tolerance: float = 0.1, max_control: in
     starts = np.cumsum([0] + [len(p) for p in polys])
     # _dedupe of each polyline: a point as good as repeating the previous one of its own polyline goes
     near = np.zeros(len(pts), bool)
-    near[1:] = ~np.any(np.abs(np.diff(pts, axis=0)) > SAME_POINT, axis=1)
+    d = np.abs(np.diff(pts, axis=0))
+    near[1:] = ~((d[:, 0] > SAME_POINT) | (d[:, 1] > SAME_POINT))  # np.any over the two axes, without its reduce
     near[starts[:-1]] = False
     if near.any():  # rare: those polylines one by one (measured from the last point kept)
         for i in np.unique(np.searchsorted(starts, np.flatnonzero(near), side="right") - 1):
@@ -835,19 +836,22 @@ def fit_many(polylines, degree: int = 3, tolerance: float = 0.1, max_control: in
     owner = np.searchsorted(starts, first, side="right") - 1
     ctrl, count, err = _fit_all(pts, first, last, degree, tolerance, max_control, quick)
     out: list[list[tuple[Spline, float]]] = [[] for _ in polys]
-    for k, c in enumerate(np.split(ctrl, np.cumsum(count)[:-1])):
-        if err[k] <= tolerance:
-            out[owner[k]].append((Spline(degree, c), float(err[k])))
+    stop = np.cumsum(count)
+    # Python numbers: no NumPy scalar per piece
+    for k, (a, b, e, o) in enumerate(zip((stop - count).tolist(), stop.tolist(), err.tolist(), owner.tolist())):
+        if e <= tolerance:
+            out[o].append((Spline(degree, ctrl[a:b]), e))
         else:  # no spline within the cap follows it: split at the sharpest corner
             p = pts[first[k]:last[k] + 1]
-            out[owner[k]] += _split(p, degree, tolerance, max_control, quick)
+            out[o] += _split(p, degree, tolerance, max_control, quick)
     return out
 
 
 def _turns(d: np.ndarray) -> np.ndarray:
     """The angle (radians, 0..pi) the polyline with segments ``d`` turns at each inner vertex."""
     cross = d[:-1, 0] * d[1:, 1] - d[:-1, 1] * d[1:, 0]
-    return np.abs(np.arctan2(cross, (d[:-1] * d[1:]).sum(axis=1)))
+    dot = d[:-1, 0] * d[1:, 0] + d[:-1, 1] * d[1:, 1]  # (d[:-1] * d[1:]).sum(axis=1): the same sums
+    return np.abs(np.arctan2(cross, dot))
 
 
 def turn_angles(p: np.ndarray) -> np.ndarray:
