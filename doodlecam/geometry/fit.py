@@ -88,7 +88,7 @@ def _span3(P, B, F, i, A, rx, ry, ctrl, S):  # pragma: no cover - compiled
     first, last = f == 0, f + 3 == n - 1  # the span of a pinned end
     m = P.shape[0]
     while i < m and F[i] == f:
-        n0, n1, n2, n3 = B[i, 0], B[i, 1], B[i, 2], B[i, 3]
+        n0, n1, n2, n3 = B[0, i], B[1, i], B[2, i], B[3, i]
         dx, dy = P[i, 0], P[i, 1]  # the data minus the pinned ends' share
         if first:
             dx -= n0 * ctrl[0, 0]
@@ -131,7 +131,7 @@ def _span3(P, B, F, i, A, rx, ry, ctrl, S):  # pragma: no cover - compiled
 @numba.njit(cache=True, nogil=True)
 def _lsq(P, B, F, n, p, lam, ctrl):  # pragma: no cover - compiled
     """Least-squares control points for the data P[0::2] (basis functions
-    B[0::2] from span F[0::2], ``_basis_table``), with
+    B[:, 0::2] from span F[0::2], ``_basis_table``), with
     ctrl[0] and ctrl[n - 1] given (the pinned ends), plus ``lam`` x the squared
     second differences of the control points so one without data under it
     stays defined. Banded normal equations, Cholesky. Fills ctrl[1:n - 1];
@@ -153,23 +153,23 @@ def _lsq(P, B, F, n, p, lam, ctrl):  # pragma: no cover - compiled
             continue
         dx, dy = P[i, 0], P[i, 1]  # the data minus the pinned ends' share
         if f == 0:
-            dx -= B[i, 0] * ctrl[0, 0]
-            dy -= B[i, 0] * ctrl[0, 1]
+            dx -= B[0, i] * ctrl[0, 0]
+            dy -= B[0, i] * ctrl[0, 1]
         if f + p == n - 1:
-            dx -= B[i, p] * ctrl[n - 1, 0]
-            dy -= B[i, p] * ctrl[n - 1, 1]
+            dx -= B[p, i] * ctrl[n - 1, 0]
+            dy -= B[p, i] * ctrl[n - 1, 1]
         for a in range(p + 1):
             ca = f + a - 1
             if ca < 0 or ca >= q:
                 continue
-            va = B[i, a]
+            va = B[a, i]
             rx[ca] += va * dx
             ry[ca] += va * dy
             for b in range(a, p + 1):
                 cb = f + b - 1
                 if cb >= q:
                     break
-                A[ca, cb - ca] += va * B[i, b]
+                A[ca, cb - ca] += va * B[b, i]
         i += 2
     coef = np.array([1.0, -2.0, 1.0])
     v = np.empty((3, 3))
@@ -341,7 +341,7 @@ def _bound(P, u, cum, ctrl, p, tol, give_up, quick, w):  # pragma: no cover - co
     differs (still an upper bound, over ``tol``); a success is measured exactly
     as without it.
     w: work arrays Q, a, b, arc, ta, tb, done, worst of each stretch (m, m, m,
-    m - 1, m, m, m, m - 1 entries), the basis functions at u and their spans
+    m - 1, m, m, m, m - 1 entries), the basis functions at u (p + 1 rows of m) and their spans
     (``_basis_table``, filled by the caller), and its own work arrays.
     """
     Q, a, b, arc, ta, tb, done, c0, B, F, _, _ = w
@@ -359,14 +359,14 @@ def _bound(P, u, cum, ctrl, p, tol, give_up, quick, w):  # pragma: no cover - co
     for i in range(m):
         f = F[i]
         if p == 3:  # the loop below, unrolled: the same sums in the same order
-            x = 0.0 + B[i, 0] * ctrl[f, 0] + B[i, 1] * ctrl[f + 1, 0] + B[i, 2] * ctrl[f + 2, 0] + B[i, 3] * ctrl[f + 3, 0]
-            y = 0.0 + B[i, 0] * ctrl[f, 1] + B[i, 1] * ctrl[f + 1, 1] + B[i, 2] * ctrl[f + 2, 1] + B[i, 3] * ctrl[f + 3, 1]
+            x = 0.0 + B[0, i] * ctrl[f, 0] + B[1, i] * ctrl[f + 1, 0] + B[2, i] * ctrl[f + 2, 0] + B[3, i] * ctrl[f + 3, 0]
+            y = 0.0 + B[0, i] * ctrl[f, 1] + B[1, i] * ctrl[f + 1, 1] + B[2, i] * ctrl[f + 2, 1] + B[3, i] * ctrl[f + 3, 1]
         else:
             x = 0.0
             y = 0.0
             for k in range(p + 1):
-                x += B[i, k] * ctrl[f + k, 0]
-                y += B[i, k] * ctrl[f + k, 1]
+                x += B[k, i] * ctrl[f + k, 0]
+                y += B[k, i] * ctrl[f + k, 1]
         Q[i, 0], Q[i, 1] = x, y
         # a: curve sample i to the polyline; b (the same until tightened): polyline sample i to the curve
         a[i] = np.sqrt((x - P[i, 0]) ** 2 + (y - P[i, 1]) ** 2)
@@ -386,11 +386,17 @@ def _bound(P, u, cum, ctrl, p, tol, give_up, quick, w):  # pragma: no cover - co
     if give_up and quick:
         # where the curve strays across the polyline, not along it (the parameter drifting),
         # is where it fails: the stretches over tol in the order of that offset
-        e_prev = _across(P, Q, 0)
+        e_prev = -1.0  # _across at i, where known (only the ends of stretches over tol need it)
         for i in range(m - 1):
-            e = _across(P, Q, i + 1)
-            c0[i] = max(e_prev, e) if c0[i] > tol else -1.0
-            e_prev = e
+            if c0[i] > tol:
+                if e_prev < 0.0:
+                    e_prev = _across(P, Q, i)
+                e = _across(P, Q, i + 1)
+                c0[i] = max(e_prev, e)
+                e_prev = e
+            else:
+                c0[i] = -1.0
+                e_prev = -1.0
         for _ in range(QUICK_TRIES):
             i = np.argmax(c0)
             if not c0[i] > tol:
@@ -420,16 +426,17 @@ def _bound(P, u, cum, ctrl, p, tol, give_up, quick, w):  # pragma: no cover - co
 def _work(m, p):  # pragma: no cover - compiled
     """``_bound``'s work arrays for m samples and degree p."""
     return (np.empty((m, 2)), np.empty(m), np.empty(m), np.empty(m - 1), np.empty(m), np.empty(m),
-            np.empty(m, np.bool_), np.empty(m - 1), np.empty((m, p + 1)), np.empty(m, np.int64),
+            np.empty(m, np.bool_), np.empty(m - 1), np.empty((p + 1, m)), np.empty(m, np.int64),
             np.empty((m, p + 1)), np.empty((m, p + 1)))
 
 
 @numba.njit(cache=True, nogil=True)
 def _basis_table(u, n, p, w):  # pragma: no cover - compiled
     """``basis_at`` (the same numbers) for n control points at every u[i]: the
-    basis functions into the work arrays B[i], their span into F[i], evaluated
+    basis functions into the work array B[:, i], their span into F[i], evaluated
     once for the fit and its bound. Span by span, each step of the recurrence
-    for all the span's points before the next: the points' divisions overlap."""
+    for all the span's points before the next: the points' divisions overlap
+    (a cubic's spans in vector instructions, ``_cubic_rows``, ``_clamped_rows``)."""
     B, F, left, right = w[8], w[9], w[10], w[11]
     nseg = n - p
     m = u.size
@@ -442,13 +449,18 @@ def _basis_table(u, n, p, w):  # pragma: no cover - compiled
         while i1 < m and F[i1] == s:
             i1 += 1
         if p == 3 and p <= s < nseg - p:
-            for i in range(i0, i1):
-                B[i, 0], B[i, 1], B[i, 2], B[i, 3] = _cubic_inner(u[i], nseg, s)
+            _cubic_rows(u[i0:i1], B[0, i0:i1], B[1, i0:i1], B[2, i0:i1], B[3, i0:i1], nseg, s)
             i0 = i1
             continue
         k = s + p  # Cox-de Boor as basis_at
+        if p == 3:
+            _clamped_rows(u[i0:i1], B[0, i0:i1], B[1, i0:i1], B[2, i0:i1], B[3, i0:i1], _knot(k, p, nseg),
+                          _knot(k + 1, p, nseg), _knot(k - 1, p, nseg), _knot(k + 2, p, nseg), _knot(k - 2, p, nseg),
+                          _knot(k + 3, p, nseg))
+            i0 = i1
+            continue
         for i in range(i0, i1):
-            B[i, 0] = 1.0
+            B[0, i] = 1.0
         for j in range(1, p + 1):
             kl, kr = _knot(k + 1 - j, p, nseg), _knot(k + j, p, nseg)
             for i in range(i0, i1):
@@ -456,11 +468,46 @@ def _basis_table(u, n, p, w):  # pragma: no cover - compiled
                 right[i, j] = kr - u[i]
                 saved = 0.0
                 for r in range(j):
-                    t = B[i, r] / (right[i, r + 1] + left[i, j - r])
-                    B[i, r] = saved + right[i, r + 1] * t
+                    t = B[r, i] / (right[i, r + 1] + left[i, j - r])
+                    B[r, i] = saved + right[i, r + 1] * t
                     saved = left[i, j - r] * t
-                B[i, j] = saved
+                B[j, i] = saved
         i0 = i1
+
+
+@numba.njit(cache=True, nogil=True)
+def _cubic_rows(x, b0, b1, b2, b3, nseg, s):  # pragma: no cover - compiled
+    """``cubic_inner`` at every x (all in the inner span s) into b0..b3 (contiguous rows: vector instructions)."""
+    for i in range(x.shape[0]):
+        b0[i], b1[i], b2[i], b3[i] = _cubic_inner(x[i], nseg, s)
+
+
+@numba.njit(cache=True, nogil=True, inline="always", error_model="numpy")
+def _cdb(value, saved, right, left):  # pragma: no cover - compiled
+    """One step of Cox-de Boor's inner loop (``basis_at``): the new value and the carried ``saved``."""
+    t = value / (right + left)
+    return saved + right * t, left * t
+
+
+# numpy's error model: a division is not tested for zero (its divisors are knot spans, never zero), the
+# test that kept the loop from running in vector instructions; the same IEEE divisions otherwise
+@numba.njit(cache=True, nogil=True, error_model="numpy")
+def _clamped_rows(x, b0, b1, b2, b3, kl1, kr1, kl2, kr2, kl3, kr3):  # pragma: no cover - compiled
+    """``basis_at``'s Cox-de Boor for a cubic at every x (all in one span, whose knot k - j + 1 is klj and
+    knot k + j krj), unrolled: the same operations in the same order, into the rows b0..b3."""
+    for i in range(x.shape[0]):
+        xi = x[i]
+        l1, r1 = xi - kl1, kr1 - xi
+        l2, r2 = xi - kl2, kr2 - xi
+        l3, r3 = xi - kl3, kr3 - xi
+        n0, n1 = _cdb(1.0, 0.0, r1, l1)  # j = 1
+        n0, saved = _cdb(n0, 0.0, r1, l2)  # j = 2
+        n1, n2 = _cdb(n1, saved, r2, l1)
+        n0, saved = _cdb(n0, 0.0, r1, l3)  # j = 3
+        n1, saved = _cdb(n1, saved, r2, l2)
+        b2[i], b3[i] = _cdb(n2, saved, r3, l1)
+        b0[i] = n0
+        b1[i] = n1
 
 
 @numba.njit(cache=True, nogil=True)
@@ -608,8 +655,9 @@ def _search(p, degree, tolerance, max_control, length, quick):  # pragma: no cov
     turning = _turning(p)
     cornered = turning > CORNERED * (p.shape[0] - 2)
     n = 2 * p.shape[0] if cornered else degree + int(SPANS_PER_RADIAN * turning)
+    tried = [(0, np.empty((0, 2)), 0.0)][:0]  # every attempt's (count, control points, deviation): none twice
     ctrl, err, grew, ok = _grow_bisect(pts, u, cum, min(max(n, n_min), n_max), n_min - 1, n_max, degree, tolerance,
-                                       quick, w, m)
+                                       quick, w, m, tried)
     if not ok:  # not within the cap: the caller splits (counts below it seldom do better)
         if quick and err < np.inf:  # the value the search without the shortcut reports
             err = _measure(pts, u, cum, ctrl, degree, tolerance, True, False, w)
@@ -619,23 +667,35 @@ def _search(p, degree, tolerance, max_control, length, quick):  # pragma: no cov
         # a count fits need not be monotone (the bisection lands on one boundary of several). The
         # search from two control points per vertex is run too, and the fewer control points kept.
         c2, e2, _, ok2 = _grow_bisect(pts, u, cum, min(max(2 * p.shape[0], n_min), n_max), n_min - 1, n_max, degree,
-                                      tolerance, quick, w, m)
+                                      tolerance, quick, w, m, tried)
         if ok2 and c2.shape[0] < ctrl.shape[0]:
             ctrl, err = c2, e2
     return ctrl, err
 
 
 @numba.njit(cache=True, nogil=True)
-def _grow_bisect(pts, u, cum, n, lo, n_max, degree, tolerance, quick, w, m):  # pragma: no cover - compiled
+def _tried(P, u, cum, n, p, tol, lam, quick, w, tried):  # pragma: no cover - compiled
+    """``_attempt``, or its result kept in ``tried`` when n was tried before (the second search of
+    ``_search`` meets some counts of the first: an attempt depends on n alone, so it is the same)."""
+    for k in range(len(tried)):
+        if tried[k][0] == n:
+            return tried[k][1], tried[k][2]
+    ctrl, err = _attempt(P, u, cum, n, p, tol, lam, quick, w)
+    tried.append((n, ctrl, err))
+    return ctrl, err
+
+
+@numba.njit(cache=True, nogil=True)
+def _grow_bisect(pts, u, cum, n, lo, n_max, degree, tolerance, quick, w, m, tried):  # pragma: no cover - compiled
     """_search from n control points (lo: a count known not to fit): grow by half until within
     tolerance or at n_max, then bisect down to one above the last count that did not fit.
     (control points, deviation, times grown, within tolerance)."""
-    ctrl, err = _attempt(pts, u, cum, n, degree, tolerance, 1e-9 * m / n, quick, w)
+    ctrl, err = _tried(pts, u, cum, n, degree, tolerance, 1e-9 * m / n, quick, w, tried)
     err = np.inf if err < 0 else err
     grew = 0
     while err > tolerance and n < n_max:
         lo, n = n, min(n_max, int(np.ceil(n * 1.5)))
-        ctrl, err = _attempt(pts, u, cum, n, degree, tolerance, 1e-9 * m / n, quick, w)
+        ctrl, err = _tried(pts, u, cum, n, degree, tolerance, 1e-9 * m / n, quick, w, tried)
         err = np.inf if err < 0 else err
         grew += 1
     if err > tolerance:
@@ -643,7 +703,7 @@ def _grow_bisect(pts, u, cum, n, lo, n_max, degree, tolerance, quick, w, m):  # 
     hi = n
     while hi - lo > 1:
         mid = (lo + hi) // 2
-        c, e = _attempt(pts, u, cum, mid, degree, tolerance, 1e-9 * m / mid, quick, w)
+        c, e = _tried(pts, u, cum, mid, degree, tolerance, 1e-9 * m / mid, quick, w, tried)
         if e >= 0 and e <= tolerance:
             hi, ctrl, err = mid, c, e
         else:
@@ -753,7 +813,8 @@ def fit_many(polylines, degree: int = 3, tolerance: float = 0.1, max_control: in
     starts = np.cumsum([0] + [len(p) for p in polys])
     # _dedupe of each polyline: a point as good as repeating the previous one of its own polyline goes
     near = np.zeros(len(pts), bool)
-    near[1:] = ~np.any(np.abs(np.diff(pts, axis=0)) > SAME_POINT, axis=1)
+    d = np.abs(np.diff(pts, axis=0))
+    near[1:] = ~((d[:, 0] > SAME_POINT) | (d[:, 1] > SAME_POINT))  # np.any over the two axes, without its reduce
     near[starts[:-1]] = False
     if near.any():  # rare: those polylines one by one (measured from the last point kept)
         for i in np.unique(np.searchsorted(starts, np.flatnonzero(near), side="right") - 1):
@@ -775,19 +836,22 @@ def fit_many(polylines, degree: int = 3, tolerance: float = 0.1, max_control: in
     owner = np.searchsorted(starts, first, side="right") - 1
     ctrl, count, err = _fit_all(pts, first, last, degree, tolerance, max_control, quick)
     out: list[list[tuple[Spline, float]]] = [[] for _ in polys]
-    for k, c in enumerate(np.split(ctrl, np.cumsum(count)[:-1])):
-        if err[k] <= tolerance:
-            out[owner[k]].append((Spline(degree, c), float(err[k])))
+    stop = np.cumsum(count)
+    # Python numbers: no NumPy scalar per piece
+    for k, (a, b, e, o) in enumerate(zip((stop - count).tolist(), stop.tolist(), err.tolist(), owner.tolist())):
+        if e <= tolerance:
+            out[o].append((Spline(degree, ctrl[a:b]), e))
         else:  # no spline within the cap follows it: split at the sharpest corner
             p = pts[first[k]:last[k] + 1]
-            out[owner[k]] += _split(p, degree, tolerance, max_control, quick)
+            out[o] += _split(p, degree, tolerance, max_control, quick)
     return out
 
 
 def _turns(d: np.ndarray) -> np.ndarray:
     """The angle (radians, 0..pi) the polyline with segments ``d`` turns at each inner vertex."""
     cross = d[:-1, 0] * d[1:, 1] - d[:-1, 1] * d[1:, 0]
-    return np.abs(np.arctan2(cross, (d[:-1] * d[1:]).sum(axis=1)))
+    dot = d[:-1, 0] * d[1:, 0] + d[:-1, 1] * d[1:, 1]  # (d[:-1] * d[1:]).sum(axis=1): the same sums
+    return np.abs(np.arctan2(cross, dot))
 
 
 def turn_angles(p: np.ndarray) -> np.ndarray:

@@ -73,6 +73,15 @@ def travel_length(polylines: Sequence[np.ndarray], home=None) -> float:
 
 # ---------------------------------------------------------------- merging
 
+def _end_points(polys: list[np.ndarray], lens: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Each polyline's first and last point ((n, 2) each; the polylines non-empty float (k, 2) arrays,
+    ``lens`` their lengths), from one concatenation rather than a NumPy array built from a list of n
+    small ones."""
+    last = np.cumsum(lens) - 1
+    pts = np.concatenate(polys).reshape(-1, 2)
+    return pts[last - lens + 1], pts[last]
+
+
 def merge_ends(polylines: Sequence[np.ndarray], tolerance: float, allow_reverse: bool = True
                ) -> tuple[list[np.ndarray], list[int]]:
     """Join open polylines whose ends lie within ``tolerance``, closest pairs first.
@@ -88,7 +97,8 @@ def merge_ends(polylines: Sequence[np.ndarray], tolerance: float, allow_reverse:
     n = len(polys)
     if n < 2 or tolerance <= 0:
         return polys, list(range(n))
-    ends = np.array([[p[0], p[-1]] for p in polys], float).reshape(2 * n, 2)
+    ends = np.empty((2 * n, 2))
+    ends[0::2], ends[1::2] = _end_points(polys, np.array([len(p) for p in polys]))
     closed = np.hypot(*(ends[0::2] - ends[1::2]).T) <= tolerance
     pairs = cKDTree(ends).query_pairs(tolerance, output_type="ndarray")
     if len(pairs) == 0:
@@ -99,7 +109,7 @@ def merge_ends(polylines: Sequence[np.ndarray], tolerance: float, allow_reverse:
         ok &= (x % 2) != (y % 2)
     x, y = x[ok], y[ok]
     by = np.argsort(np.hypot(*(ends[x] - ends[y]).T), kind="stable")
-    partner = np.full(2 * n, -1)
+    partner = [-1] * (2 * n)  # Python lists: read an element at a time below
     group = list(range(n))
 
     def find(a):
@@ -115,9 +125,13 @@ def merge_ends(polylines: Sequence[np.ndarray], tolerance: float, allow_reverse:
             continue  # would close a loop
         partner[a], partner[b] = b, a
         group[ga] = gb
-    out, source, seen = [], [], np.zeros(n, bool)
+    out, source, seen = [], [], [False] * n
     for c0 in range(n):
         if seen[c0]:
+            continue
+        if partner[2 * c0] < 0 and partner[2 * c0 + 1] < 0:  # joined to nothing (most): what the walk gives
+            out.append(polys[c0])
+            source.append(c0)
             continue
         # Walk back to a free end; without reversal, back to the chain's first start.
         e = 2 * c0
@@ -307,9 +321,8 @@ def order_strokes(polylines: Sequence[np.ndarray], home=(0.0, 0.0), allow_revers
     if n == 0:
         return Ordering((), (), 0.0, {"strokes_in": len(polylines), "merged": 0})
     home_pt = np.full(2, np.nan) if home is None else np.asarray(home, float).reshape(2)
-    starts = np.array([p[0] for p in polys]).reshape(n, 2)
-    ends = np.array([p[-1] for p in polys]).reshape(n, 2)
     lens = np.array([len(p) for p in polys])
+    starts, ends = _end_points(polys, lens)
     closed = (lens >= 4) & (starts == ends).all(axis=1)
     ring_len = np.where(closed, lens - 1, 0)
     ring_off = np.zeros(n + 1, np.int64)
