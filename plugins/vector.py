@@ -440,14 +440,14 @@ def _clip_region(node, tol: float):
     The clip path's shapes come reified in the coordinates where <clipPath> was defined;
     clipPathUnits="userSpaceOnUse" puts them in the user space of the element that uses
     them, so they are mapped from the one to the other."""
+    clip = getattr(node, "clip_path", None)
+    if clip is None:  # most shapes: no clip, and no shapely to import
+        return None
     import svgelements as se
     from shapely.affinity import affine_transform
     from shapely.geometry import Polygon
     from shapely.ops import unary_union
 
-    clip = getattr(node, "clip_path", None)
-    if clip is None:
-        return None
     # svgelements' a * b applies a, then b: undo the clip's own placement, then the user's
     m = ~se.Matrix(clip.values.get("transform", "")) * se.Matrix(node.values.get("transform", ""))
     rings = []
