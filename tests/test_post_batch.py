@@ -36,10 +36,21 @@ def test_splines_evaluated_together_equal_each_one_evaluated_alone():
     splines = random_splines(40, 1, degrees=(1, 2, 3, 5))
     rng = np.random.default_rng(2)
     us = [np.r_[rng.uniform(-0.1, 1.1, int(rng.integers(0, 9))), s.breakpoints] for s in splines]
+    # the derivative controls of splines of one shape are made together: many shapes repeat here
+    assert len({(len(s.control), s.degree) for s in splines}) < len(splines)
+    forgot = [Spline(s.degree, s.control) for s in splines[::2]]  # as a planned job's: made on demand
+    for s in forgot:
+        s.forget_derivatives()
     for der in (0, 1):
-        got = eval_many(splines, us, der)
         want = np.concatenate([s(u, der) for s, u in zip(splines, us)])
+        got = eval_many(splines, us, der)
         assert np.array_equal(got, want)  # bit for bit: the same kernel arithmetic
+        u, off = np.concatenate(us), np.cumsum([0] + [len(u) for u in us])
+        assert np.array_equal(eval_many(splines, (u, off), der), want)  # the parameters given concatenated
+        assert np.array_equal(eval_many(forgot, us[::2], der), np.concatenate([s(u, der) for s, u in zip(forgot, us[::2])]))
+    high = [s for s in splines if s.degree >= 2]
+    assert np.array_equal(eval_many(high, [s.breakpoints for s in high], 2),
+                          np.concatenate([s(s.breakpoints, 2) for s in high]))
     assert eval_many([], [], 0).shape == (0, 2)
 
 
