@@ -24,8 +24,6 @@ one stroke.
 
 from __future__ import annotations
 
-import contextlib
-import gc
 import io
 import itertools
 import re
@@ -35,6 +33,7 @@ from typing import Any
 import numpy as np
 
 from doodlecam.api import Option, Tracer
+from doodlecam.collector import no_collections
 from doodlecam.errors import InputError, PluginError
 from doodlecam.extras import require
 from doodlecam.model import Drawing
@@ -543,27 +542,15 @@ def _layer_names(found, by: str) -> list[str]:
     return ["0"] * len(found)
 
 
-@contextlib.contextmanager
-def _no_collections():
-    """No cyclic garbage collections while an SVG is parsed and its shapes evaluated, the collector's state
-    restored after: the parse allocates millions of objects, and each young collection walks them again
-    (art20k: ~170 collections, 0.15 s of CPU), while what they find is a few hundred objects (the document's
-    own cycles, ~40 000 objects there, are garbage only once the shapes are read, with or without them)."""
-    enabled = gc.isenabled()
-    gc.disable()
-    try:
-        yield
-    finally:
-        if enabled:
-            gc.enable()
-
-
 def _svg(path: Path, opt) -> Drawing:
     import svgelements as se
 
     not_drawn = _svg_scan(path)
     _svg_check_numbers(path)
-    with _no_collections():
+    # no cyclic collections while the parse allocates millions of objects: each young collection walked
+    # them again (art20k: ~170 collections, 0.15 s of CPU) and found a few hundred; the document's own
+    # cycles (~40 000 objects there) are garbage only once its shapes are read
+    with no_collections():
         try:
             rendered = render_rules(path)
             svg = se.SVG.parse(io.BytesIO(rendered) if rendered is not None else str(path), reify=True, ppi=96.0)
