@@ -34,6 +34,7 @@ A built-in post is written exactly like a third-party one; see docs/plugins.md.
 
 from __future__ import annotations
 
+import re
 from dataclasses import dataclass
 from typing import Any
 
@@ -43,7 +44,8 @@ from doodlecam.api import Option, PostProcessor
 from doodlecam.errors import OutputError, PluginError
 from doodlecam.geometry.chord_batch import cap_candidates, dense_points, serial_keeps_up
 from doodlecam.geometry.chords import chord_ok, one_step_apart
-from doodlecam.geometry.spline_batch import eval_many
+from doodlecam.geometry.spline_batch import controls_many, eval_many
+from doodlecam.geometry.spline_batch import offsets as _offsets_of
 
 CAP_LEVELS = 24  # chord tolerances for feeds = cap: tol, tol/2^(1/4), ... (down to MIN_LEVEL_STEPS)
 CHORD_LEVEL = 2 ** -0.25
@@ -78,6 +80,22 @@ DIALECTS = {
 def _num(v: float, decimals: int = 3) -> str:
     s = f"{v:.{decimals}f}".rstrip("0").rstrip(".")
     return "0" if s in ("-0", "", "-") else s
+
+
+_TRAILING_ZEROS = re.compile(r"0+(?=\n)")
+_BARE_POINT = re.compile(r"\.(?=\n)")
+_MINUS_ZERO = re.compile(r"^-0$", re.M)
+
+
+def _nums(values: np.ndarray) -> list[str]:
+    """[_num(v) for v in values] (3 decimals), in one format call and three substitutions over all of them
+    rather than a format and two strips each: "%.3f" always prints a point, so stripping the zeros before each
+    line end and then a bare point is what rstrip("0").rstrip(".") does to each."""
+    if not len(values):
+        return []
+    text = ("%.3f\n" * len(values)) % tuple(values.tolist())
+    text = _MINUS_ZERO.sub("0", _BARE_POINT.sub("", _TRAILING_ZEROS.sub("", text)))
+    return text.split("\n")[:-1]
 
 
 def _t_of_u(profile, u: np.ndarray) -> np.ndarray:
@@ -271,6 +289,16 @@ def _offsets(arrays) -> np.ndarray:
     return np.concatenate([[0], np.cumsum([len(a) for a in arrays], dtype=np.int64)]).astype(np.int64)
 
 
+def _linspaces(n: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """np.linspace(0.0, 1.0, n[s]) for every s (each n[s] >= 2) concatenated, and their offsets, in a few array
+    operations: numpy's own arithmetic (k * (1.0 / (n - 1)) + 0.0, the last 1.0), so the values are the same."""
+    off = _offsets_of(n)
+    k = np.arange(off[-1], dtype=float) - np.repeat(off[:-1], n)
+    u = k * np.repeat(1.0 / (n - 1), n) + 0.0
+    u[off[1:] - 1] = 1.0
+    return u, off
+
+
 def _pass_through(strokes, which, lifts) -> tuple[np.ndarray, np.ndarray]:
     """For strokes[which[s]]: the unit direction in which the pen arrives at its start / leaves its end without
     stopping (the neighbouring stroke's tangent at the point they share, where Job.lifts says the pen stays
@@ -347,22 +375,33 @@ def _g1_chunk(paths, which, num) -> dict[int, tuple]:
     pts = np.concatenate([paths[n][0][1:] for n in which])
     f = np.maximum(np.concatenate([paths[n][1] for n in which]), 0.1)  # never print F0
     off = np.concatenate([[0], np.cumsum([len(paths[n][1]) for n in which])])
-    xs, ys = [num(x) for x in pts[:, 0].tolist()], [num(y) for y in pts[:, 1].tolist()]
-    lines = [f"G1 X{x} Y{y}" for x, y in zip(xs, ys)]
+    # each distinct coordinate formatted once (they lie on the motor steps: they repeat)
+    vals, at = np.unique(pts.reshape(-1), return_inverse=True)
+    coord = np.array(_nums(vals), object)
+    clen = np.fromiter(map(len, coord), np.int64, len(coord))[at.reshape(-1)].reshape(-1, 2)
     # each distinct feed printed once; lines with the same printed feed share an id
     uniq, inv = np.unique(f, return_inverse=True)
+    inv = inv.reshape(-1)
     printed = [num(u, 1) for u in uniq.tolist()]
     ids = {}
-    sid = np.array([ids.setdefault(t, len(ids)) for t in printed], np.int64)[inv.reshape(-1)]
+    sid = np.array([ids.setdefault(t, len(ids)) for t in printed], np.int64)[inv]
     word = np.ones(len(f), bool)
     word[1:] = sid[1:] != sid[:-1]
     word[off[:-1]] = True
     fw = np.full(len(f), np.nan)
     ks = np.flatnonzero(word)
-    fw[ks] = np.array([float(t) for t in printed])[inv.reshape(-1)[ks]]
-    for k, t in zip(ks.tolist(), inv.reshape(-1)[ks].tolist()):
-        lines[k] += f" F{printed[t]}"
-    return {n: ("\n".join(lines[a:b]), fw[a:b]) for n, a, b in zip(which, off[:-1].tolist(), off[1:].tolist())}
+    fw[ks] = np.array([float(t) for t in printed])[inv[ks]]
+    # every line "G1 X<x> Y<y>[ F<f>]" in one format call, then each path's lines cut out of it by their lengths
+    first = 2 * np.arange(len(f)) + np.cumsum(word) - word  # the line's first argument
+    args = np.empty(2 * len(f) + len(ks), object)
+    args[first], args[first + 1] = coord[at[0::2]], coord[at[1::2]]
+    ftext = np.array(printed, object)[inv[ks]]
+    args[first[ks] + 2] = ftext
+    text = "\n".join(np.where(word, "G1 X%s Y%s F%s", "G1 X%s Y%s").tolist()) % tuple(args.tolist())
+    size = 7 + clen.sum(axis=1)  # "G1 X" x " Y" y "\n"
+    size[ks] += 2 + np.fromiter(map(len, ftext), np.int64, len(ks))  # " F" f
+    at_char = np.concatenate([[0], np.cumsum(size)]).tolist()
+    return {n: (text[at_char[a]:at_char[b] - 1], fw[a:b]) for n, a, b in zip(which, off[:-1].tolist(), off[1:].tolist())}
 
 
 class GcodePost(PostProcessor):
@@ -461,12 +500,15 @@ class GcodePost(PostProcessor):
         stroke s is points[offsets[s]:offsets[s + 1]] (doodlecam.geometry.chord_batch.dense_points, as _refine
         does it)."""
         fine = 0.02 * tol
+        if not len(strokes):
+            return np.zeros((0, 2)), np.zeros(1, np.int64), fine
+        splines = [st.spline for st in strokes]
         # _refine adds points where the curve bends
-        u0 = [np.linspace(0.0, 1.0, max(int(np.ceil(st.spline.length / 0.5)) + 1, 9)) for st in strokes]
-        ctrl = [np.ascontiguousarray(st.spline.control, dtype=float) for st in strokes]
-        q, off = dense_points(np.concatenate(ctrl) if ctrl else np.zeros((0, 2)), _offsets(ctrl),
-                              np.array([st.spline.degree for st in strokes], np.int64),
-                              np.concatenate(u0) if u0 else np.zeros(0), _offsets(u0), fine, 30)
+        length = np.fromiter((s.length for s in splines), float, len(splines))
+        u0, uoff = _linspaces(np.maximum(np.ceil(length / 0.5).astype(np.int64) + 1, 9))
+        ctrl, coff = controls_many(splines)
+        q, off = dense_points(ctrl, coff, np.fromiter((s.degree for s in splines), np.int64, len(splines)),
+                              u0, uoff, fine, 30)
         return q, off, fine
 
     def _arc_candidate(self, stroke, tol: float, spm: np.ndarray):

@@ -206,3 +206,19 @@ def test_dense_points_of_all_strokes_equal_each_stroke_refined_alone():
     for k, st in enumerate(strokes):
         u0 = np.linspace(0.0, 1.0, max(int(np.ceil(st.spline.length / 0.5)) + 1, 9))
         assert np.array_equal(q[off[k]:off[k + 1]], st.spline(gcode._refine(st.spline, u0, fine))), k
+
+
+def test_linspaces_together_equal_numpys_linspace_of_each():
+    n = np.r_[2, 3, 9, 10, 11, 17, 49, np.random.default_rng(5).integers(2, 3000, 200)]
+    u, off = gcode._linspaces(n)
+    for k, m in enumerate(n):
+        assert np.array_equal(u[off[k]:off[k + 1]], np.linspace(0.0, 1.0, m)), m
+
+
+def test_numbers_formatted_together_equal_each_one_formatted_alone():
+    rng = np.random.default_rng(6)
+    v = np.r_[0.0, -0.0, 0.0004, -0.0004, 0.0005, -0.0005, 1.0, -1.0, 10.0, 100.5, 123.45, -123.4, 1e20, -1e-20,
+              np.nan, np.inf, -np.inf, 0.1, 0.01, 0.001, np.round(rng.uniform(-500, 500, 3000), 3),
+              rng.uniform(-500, 500, 3000), rng.integers(-1000, 1000, 300) / 8.0]
+    assert gcode._nums(v) == [gcode._num(x) for x in v.tolist()]
+    assert gcode._nums(np.zeros(0)) == []
