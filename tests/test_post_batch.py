@@ -73,7 +73,16 @@ def test_draw_targets_of_all_strokes_equal_each_stroke_alone():
     spm = np.array([80.0, 80.0])
     off = np.concatenate([[0], np.cumsum([len(v) for v in vel])]).astype(np.int64)
     got = _whole_step_runs(np.concatenate(vel), spm, off)
-    assert np.array_equal(got, np.concatenate([whole_step_targets(v, spm) for v in vel]))
+
+    def numpy_targets(v):  # the rounded running sum's differences, as NumPy computes them
+        return np.diff(np.vstack([np.zeros((1, 2)), np.round(np.cumsum(v * spm, axis=0))]), axis=0)
+
+    want = [numpy_targets(v) for v in vel]
+    assert np.array_equal(got, np.concatenate(want))
+    for v, w in zip(vel, want):  # one stroke at a time (the planner's checks), also read-only and empty
+        v.setflags(write=False)
+        assert np.array_equal(whole_step_targets(v, spm), w) and whole_step_targets(v, list(spm)).dtype == float
+    assert whole_step_targets(np.zeros((0, 2)), spm).shape == (0, 2)
 
 
 def reference_commands(job):
