@@ -711,23 +711,26 @@ class GcodePost(PostProcessor):
                 line(f"G4 P{int(round(delay * 1000.0))}" if d.dwell_ms else f"G4 P{_num(delay)}")
 
         g1 = _g1_text(paths, num)
+        # every path's first and last point as printed, formatted together (the loop below asks each)
+        ends = np.array([(p[0], p[-1]) if len(p) else np.zeros((2, 2)) for p, _, _ in paths]).reshape(-1, 4)
+        x0, y0, x1, y1 = (_nums(ends[:, k]) for k in range(4))
+        tools = {k: m.pen_number(k) for k in set(pen_no)}
         pen(options["pen_up"], m.pen.up_delay)
         lifts = job.lifts + (True,)  # a stroke that starts where the last ended keeps the pen down
         for n, (p, feed, arc) in enumerate(paths):
-            tool = m.pen_number(pen_no[n])
+            tool = tools[pen_no[n]]
             if n in pauses:  # pen up already: the operator fits the next pen, then resumes
                 for text in pause_lines(d, f"{'change to' if n else 'fit'} {tool.describe(pen_no[n])}"):
                     line(text)
             if lifts[n]:
-                body.append(f"G0 X{num(p[0, 0])} Y{num(p[0, 1])}")
+                body.append(f"G0 X{x0[n]} Y{y0[n]}")
                 program.append(("G0", p[0, 0], p[0, 1], None, None))
                 pen(options["pen_down"], tool.down_delay)
-            elif n and len(p) and len(paths[n - 1][0]) and (num(p[0, 0]), num(p[0, 1])) != \
-                    (num(paths[n - 1][0][-1, 0]), num(paths[n - 1][0][-1, 1])):
+            elif n and len(p) and len(paths[n - 1][0]) and (x0[n], y0[n]) != (x1[n - 1], y1[n - 1]):
                 # pen down from the last stroke's end, which the two strokes' vertices may place on different
                 # steps (each within the tolerance of the point they share)
                 fs = _num(max(feed[0] if len(feed) else caps[pen_no[n]], 0.1), 1)
-                body.append(f"G1 X{num(p[0, 0])} Y{num(p[0, 1])} F{fs}")
+                body.append(f"G1 X{x0[n]} Y{y0[n]} F{fs}")
                 program.append(("G1", p[0, 0], p[0, 1], None, float(fs)))
             if arc:
                 last_f = ""
