@@ -647,11 +647,14 @@ class GcodePost(PostProcessor):
                 bt = _segment_time(np.c_[mpts, np.zeros(len(mpts))], feed, grbl, rest)
             usable = serial_keeps_up(pts, off, bt, first, int(baud), 15)
             asked = {}
+            no_time = np.zeros(0)
+            # Python ints and bools for the loop (indexing arrays by numpy scalars costs more than the work)
+            offl, firstl, nl, movingl, usablel = off.tolist(), first.tolist(), n.tolist(), moving.tolist(), usable.tolist()
             for c, s in enumerate(which.tolist()):
-                p = pts[off[c]:off[c + 1]]
-                times = bt[first[c]:first[c] + n[c] - 1] if moving[c] else np.zeros(0)
+                p = pts[offl[c]:offl[c + 1]]
+                times = bt[firstl[c]:firstl[c] + nl[c] - 1] if movingl[c] else no_time
                 t = float(times.sum())
-                ok = usable[c] > 0 if usable[c] >= 0 else _serial_keeps_up(p, times, baud)
+                ok = usablel[c] > 0 if usablel[c] >= 0 else _serial_keeps_up(p, times, baud)
                 # the fastest candidate a serial line can feed; if none can, the one of fewest lines
                 key = (0, t) if ok else (1, len(p))
                 if s not in best or key < best[s][1]:
