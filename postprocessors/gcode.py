@@ -304,19 +304,20 @@ def _pass_through(strokes, which, lifts) -> tuple[np.ndarray, np.ndarray]:
     stopping (the neighbouring stroke's tangent at the point they share, where Job.lifts says the pen stays
     down), (0, 0) where it stops. The tangents are evaluated in one call (eval_many: Spline.__call__'s bits)."""
     t = np.zeros((2, len(which), 2))  # t_in, t_out
-    if lifts is None:
+    if lifts is None or not len(which):
         return t[0], t[1]
-    rows, nbr, at = [], [], []  # (side, s), the neighbour, where on it
-    for s, i in enumerate(which):
-        for side, k, u in ((0, i - 1, 1.0), (1, i + 1, 0.0)):
-            if 0 <= k < len(strokes) and not lifts[max(i, k)] and strokes[k].spline.degree >= 1:
-                rows.append((side, s))
-                nbr.append(strokes[k].spline)
-                at.append(u)
-    if rows:
-        d = eval_many(nbr, np.array(at), 1)
+    # for each (side, s): the neighbour k, where on it (its end arriving, its start leaving), in array operations
+    i = np.asarray(which, np.int64)
+    k = np.stack([i - 1, i + 1])  # (side, s)
+    inside = (k >= 0) & (k < len(strokes))
+    kc = np.clip(k, 0, len(strokes) - 1)
+    lifted = np.asarray(lifts, bool)[np.maximum(i, kc)]  # the pen lifts between the two
+    curve = np.fromiter((st.spline.degree >= 1 for st in strokes), bool, len(strokes))[kc]
+    side, s = np.nonzero(inside & ~lifted & curve)  # side-major: the order of the rows does not matter
+    if len(side):
+        d = eval_many([strokes[j].spline for j in kc[side, s].tolist()], (np.where(side == 0, 1.0, 0.0),
+                      np.arange(len(side) + 1)), 1)
         n = np.hypot(d[:, 0], d[:, 1])
-        side, s = np.array(rows).T
         good = n > 0
         t[side[good], s[good]] = d[good] / n[good, None]
     return t[0], t[1]
