@@ -709,16 +709,25 @@ class GcodePost(PostProcessor):
             if estimate:
                 program.extend(parse(text))
 
+        def pen_lines(cmd: str, delay: float) -> tuple[list[str], list[tuple]]:
+            """A pen command and its dwell: the lines, and their moves for the estimate."""
+            lines = [cmd] + ([f"G4 P{int(round(delay * 1000.0))}" if d.dwell_ms else f"G4 P{_num(delay)}"]
+                             if delay > 0 else [])
+            return lines, [item for text in lines for item in parse(text)] if estimate else []
+
         def pen(cmd: str, delay: float) -> None:
-            line(cmd)
-            if delay > 0:
-                line(f"G4 P{int(round(delay * 1000.0))}" if d.dwell_ms else f"G4 P{_num(delay)}")
+            lines, moves = pen_lines(cmd, delay)
+            body.extend(lines)
+            program.extend(moves)
 
         g1 = _g1_text(paths, num)
         # every path's first and last point as printed, formatted together (the loop below asks each)
         ends = np.array([(p[0], p[-1]) if len(p) else np.zeros((2, 2)) for p, _, _ in paths]).reshape(-1, 4)
         x0, y0, x1, y1 = (_nums(ends[:, k]) for k in range(4))
         tools = {k: m.pen_number(k) for k in set(pen_no)}
+        # each pen's lowering and lifting lines (and their moves), made once, not per stroke
+        downs = {k: pen_lines(options["pen_down"], t.down_delay) for k, t in tools.items()}
+        ups = {k: pen_lines(options["pen_up"], t.up_delay) for k, t in tools.items()}
         pen(options["pen_up"], m.pen.up_delay)
         lifts = job.lifts + (True,)  # a stroke that starts where the last ended keeps the pen down
         for n, (p, feed, arc) in enumerate(paths):
@@ -729,7 +738,8 @@ class GcodePost(PostProcessor):
             if lifts[n]:
                 body.append(f"G0 X{x0[n]} Y{y0[n]}")
                 program.append(("G0", p[0, 0], p[0, 1], None, None))
-                pen(options["pen_down"], tool.down_delay)
+                body.extend(downs[pen_no[n]][0])
+                program.extend(downs[pen_no[n]][1])
             elif n and len(p) and len(paths[n - 1][0]) and (x0[n], y0[n]) != (x1[n - 1], y1[n - 1]):
                 # pen down from the last stroke's end, which the two strokes' vertices may place on different
                 # steps (each within the tolerance of the point they share)
@@ -754,7 +764,8 @@ class GcodePost(PostProcessor):
                 body.append(text)
                 program.append(("G1*", p[1:], fw))
             if lifts[n + 1]:
-                pen(options["pen_up"], tool.up_delay)
+                body.extend(ups[pen_no[n]][0])
+                program.extend(ups[pen_no[n]][1])
         body.append(f"G0 X{_num(home[0])} Y{_num(home[1])}")
         program.append(("G0", float(np.round(home[0], 3)), float(np.round(home[1], 3)), None, None))
         line(options["program_end"])
