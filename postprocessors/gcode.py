@@ -289,6 +289,15 @@ def _offsets(arrays) -> np.ndarray:
     return np.concatenate([[0], np.cumsum([len(a) for a in arrays], dtype=np.int64)]).astype(np.int64)
 
 
+def _with_feeds(points, feeds) -> list[tuple]:
+    """[(p, np.full(len(p) - 1, feeds[i]), {})]: every path's segment feeds as views of one array (one np.full
+    per path cost more than the rest of the writing of a straight stroke)."""
+    n = np.fromiter((len(p) - 1 for p in points), np.int64, len(points))
+    f = np.repeat(np.asarray(feeds, float), n)
+    at = _offsets_of(n).tolist()
+    return [(p, f[at[i]:at[i + 1]], {}) for i, p in enumerate(points)]
+
+
 def _linspaces(n: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """np.linspace(0.0, 1.0, n[s]) for every s (each n[s] >= 2) concatenated, and their offsets, in a few array
     operations: numpy's own arithmetic (k * (1.0 / (n - 1)) + 0.0, the last 1.0), so the values are the same."""
@@ -595,13 +604,14 @@ class GcodePost(PostProcessor):
             (straight if st.spline.straight else curved).append(i)
         # a straight stroke is one chord: its ends, both kept unless they round to the same steps
         # (_one_step_apart of two points), all evaluated in one call
-        ends = np.round(eval_many([strokes[i].spline for i in straight], [_ENDS] * len(straight)), 3).reshape(-1, 2, 2)
+        ends = np.round(eval_many([strokes[i].spline for i in straight],
+                                  (np.tile(_ENDS, len(straight)), np.arange(0, 2 * len(straight) + 1, 2))), 3).reshape(-1, 2, 2)
         steps = np.round(ends * spm).astype(np.int64)
         moved = (steps[:, 0] != steps[:, 1]).any(axis=1).tolist()
         for i, p, m in zip(straight, ends, moved):
             out[i] = p if m else p[:1]
         if not curved:
-            return [(p, np.full(len(p) - 1, feeds[i]), {}) for i, p in enumerate(out)]
+            return _with_feeds(out, feeds)
         rooms, r0, start = self._cap_levels(tol, spm)
         acc = np.asarray(grbl.acceleration, float)
         t_in, t_out = _pass_through(strokes, curved, lifts)
@@ -613,7 +623,7 @@ class GcodePost(PostProcessor):
                                     rooms, r0, start, acc, t_in[c0:c0 + CAP_CHUNK], t_out[c0:c0 + CAP_CHUNK])
             for s, p in enumerate(best):
                 out[part[s]] = p
-        return [(p, np.full(len(p) - 1, feeds[i]), {}) for i, p in enumerate(out)]
+        return _with_feeds(out, feeds)
 
     def _cap_search(self, strokes, feeds, tol, spm, grbl, baud, rooms, r0, start, acc, t_in, t_out):
         """The chosen chords (points) of each of these curved strokes (_cap_paths)."""
