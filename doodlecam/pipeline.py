@@ -19,6 +19,7 @@ import numpy as np
 
 from doodlecam import checks, registry
 from doodlecam.atomic import replace_all
+from doodlecam.collector import enable_promoted
 from doodlecam.errors import (
     DoodleError,
     InputError,
@@ -459,7 +460,7 @@ def rare_collections():
     finally:
         gc.set_threshold(*old)
         if enabled:
-            gc.enable()  # _convert turns it off after the trace
+            enable_promoted()  # _convert turns it off after the trace
 
 
 def _convert(path: Path, outdir, settings: Settings, progress: Progress) -> Result:

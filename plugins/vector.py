@@ -33,6 +33,7 @@ from typing import Any
 import numpy as np
 
 from doodlecam.api import Option, Tracer
+from doodlecam.collector import no_collections
 from doodlecam.errors import InputError, PluginError
 from doodlecam.extras import require
 from doodlecam.model import Drawing
@@ -440,14 +441,14 @@ def _clip_region(node, tol: float):
     The clip path's shapes come reified in the coordinates where <clipPath> was defined;
     clipPathUnits="userSpaceOnUse" puts them in the user space of the element that uses
     them, so they are mapped from the one to the other."""
+    clip = getattr(node, "clip_path", None)
+    if clip is None:  # most shapes: no clip, and no shapely to import
+        return None
     import svgelements as se
     from shapely.affinity import affine_transform
     from shapely.geometry import Polygon
     from shapely.ops import unary_union
 
-    clip = getattr(node, "clip_path", None)
-    if clip is None:
-        return None
     # svgelements' a * b applies a, then b: undo the clip's own placement, then the user's
     m = ~se.Matrix(clip.values.get("transform", "")) * se.Matrix(node.values.get("transform", ""))
     rings = []
@@ -546,18 +547,22 @@ def _svg(path: Path, opt) -> Drawing:
 
     not_drawn = _svg_scan(path)
     _svg_check_numbers(path)
-    try:
-        rendered = render_rules(path)
-        svg = se.SVG.parse(io.BytesIO(rendered) if rendered is not None else str(path), reify=True, ppi=96.0)
-    except Exception as e:  # the parser raises anything on a malformed file
-        msg = _printable(e) or type(e).__name__
-        raise InputError(f"{path}: not a readable SVG file ({msg}); re-export it") from None
-    mm = _mm_per_px(svg)
-    vb = se.Matrix(getattr(svg, "viewbox_transform", "") or "")
-    mm_per_unit = float(np.sqrt(abs(vb.a * vb.d - vb.b * vb.c))) * mm
-    canvas = (0.0, 0.0, float(svg.width) * mm, float(svg.height) * mm) if svg.width and svg.height else None
-    found = _svg_shapes(svg, opt["tolerance"] / mm, opt["corner"])
-    del svg  # the document (~3 kB a path) is not needed any more
+    # no cyclic collections while the parse allocates millions of objects: each young collection walked
+    # them again (art20k: ~170 collections, 0.15 s of CPU) and found a few hundred; the document's own
+    # cycles (~40 000 objects there) are garbage only once its shapes are read
+    with no_collections():
+        try:
+            rendered = render_rules(path)
+            svg = se.SVG.parse(io.BytesIO(rendered) if rendered is not None else str(path), reify=True, ppi=96.0)
+        except Exception as e:  # the parser raises anything on a malformed file
+            msg = _printable(e) or type(e).__name__
+            raise InputError(f"{path}: not a readable SVG file ({msg}); re-export it") from None
+        mm = _mm_per_px(svg)
+        vb = se.Matrix(getattr(svg, "viewbox_transform", "") or "")
+        mm_per_unit = float(np.sqrt(abs(vb.a * vb.d - vb.b * vb.c))) * mm
+        canvas = (0.0, 0.0, float(svg.width) * mm, float(svg.height) * mm) if svg.width and svg.height else None
+        found = _svg_shapes(svg, opt["tolerance"] / mm, opt["corner"])
+        del svg  # the document (~3 kB a path) is not needed any more
     if not found:
         raise InputError(f"{path}: no shapes to draw (no paths, lines, rectangles, circles, ...; text must be "
                          "converted to paths first)")

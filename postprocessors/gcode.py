@@ -34,6 +34,7 @@ A built-in post is written exactly like a third-party one; see docs/plugins.md.
 
 from __future__ import annotations
 
+import re
 from dataclasses import dataclass
 from typing import Any
 
@@ -43,7 +44,8 @@ from doodlecam.api import Option, PostProcessor
 from doodlecam.errors import OutputError, PluginError
 from doodlecam.geometry.chord_batch import cap_candidates, dense_points, serial_keeps_up
 from doodlecam.geometry.chords import chord_ok, one_step_apart
-from doodlecam.geometry.spline_batch import eval_many
+from doodlecam.geometry.spline_batch import controls_many, eval_many
+from doodlecam.geometry.spline_batch import offsets as _offsets_of
 
 CAP_LEVELS = 24  # chord tolerances for feeds = cap: tol, tol/2^(1/4), ... (down to MIN_LEVEL_STEPS)
 CHORD_LEVEL = 2 ** -0.25
@@ -78,6 +80,22 @@ DIALECTS = {
 def _num(v: float, decimals: int = 3) -> str:
     s = f"{v:.{decimals}f}".rstrip("0").rstrip(".")
     return "0" if s in ("-0", "", "-") else s
+
+
+_TRAILING_ZEROS = re.compile(r"0+(?=\n)")
+_BARE_POINT = re.compile(r"\.(?=\n)")
+_MINUS_ZERO = re.compile(r"^-0$", re.M)
+
+
+def _nums(values: np.ndarray) -> list[str]:
+    """[_num(v) for v in values] (3 decimals), in one format call and three substitutions over all of them
+    rather than a format and two strips each: "%.3f" always prints a point, so stripping the zeros before each
+    line end and then a bare point is what rstrip("0").rstrip(".") does to each."""
+    if not len(values):
+        return []
+    text = ("%.3f\n" * len(values)) % tuple(values.tolist())
+    text = _MINUS_ZERO.sub("0", _BARE_POINT.sub("", _TRAILING_ZEROS.sub("", text)))
+    return text.split("\n")[:-1]
 
 
 def _t_of_u(profile, u: np.ndarray) -> np.ndarray:
@@ -271,24 +289,44 @@ def _offsets(arrays) -> np.ndarray:
     return np.concatenate([[0], np.cumsum([len(a) for a in arrays], dtype=np.int64)]).astype(np.int64)
 
 
+def _with_feeds(points, feeds) -> list[tuple]:
+    """[(p, np.full(len(p) - 1, feeds[i]), {})]: every path's segment feeds as views of one array (one np.full
+    per path cost more than the rest of the writing of a straight stroke)."""
+    n = np.fromiter((len(p) - 1 for p in points), np.int64, len(points))
+    f = np.repeat(np.asarray(feeds, float), n)
+    at = _offsets_of(n).tolist()
+    return [(p, f[at[i]:at[i + 1]], {}) for i, p in enumerate(points)]
+
+
+def _linspaces(n: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """np.linspace(0.0, 1.0, n[s]) for every s (each n[s] >= 2) concatenated, and their offsets, in a few array
+    operations: numpy's own arithmetic (k * (1.0 / (n - 1)) + 0.0, the last 1.0), so the values are the same."""
+    off = _offsets_of(n)
+    k = np.arange(off[-1], dtype=float) - np.repeat(off[:-1], n)
+    u = k * np.repeat(1.0 / (n - 1), n) + 0.0
+    u[off[1:] - 1] = 1.0
+    return u, off
+
+
 def _pass_through(strokes, which, lifts) -> tuple[np.ndarray, np.ndarray]:
     """For strokes[which[s]]: the unit direction in which the pen arrives at its start / leaves its end without
     stopping (the neighbouring stroke's tangent at the point they share, where Job.lifts says the pen stays
     down), (0, 0) where it stops. The tangents are evaluated in one call (eval_many: Spline.__call__'s bits)."""
     t = np.zeros((2, len(which), 2))  # t_in, t_out
-    if lifts is None:
+    if lifts is None or not len(which):
         return t[0], t[1]
-    rows, nbr, at = [], [], []  # (side, s), the neighbour, where on it
-    for s, i in enumerate(which):
-        for side, k, u in ((0, i - 1, 1.0), (1, i + 1, 0.0)):
-            if 0 <= k < len(strokes) and not lifts[max(i, k)] and strokes[k].spline.degree >= 1:
-                rows.append((side, s))
-                nbr.append(strokes[k].spline)
-                at.append(u)
-    if rows:
-        d = eval_many(nbr, np.array(at), 1)
+    # for each (side, s): the neighbour k, where on it (its end arriving, its start leaving), in array operations
+    i = np.asarray(which, np.int64)
+    k = np.stack([i - 1, i + 1])  # (side, s)
+    inside = (k >= 0) & (k < len(strokes))
+    kc = np.clip(k, 0, len(strokes) - 1)
+    lifted = np.asarray(lifts, bool)[np.maximum(i, kc)]  # the pen lifts between the two
+    curve = np.fromiter((st.spline.degree >= 1 for st in strokes), bool, len(strokes))[kc]
+    side, s = np.nonzero(inside & ~lifted & curve)  # side-major: the order of the rows does not matter
+    if len(side):
+        d = eval_many([strokes[j].spline for j in kc[side, s].tolist()], (np.where(side == 0, 1.0, 0.0),
+                      np.arange(len(side) + 1)), 1)
         n = np.hypot(d[:, 0], d[:, 1])
-        side, s = np.array(rows).T
         good = n > 0
         t[side[good], s[good]] = d[good] / n[good, None]
     return t[0], t[1]
@@ -347,22 +385,33 @@ def _g1_chunk(paths, which, num) -> dict[int, tuple]:
     pts = np.concatenate([paths[n][0][1:] for n in which])
     f = np.maximum(np.concatenate([paths[n][1] for n in which]), 0.1)  # never print F0
     off = np.concatenate([[0], np.cumsum([len(paths[n][1]) for n in which])])
-    xs, ys = [num(x) for x in pts[:, 0].tolist()], [num(y) for y in pts[:, 1].tolist()]
-    lines = [f"G1 X{x} Y{y}" for x, y in zip(xs, ys)]
+    # each distinct coordinate formatted once (they lie on the motor steps: they repeat)
+    vals, at = np.unique(pts.reshape(-1), return_inverse=True)
+    coord = np.array(_nums(vals), object)
+    clen = np.fromiter(map(len, coord), np.int64, len(coord))[at.reshape(-1)].reshape(-1, 2)
     # each distinct feed printed once; lines with the same printed feed share an id
     uniq, inv = np.unique(f, return_inverse=True)
+    inv = inv.reshape(-1)
     printed = [num(u, 1) for u in uniq.tolist()]
     ids = {}
-    sid = np.array([ids.setdefault(t, len(ids)) for t in printed], np.int64)[inv.reshape(-1)]
+    sid = np.array([ids.setdefault(t, len(ids)) for t in printed], np.int64)[inv]
     word = np.ones(len(f), bool)
     word[1:] = sid[1:] != sid[:-1]
     word[off[:-1]] = True
     fw = np.full(len(f), np.nan)
     ks = np.flatnonzero(word)
-    fw[ks] = np.array([float(t) for t in printed])[inv.reshape(-1)[ks]]
-    for k, t in zip(ks.tolist(), inv.reshape(-1)[ks].tolist()):
-        lines[k] += f" F{printed[t]}"
-    return {n: ("\n".join(lines[a:b]), fw[a:b]) for n, a, b in zip(which, off[:-1].tolist(), off[1:].tolist())}
+    fw[ks] = np.array([float(t) for t in printed])[inv[ks]]
+    # every line "G1 X<x> Y<y>[ F<f>]" in one format call, then each path's lines cut out of it by their lengths
+    first = 2 * np.arange(len(f)) + np.cumsum(word) - word  # the line's first argument
+    args = np.empty(2 * len(f) + len(ks), object)
+    args[first], args[first + 1] = coord[at[0::2]], coord[at[1::2]]
+    ftext = np.array(printed, object)[inv[ks]]
+    args[first[ks] + 2] = ftext
+    text = "\n".join(np.where(word, "G1 X%s Y%s F%s", "G1 X%s Y%s").tolist()) % tuple(args.tolist())
+    size = 7 + clen.sum(axis=1)  # "G1 X" x " Y" y "\n"
+    size[ks] += 2 + np.fromiter(map(len, ftext), np.int64, len(ks))  # " F" f
+    at_char = np.concatenate([[0], np.cumsum(size)]).tolist()
+    return {n: (text[at_char[a]:at_char[b] - 1], fw[a:b]) for n, a, b in zip(which, off[:-1].tolist(), off[1:].tolist())}
 
 
 class GcodePost(PostProcessor):
@@ -461,12 +510,15 @@ class GcodePost(PostProcessor):
         stroke s is points[offsets[s]:offsets[s + 1]] (doodlecam.geometry.chord_batch.dense_points, as _refine
         does it)."""
         fine = 0.02 * tol
+        if not len(strokes):
+            return np.zeros((0, 2)), np.zeros(1, np.int64), fine
+        splines = [st.spline for st in strokes]
         # _refine adds points where the curve bends
-        u0 = [np.linspace(0.0, 1.0, max(int(np.ceil(st.spline.length / 0.5)) + 1, 9)) for st in strokes]
-        ctrl = [np.ascontiguousarray(st.spline.control, dtype=float) for st in strokes]
-        q, off = dense_points(np.concatenate(ctrl) if ctrl else np.zeros((0, 2)), _offsets(ctrl),
-                              np.array([st.spline.degree for st in strokes], np.int64),
-                              np.concatenate(u0) if u0 else np.zeros(0), _offsets(u0), fine, 30)
+        length = np.fromiter((s.length for s in splines), float, len(splines))
+        u0, uoff = _linspaces(np.maximum(np.ceil(length / 0.5).astype(np.int64) + 1, 9))
+        ctrl, coff = controls_many(splines)
+        q, off = dense_points(ctrl, coff, np.fromiter((s.degree for s in splines), np.int64, len(splines)),
+                              u0, uoff, fine, 30)
         return q, off, fine
 
     def _arc_candidate(self, stroke, tol: float, spm: np.ndarray):
@@ -552,13 +604,14 @@ class GcodePost(PostProcessor):
             (straight if st.spline.straight else curved).append(i)
         # a straight stroke is one chord: its ends, both kept unless they round to the same steps
         # (_one_step_apart of two points), all evaluated in one call
-        ends = np.round(eval_many([strokes[i].spline for i in straight], [_ENDS] * len(straight)), 3).reshape(-1, 2, 2)
+        ends = np.round(eval_many([strokes[i].spline for i in straight],
+                                  (np.tile(_ENDS, len(straight)), np.arange(0, 2 * len(straight) + 1, 2))), 3).reshape(-1, 2, 2)
         steps = np.round(ends * spm).astype(np.int64)
         moved = (steps[:, 0] != steps[:, 1]).any(axis=1).tolist()
         for i, p, m in zip(straight, ends, moved):
             out[i] = p if m else p[:1]
         if not curved:
-            return [(p, np.full(len(p) - 1, feeds[i]), {}) for i, p in enumerate(out)]
+            return _with_feeds(out, feeds)
         rooms, r0, start = self._cap_levels(tol, spm)
         acc = np.asarray(grbl.acceleration, float)
         t_in, t_out = _pass_through(strokes, curved, lifts)
@@ -570,7 +623,7 @@ class GcodePost(PostProcessor):
                                     rooms, r0, start, acc, t_in[c0:c0 + CAP_CHUNK], t_out[c0:c0 + CAP_CHUNK])
             for s, p in enumerate(best):
                 out[part[s]] = p
-        return [(p, np.full(len(p) - 1, feeds[i]), {}) for i, p in enumerate(out)]
+        return _with_feeds(out, feeds)
 
     def _cap_search(self, strokes, feeds, tol, spm, grbl, baud, rooms, r0, start, acc, t_in, t_out):
         """The chosen chords (points) of each of these curved strokes (_cap_paths)."""
@@ -605,11 +658,14 @@ class GcodePost(PostProcessor):
                 bt = _segment_time(np.c_[mpts, np.zeros(len(mpts))], feed, grbl, rest)
             usable = serial_keeps_up(pts, off, bt, first, int(baud), 15)
             asked = {}
+            no_time = np.zeros(0)
+            # Python ints and bools for the loop (indexing arrays by numpy scalars costs more than the work)
+            offl, firstl, nl, movingl, usablel = off.tolist(), first.tolist(), n.tolist(), moving.tolist(), usable.tolist()
             for c, s in enumerate(which.tolist()):
-                p = pts[off[c]:off[c + 1]]
-                times = bt[first[c]:first[c] + n[c] - 1] if moving[c] else np.zeros(0)
+                p = pts[offl[c]:offl[c + 1]]
+                times = bt[firstl[c]:firstl[c] + nl[c] - 1] if movingl[c] else no_time
                 t = float(times.sum())
-                ok = usable[c] > 0 if usable[c] >= 0 else _serial_keeps_up(p, times, baud)
+                ok = usablel[c] > 0 if usablel[c] >= 0 else _serial_keeps_up(p, times, baud)
                 # the fastest candidate a serial line can feed; if none can, the one of fewest lines
                 key = (0, t) if ok else (1, len(p))
                 if s not in best or key < best[s][1]:
@@ -663,29 +719,42 @@ class GcodePost(PostProcessor):
             if estimate:
                 program.extend(parse(text))
 
+        def pen_lines(cmd: str, delay: float) -> tuple[list[str], list[tuple]]:
+            """A pen command and its dwell: the lines, and their moves for the estimate."""
+            lines = [cmd] + ([f"G4 P{int(round(delay * 1000.0))}" if d.dwell_ms else f"G4 P{_num(delay)}"]
+                             if delay > 0 else [])
+            return lines, [item for text in lines for item in parse(text)] if estimate else []
+
         def pen(cmd: str, delay: float) -> None:
-            line(cmd)
-            if delay > 0:
-                line(f"G4 P{int(round(delay * 1000.0))}" if d.dwell_ms else f"G4 P{_num(delay)}")
+            lines, moves = pen_lines(cmd, delay)
+            body.extend(lines)
+            program.extend(moves)
 
         g1 = _g1_text(paths, num)
+        # every path's first and last point as printed, formatted together (the loop below asks each)
+        ends = np.array([(p[0], p[-1]) if len(p) else np.zeros((2, 2)) for p, _, _ in paths]).reshape(-1, 4)
+        x0, y0, x1, y1 = (_nums(ends[:, k]) for k in range(4))
+        tools = {k: m.pen_number(k) for k in set(pen_no)}
+        # each pen's lowering and lifting lines (and their moves), made once, not per stroke
+        downs = {k: pen_lines(options["pen_down"], t.down_delay) for k, t in tools.items()}
+        ups = {k: pen_lines(options["pen_up"], t.up_delay) for k, t in tools.items()}
         pen(options["pen_up"], m.pen.up_delay)
         lifts = job.lifts + (True,)  # a stroke that starts where the last ended keeps the pen down
         for n, (p, feed, arc) in enumerate(paths):
-            tool = m.pen_number(pen_no[n])
+            tool = tools[pen_no[n]]
             if n in pauses:  # pen up already: the operator fits the next pen, then resumes
                 for text in pause_lines(d, f"{'change to' if n else 'fit'} {tool.describe(pen_no[n])}"):
                     line(text)
             if lifts[n]:
-                body.append(f"G0 X{num(p[0, 0])} Y{num(p[0, 1])}")
+                body.append(f"G0 X{x0[n]} Y{y0[n]}")
                 program.append(("G0", p[0, 0], p[0, 1], None, None))
-                pen(options["pen_down"], tool.down_delay)
-            elif n and len(p) and len(paths[n - 1][0]) and (num(p[0, 0]), num(p[0, 1])) != \
-                    (num(paths[n - 1][0][-1, 0]), num(paths[n - 1][0][-1, 1])):
+                body.extend(downs[pen_no[n]][0])
+                program.extend(downs[pen_no[n]][1])
+            elif n and len(p) and len(paths[n - 1][0]) and (x0[n], y0[n]) != (x1[n - 1], y1[n - 1]):
                 # pen down from the last stroke's end, which the two strokes' vertices may place on different
                 # steps (each within the tolerance of the point they share)
                 fs = _num(max(feed[0] if len(feed) else caps[pen_no[n]], 0.1), 1)
-                body.append(f"G1 X{num(p[0, 0])} Y{num(p[0, 1])} F{fs}")
+                body.append(f"G1 X{x0[n]} Y{y0[n]} F{fs}")
                 program.append(("G1", p[0, 0], p[0, 1], None, float(fs)))
             if arc:
                 last_f = ""
@@ -705,7 +774,8 @@ class GcodePost(PostProcessor):
                 body.append(text)
                 program.append(("G1*", p[1:], fw))
             if lifts[n + 1]:
-                pen(options["pen_up"], tool.up_delay)
+                body.extend(ups[pen_no[n]][0])
+                program.extend(ups[pen_no[n]][1])
         body.append(f"G0 X{_num(home[0])} Y{_num(home[1])}")
         program.append(("G0", float(np.round(home[0], 3)), float(np.round(home[1], 3)), None, None))
         line(options["program_end"])

@@ -42,9 +42,10 @@ def _cubic_ds(splines, flip) -> list[str]:
     if not splines:
         return []
     bps = [s.breakpoints for s in splines]
-    n = np.array([len(b) for b in bps])
+    n = np.fromiter((len(b) for b in bps), np.int64, len(bps))
     u = np.concatenate(bps)
-    q, d1 = eval_many(splines, bps), eval_many(splines, bps, 1)
+    at = (u, np.concatenate([[0], np.cumsum(n)]))
+    q, d1 = eval_many(splines, at), eval_many(splines, at, 1)
     last = np.cumsum(n) - 1  # each spline's last breakpoint
     a = np.ones(len(u), bool)
     a[last] = False

@@ -22,7 +22,8 @@ SOURCES = {"doodlecam": ROOT / "doodlecam", "doodlecam.plugins": ROOT / "plugins
 LAYERS: list[tuple[str, ...]] = [
     ("doodlecam.geometry.kernels",),  # compiled B-spline kernels: NumPy and numba only
     ("doodlecam.errors",),
-    ("doodlecam.atomic", "doodlecam.extras", "doodlecam.memory", "doodlecam.options", "doodlecam.plausible"),
+    ("doodlecam.atomic", "doodlecam.collector", "doodlecam.extras", "doodlecam.memory", "doodlecam.options",
+     "doodlecam.plausible"),
     ("doodlecam.model", "doodlecam.schema"),  # schema: the machine profile's pydantic models
     ("doodlecam.api", "doodlecam.machine"),
     ("doodlecam.registry",),  # the ground ends here

@@ -237,3 +237,19 @@ def test_path_tolerance_option(tmp_path):
     r = run("convert", horse, "-o", tmp_path / "bad", "--path-tolerance", "-1")
     assert r.returncode == 2 and "--path-tolerance" in r.stderr and "Traceback" not in r.stderr
     assert not (tmp_path / "bad").exists()
+
+
+def test_exit_freezes_the_collector_after_the_command_and_still_runs_atexit_handlers():
+    """The console script freezes every live object once the command is done (Python's shutdown collections
+    then skip them: ~0.25 s per run), and only then: atexit handlers still run and see it frozen."""
+    code = ("import atexit, gc, sys\n"
+            "from doodlecam.__main__ import entry\n"
+            "atexit.register(lambda: print('handler ran, frozen', gc.get_freeze_count()))\n"
+            "print('before', gc.get_freeze_count())\n"
+            "sys.argv = ['doodlecam', '--version']\n"
+            "entry()\n")
+    r = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
+    assert r.returncode == 0, r.stderr
+    lines = r.stdout.splitlines()
+    assert lines[0] == "before 0"
+    assert lines[-1].startswith("handler ran, frozen ") and int(lines[-1].split()[-1]) > 1000

@@ -195,3 +195,22 @@ def test_cli_page_and_units(tmp_path):
     assert main(["convert", str(svg), "-o", str(tmp_path / "o2"), "--post", "json", "--page", "a5", "--landscape"]) == 0
     assert main(["convert", str(svg), "-o", str(tmp_path / "o3"), "--post", "json", "--page", "a2"]) == 2
     assert not (tmp_path / "o3").exists()
+
+
+@pytest.mark.parametrize("y_down", [False, True])
+def test_points_placed_a_block_at_a_time_equal_all_at_once(monkeypatch, y_down):
+    """The transform and the step lengths run through small buffers a block at a time: any block size gives
+    the same millimetres and drops the same short strokes (blocks that end inside a polyline, one point long)."""
+    from doodlecam.trace import layout
+
+    rng = np.random.default_rng(3)
+    polys = [np.cumsum(rng.normal(0, s, (int(rng.integers(1, 40)), 2)), axis=0) + 500
+             for s in rng.choice([1e-3, 0.3, 5.0], 300)]
+    d = Drawing(tuple(polys), units="px", y_down=y_down, layers=tuple(f"l{k % 3}" for k in range(len(polys))))
+    machine = parse_machine(PROFILE)
+    whole = fit_to_work_area(d, machine, {"rotate": "auto"})
+    for block in (1, 7, 64):
+        monkeypatch.setattr(layout, "_BLOCK", block)
+        got = fit_to_work_area(d, machine, {"rotate": "auto"})
+        assert got.layers == whole.layers and len(got.polylines) == len(whole.polylines) < len(polys)
+        assert all(np.array_equal(a, b) for a, b in zip(got.polylines, whole.polylines))

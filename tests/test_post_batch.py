@@ -36,10 +36,21 @@ def test_splines_evaluated_together_equal_each_one_evaluated_alone():
     splines = random_splines(40, 1, degrees=(1, 2, 3, 5))
     rng = np.random.default_rng(2)
     us = [np.r_[rng.uniform(-0.1, 1.1, int(rng.integers(0, 9))), s.breakpoints] for s in splines]
+    # the derivative controls of splines of one shape are made together: many shapes repeat here
+    assert len({(len(s.control), s.degree) for s in splines}) < len(splines)
+    forgot = [Spline(s.degree, s.control) for s in splines[::2]]  # as a planned job's: made on demand
+    for s in forgot:
+        s.forget_derivatives()
     for der in (0, 1):
-        got = eval_many(splines, us, der)
         want = np.concatenate([s(u, der) for s, u in zip(splines, us)])
+        got = eval_many(splines, us, der)
         assert np.array_equal(got, want)  # bit for bit: the same kernel arithmetic
+        u, off = np.concatenate(us), np.cumsum([0] + [len(u) for u in us])
+        assert np.array_equal(eval_many(splines, (u, off), der), want)  # the parameters given concatenated
+        assert np.array_equal(eval_many(forgot, us[::2], der), np.concatenate([s(u, der) for s, u in zip(forgot, us[::2])]))
+    high = [s for s in splines if s.degree >= 2]
+    assert np.array_equal(eval_many(high, [s.breakpoints for s in high], 2),
+                          np.concatenate([s(s.breakpoints, 2) for s in high]))
     assert eval_many([], [], 0).shape == (0, 2)
 
 
@@ -62,7 +73,16 @@ def test_draw_targets_of_all_strokes_equal_each_stroke_alone():
     spm = np.array([80.0, 80.0])
     off = np.concatenate([[0], np.cumsum([len(v) for v in vel])]).astype(np.int64)
     got = _whole_step_runs(np.concatenate(vel), spm, off)
-    assert np.array_equal(got, np.concatenate([whole_step_targets(v, spm) for v in vel]))
+
+    def numpy_targets(v):  # the rounded running sum's differences, as NumPy computes them
+        return np.diff(np.vstack([np.zeros((1, 2)), np.round(np.cumsum(v * spm, axis=0))]), axis=0)
+
+    want = [numpy_targets(v) for v in vel]
+    assert np.array_equal(got, np.concatenate(want))
+    for v, w in zip(vel, want):  # one stroke at a time (the planner's checks), also read-only and empty
+        v.setflags(write=False)
+        assert np.array_equal(whole_step_targets(v, spm), w) and whole_step_targets(v, list(spm)).dtype == float
+    assert whole_step_targets(np.zeros((0, 2)), spm).shape == (0, 2)
 
 
 def reference_commands(job):
@@ -195,3 +215,19 @@ def test_dense_points_of_all_strokes_equal_each_stroke_refined_alone():
     for k, st in enumerate(strokes):
         u0 = np.linspace(0.0, 1.0, max(int(np.ceil(st.spline.length / 0.5)) + 1, 9))
         assert np.array_equal(q[off[k]:off[k + 1]], st.spline(gcode._refine(st.spline, u0, fine))), k
+
+
+def test_linspaces_together_equal_numpys_linspace_of_each():
+    n = np.r_[2, 3, 9, 10, 11, 17, 49, np.random.default_rng(5).integers(2, 3000, 200)]
+    u, off = gcode._linspaces(n)
+    for k, m in enumerate(n):
+        assert np.array_equal(u[off[k]:off[k + 1]], np.linspace(0.0, 1.0, m)), m
+
+
+def test_numbers_formatted_together_equal_each_one_formatted_alone():
+    rng = np.random.default_rng(6)
+    v = np.r_[0.0, -0.0, 0.0004, -0.0004, 0.0005, -0.0005, 1.0, -1.0, 10.0, 100.5, 123.45, -123.4, 1e20, -1e-20,
+              np.nan, np.inf, -np.inf, 0.1, 0.01, 0.001, np.round(rng.uniform(-500, 500, 3000), 3),
+              rng.uniform(-500, 500, 3000), rng.integers(-1000, 1000, 300) / 8.0]
+    assert gcode._nums(v) == [gcode._num(x) for x in v.tolist()]
+    assert gcode._nums(np.zeros(0)) == []

@@ -239,3 +239,45 @@ def test_a_cusp_is_one_corner_without_thousands_of_points(tmp_path):
     tip = (1 - t) ** 2 * 10 + 2 * (1 - t) * t * 90 + t ** 2 * 40
     assert any(abs(e[0] - tip) < 0.05 for e in ends)
     assert max(err for _, err in pieces) <= 0.1
+
+
+def test_svg_parse_runs_without_collections_and_restores_the_collector(tmp_path, monkeypatch):
+    """The parse allocates millions of objects: no cyclic collection walks them while it runs (even with the
+    collector at its most eager), and the collector is on again afterwards, also after a malformed file."""
+    import gc
+
+    import svgelements as se
+    from generated_art import generated_svg
+
+    good, bad = tmp_path / "art.svg", tmp_path / "bad.svg"
+    good.write_text(generated_svg(300, "mixed", seed=3))
+    bad.write_text(generated_svg(3, "mixed", seed=3))  # the parser below fails on it
+    seen, during = [], []
+    parse = se.SVG.parse
+
+    def counted(*args, **kwargs):
+        before = len(seen)
+        try:
+            if "bad" in str(args[0]):
+                raise ValueError("the parser fails")
+            return parse(*args, **kwargs)
+        finally:
+            during.append(len(seen) - before)
+
+    def count(phase, info):
+        if phase == "start":
+            seen.append(info["generation"])
+
+    monkeypatch.setattr(se.SVG, "parse", counted)
+    old = gc.get_threshold()
+    gc.callbacks.append(count)
+    gc.set_threshold(1)  # a young collection at every allocation of a tracked object
+    try:
+        d = VEC.trace(good, {})
+        with pytest.raises(InputError, match="not a readable SVG"):
+            VEC.trace(bad, {})
+    finally:
+        gc.set_threshold(*old)
+        gc.callbacks.remove(count)
+    assert len(d.polylines) >= 300 and gc.isenabled()
+    assert during == [0, 0] and len(seen) > 0  # none in either parse; the collector ran outside them

@@ -128,6 +128,24 @@ def to_steps(mm: np.ndarray, steps_per_mm: np.ndarray) -> np.ndarray:
 
 
 def _segment_time(points: np.ndarray, feeds: np.ndarray, s: GrblSettings, rest: np.ndarray | None = None) -> np.ndarray:
+    """Times (s) of the blocks points[k] -> points[k+1]: _segment_time_numpy (the model, and its
+    documentation) compiled (doodlecam.link.grbl.planner_kernel, the same numbers to the bit)."""
+    points = np.asarray(points, float)
+    rate, acc = np.asarray(s.max_rate, float), np.asarray(s.acceleration, float)
+    if points.ndim != 2 or len(points) < 2 or points.shape[1] != len(rate) or len(acc) != len(rate):
+        return _segment_time_numpy(points, feeds, s, rest)  # the edge cases (and their errors) as they were
+    from doodlecam.link.grbl.planner_kernel import block_times
+
+    if rest is None:
+        rest = np.zeros(len(points) - 1, bool)
+        rest[:1] = True
+    spm = np.asarray(s.steps_per_mm, float)[:points.shape[1]]
+    return block_times(np.ascontiguousarray(points), np.ascontiguousarray(feeds, dtype=float),
+                       np.ascontiguousarray(rest, dtype=bool), np.ascontiguousarray(spm), rate, acc,
+                       float(s.junction_deviation), max(int(s.blocks) - 1, 1))
+
+
+def _segment_time_numpy(points: np.ndarray, feeds: np.ndarray, s: GrblSettings, rest: np.ndarray | None = None) -> np.ndarray:
     """Times (s) of the blocks points[k] -> points[k+1].
 
     ``feeds[k]`` is the block's requested speed (mm/s; inf for rapids).

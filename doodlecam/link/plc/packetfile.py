@@ -136,8 +136,10 @@ def whole_step_targets(velocity, steps_per_mm) -> np.ndarray:
     every target stays within 1 step/s of the exact value and every change
     between two within 2 (plan.sample.whole_step_limits plans for that).
     """
-    cum = np.round(np.cumsum(np.asarray(velocity, float) * np.asarray(steps_per_mm, float), axis=0))
-    return np.diff(np.vstack([np.zeros((1, 2)), cum]), axis=0)
+    v = np.ascontiguousarray(velocity, dtype=float).reshape(-1, 2)
+    # the compiled run's arithmetic is NumPy's here (products, a running sum, np.round, differences), in one
+    # call instead of seven: the planner's checks ask it for every stroke
+    return _whole_step_runs(v, np.ascontiguousarray(steps_per_mm, dtype=float), np.array([0, len(v)], np.int64))
 
 
 @numba.njit(cache=True, nogil=True)
