@@ -27,10 +27,10 @@ def _handed(new, fields: dict):
     and hands over (never keeps or writes again), without __post_init__'s copies (a planned job
     of 10^4 strokes made ~3 x 10^5 of them). The arrays must be what _frozen would make: float64,
     C-contiguous, of the right shape."""
-    for v in fields.values():
+    for k, v in fields.items():
         if type(v) is np.ndarray:
             v.setflags(write=False)  # (half the time of setting v.flags.writeable)
-    new.__dict__.update(fields)
+        object.__setattr__(new, k, v)
     return new
 
 
@@ -302,9 +302,7 @@ class Travel:
     def handed(cls, start: np.ndarray, end: np.ndarray, duration: float = 0.0) -> "Travel":
         """Travel(start, end, duration) of fresh float64 (2,) arrays the caller hands over (made read-only
         in place, not copied; plan.travel.make_travels' rows of the array it made)."""
-        new = _handed(object.__new__(cls), {"start": start, "end": end})
-        new.__dict__["duration"] = duration
-        return new
+        return _handed(object.__new__(cls), {"start": start, "end": end, "duration": duration})
 
     @cached_property  # the studio's summaries ask every travel of a 10^4-stroke job after each edit
     def length(self) -> float:
@@ -336,9 +334,8 @@ class StrokeSamples:
         """StrokeSamples(...) of fresh float64 C-contiguous arrays the caller hands over: start (2,) and
         velocity (M, 2) made read-only in place, not copied (the sampler's own results); sample_u kept
         as given, as the constructor keeps it."""
-        new = _handed(object.__new__(cls), {"start": start, "velocity": velocity})
-        new.__dict__.update(delta_time=delta_time, time_scale=time_scale, sample_u=sample_u)
-        return new
+        return _handed(object.__new__(cls), {"start": start, "velocity": velocity, "delta_time": delta_time,
+                                             "time_scale": time_scale, "sample_u": sample_u})
 
     def integrate(self) -> np.ndarray:
         """Positions (M + 1, 2) the ramping machine reaches at t = 0, dT, ..."""
