@@ -1,20 +1,18 @@
 """Plugin discovery reads the installed distributions once, and each distribution's metadata once."""
 
-from importlib.metadata import Distribution, distribution
+import json
+import subprocess
+import sys
+import textwrap
+from importlib.metadata import distribution
 
-import pytest
+# In a fresh interpreter: in the suite's own process, other tests have already looked plugins up (and a
+# count taken there once read 0 in a full run, never alone), so the count is taken where nothing ran before.
+_COUNT = textwrap.dedent("""
+    import json
+    from importlib.metadata import Distribution
+    from doodlecam import registry
 
-from doodlecam import registry
-
-
-@pytest.fixture
-def fresh_scan():
-    registry._all_entry_points.cache_clear()
-    yield
-    registry._all_entry_points.cache_clear()
-
-
-def test_entry_points_name_their_distribution_parsed_once_each(fresh_scan, monkeypatch):
     parsed = []
     metadata = Distribution.metadata
 
@@ -22,12 +20,19 @@ def test_entry_points_name_their_distribution_parsed_once_each(fresh_scan, monke
         parsed.append(self)
         return metadata.fget(self)
 
-    monkeypatch.setattr(Distribution, "metadata", property(counted))
+    Distribution.metadata = property(counted)
     infos = registry.discover()
-    ours = [i for i in infos if i.origin.startswith("entry point")]
-    assert {(i.kind, i.name) for i in ours} >= {("tracer", "vector"), ("postprocessor", "gcode"),
-                                                ("machine", "cartesian")}
-    monkeypatch.undo()
+    ours = [(i.kind, i.name, i.origin) for i in infos if i.origin.startswith("entry point")]
+    Distribution.metadata = metadata
+    print(json.dumps({"ours": ours, "parsed": len(parsed)}))
+""")
+
+
+def test_entry_points_name_their_distribution_parsed_once_each():
+    r = subprocess.run([sys.executable, "-c", _COUNT], capture_output=True, text=True, timeout=120, check=True)
+    got = json.loads(r.stdout)
+    ours = got["ours"]
+    assert {(k, n) for k, n, _ in ours} >= {("tracer", "vector"), ("postprocessor", "gcode"), ("machine", "cartesian")}
     dist = distribution("doodlecam")
-    assert {i.origin for i in ours} == {f"entry point, {dist.name} {dist.version}"}
-    assert len(parsed) == 1  # 20-odd entry points of one distribution: its METADATA parsed once, not twice each
+    assert {o for _, _, o in ours} == {f"entry point, {dist.name} {dist.version}"}
+    assert got["parsed"] == 1  # 20-odd entry points of one distribution: its METADATA parsed once, not twice each

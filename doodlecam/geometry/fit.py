@@ -850,8 +850,9 @@ def fit_many(polylines, degree: int = 3, tolerance: float = 0.1, max_control: in
 def _turns(d: np.ndarray) -> np.ndarray:
     """The angle (radians, 0..pi) the polyline with segments ``d`` turns at each inner vertex."""
     cross = d[:-1, 0] * d[1:, 1] - d[:-1, 1] * d[1:, 0]
-    dot = d[:-1, 0] * d[1:, 0] + d[:-1, 1] * d[1:, 1]  # (d[:-1] * d[1:]).sum(axis=1): the same sums
-    return np.abs(np.arctan2(cross, dot))
+    # numpy's sum, not d[:-1, 0] * d[1:, 0] + d[:-1, 1] * d[1:, 1]: its reduction starts from +0.0, so two
+    # signed zeros sum to +0.0 where the plain addition gives -0.0, and arctan2 turns that into 0 or pi
+    return np.abs(np.arctan2(cross, (d[:-1] * d[1:]).sum(axis=1)))
 
 
 def turn_angles(p: np.ndarray) -> np.ndarray:
