@@ -44,8 +44,7 @@ from doodlecam.api import Option, PostProcessor
 from doodlecam.errors import OutputError, PluginError
 from doodlecam.geometry.chord_batch import cap_candidates, dense_points, serial_keeps_up
 from doodlecam.geometry.chords import chord_ok, one_step_apart
-from doodlecam.geometry.spline_batch import controls_many, eval_many
-from doodlecam.geometry.spline_batch import offsets as _offsets_of
+from doodlecam.geometry.spline_batch import controls_many, eval_many, offsets
 
 CAP_LEVELS = 24  # chord tolerances for feeds = cap: tol, tol/2^(1/4), ... (down to MIN_LEVEL_STEPS)
 CHORD_LEVEL = 2 ** -0.25
@@ -284,24 +283,19 @@ def _serial_keeps_up(p: np.ndarray, block_times: np.ndarray, baud: int, window: 
 SNAP = True  # feeds = cap: vertices on GRBL's steps (tests turn it off to compare with rounded vertices)
 
 
-def _offsets(arrays) -> np.ndarray:
-    """Row offsets of the arrays concatenated: array s is rows off[s]:off[s + 1]."""
-    return np.concatenate([[0], np.cumsum([len(a) for a in arrays], dtype=np.int64)]).astype(np.int64)
-
-
 def _with_feeds(points, feeds) -> list[tuple]:
     """[(p, np.full(len(p) - 1, feeds[i]), {})]: every path's segment feeds as views of one array (one np.full
     per path cost more than the rest of the writing of a straight stroke)."""
     n = np.fromiter((len(p) - 1 for p in points), np.int64, len(points))
     f = np.repeat(np.asarray(feeds, float), n)
-    at = _offsets_of(n).tolist()
+    at = offsets(n).tolist()
     return [(p, f[at[i]:at[i + 1]], {}) for i, p in enumerate(points)]
 
 
 def _linspaces(n: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """np.linspace(0.0, 1.0, n[s]) for every s (each n[s] >= 2) concatenated, and their offsets, in a few array
     operations: numpy's own arithmetic (k * (1.0 / (n - 1)) + 0.0, the last 1.0), so the values are the same."""
-    off = _offsets_of(n)
+    off = offsets(n)
     k = np.arange(off[-1], dtype=float) - np.repeat(off[:-1], n)
     u = k * np.repeat(1.0 / (n - 1), n) + 0.0
     u[off[1:] - 1] = 1.0
@@ -725,10 +719,9 @@ class GcodePost(PostProcessor):
                              if delay > 0 else [])
             return lines, [item for text in lines for item in parse(text)] if estimate else []
 
-        def pen(cmd: str, delay: float) -> None:
-            lines, moves = pen_lines(cmd, delay)
-            body.extend(lines)
-            program.extend(moves)
+        def put(lines_moves: tuple[list[str], list[tuple]]) -> None:  # pen_lines' lines and moves, emitted
+            body.extend(lines_moves[0])
+            program.extend(lines_moves[1])
 
         g1 = _g1_text(paths, num)
         # every path's first and last point as printed, formatted together (the loop below asks each)
@@ -738,7 +731,7 @@ class GcodePost(PostProcessor):
         # each pen's lowering and lifting lines (and their moves), made once, not per stroke
         downs = {k: pen_lines(options["pen_down"], t.down_delay) for k, t in tools.items()}
         ups = {k: pen_lines(options["pen_up"], t.up_delay) for k, t in tools.items()}
-        pen(options["pen_up"], m.pen.up_delay)
+        put(pen_lines(options["pen_up"], m.pen.up_delay))
         lifts = job.lifts + (True,)  # a stroke that starts where the last ended keeps the pen down
         for n, (p, feed, arc) in enumerate(paths):
             tool = tools[pen_no[n]]
@@ -748,8 +741,7 @@ class GcodePost(PostProcessor):
             if lifts[n]:
                 body.append(f"G0 X{x0[n]} Y{y0[n]}")
                 program.append(("G0", p[0, 0], p[0, 1], None, None))
-                body.extend(downs[pen_no[n]][0])
-                program.extend(downs[pen_no[n]][1])
+                put(downs[pen_no[n]])
             elif n and len(p) and len(paths[n - 1][0]) and (x0[n], y0[n]) != (x1[n - 1], y1[n - 1]):
                 # pen down from the last stroke's end, which the two strokes' vertices may place on different
                 # steps (each within the tolerance of the point they share)
@@ -774,8 +766,7 @@ class GcodePost(PostProcessor):
                 body.append(text)
                 program.append(("G1*", p[1:], fw))
             if lifts[n + 1]:
-                body.extend(ups[pen_no[n]][0])
-                program.extend(ups[pen_no[n]][1])
+                put(ups[pen_no[n]])
         body.append(f"G0 X{_num(home[0])} Y{_num(home[1])}")
         program.append(("G0", float(np.round(home[0], 3)), float(np.round(home[1], 3)), None, None))
         line(options["program_end"])

@@ -17,7 +17,7 @@ import numpy as np
 
 from doodlecam.api import Option, PostProcessor
 from doodlecam.errors import PluginError
-from doodlecam.geometry.spline_batch import eval_many
+from doodlecam.geometry.spline_batch import eval_many, offsets
 
 PAD = 2.0  # mm around the work area, so its outline is not clipped
 
@@ -44,7 +44,7 @@ def _cubic_ds(splines, flip) -> list[str]:
     bps = [s.breakpoints for s in splines]
     n = np.fromiter((len(b) for b in bps), np.int64, len(bps))
     u = np.concatenate(bps)
-    at = (u, np.concatenate([[0], np.cumsum(n)]))
+    at = (u, offsets(n))
     q, d1 = eval_many(splines, at), eval_many(splines, at, 1)
     last = np.cumsum(n) - 1  # each spline's last breakpoint
     a = np.ones(len(u), bool)

@@ -18,6 +18,7 @@ from __future__ import annotations
 import numba
 import numpy as np
 
+from doodlecam.geometry.spline_batch import offsets
 from doodlecam.model import Profile, StrokeSamples
 from doodlecam.plan.kernels import times
 from doodlecam.plan.sample import TRACKING_STEPS, straight_bound
@@ -46,8 +47,7 @@ def eligible_all(ctx, strokes) -> list[int]:
         return []
     # their control points all finite: tested on all of them at once
     controls = [splines[i].control for i in straight]
-    first = np.zeros(len(controls), np.int64)
-    np.cumsum([len(c) for c in controls[:-1]], out=first[1:])
+    first = offsets([len(c) for c in controls])[:-1]
     finite = np.logical_and.reduceat(np.isfinite(np.concatenate(controls)).all(axis=1), first)
     return [i for i, ok in zip(straight, finite.tolist()) if ok]
 
